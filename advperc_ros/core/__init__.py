@@ -1,0 +1,1 @@
+"""ROS-free core: scenario, errors, tracker, planners, rules, metrics, rollout, search."""

@@ -1,0 +1,71 @@
+"""Boxes per frame as padded (frames x slots) arrays: ground truth, detections and tracks alike.
+
+One type for all three keeps message conversion and metrics in one place. For ground truth and
+injected detections slot j is agent j in every frame; for tracks a slot is just a slot.
+"""
+
+from dataclasses import dataclass, fields, replace
+
+import numpy as np
+
+BOX_FIELDS = ("x", "y", "yaw", "vx", "vy", "length", "width", "height", "score")
+
+
+@dataclass(frozen=True)
+class BoxSequence:
+    ids: np.ndarray  # (F, M) int64
+    valid: np.ndarray  # (F, M) bool
+    x: np.ndarray  # (F, M) float64, metres in frame `map`
+    y: np.ndarray
+    yaw: np.ndarray  # rad
+    vx: np.ndarray  # m/s
+    vy: np.ndarray
+    length: np.ndarray  # m
+    width: np.ndarray
+    height: np.ndarray
+    score: np.ndarray  # detection confidence; nan for ground truth
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.valid.shape
+
+    @classmethod
+    def empty(cls, num_frames: int, slots: int) -> "BoxSequence":
+        shape = (num_frames, slots)
+        floats = {name: np.zeros(shape) for name in BOX_FIELDS}
+        floats["score"][:] = np.nan
+        return cls(ids=np.zeros(shape, dtype=np.int64), valid=np.zeros(shape, dtype=bool), **floats)
+
+    @classmethod
+    def stack(cls, frames: list[dict[str, np.ndarray]]) -> "BoxSequence":
+        """Pad per-frame dicts of 1-D arrays (keys: ids and BOX_FIELDS) into one sequence."""
+        slots = max((len(frame["ids"]) for frame in frames), default=0)
+        out = cls.empty(len(frames), slots)
+        for k, frame in enumerate(frames):
+            m = len(frame["ids"])
+            out.valid[k, :m] = True
+            out.ids[k, :m] = frame["ids"]
+            for name in BOX_FIELDS:
+                getattr(out, name)[k, :m] = frame.get(name, np.nan if name == "score" else 0.0)
+        return out
+
+    def frames(self, stop: int) -> "BoxSequence":
+        """The first `stop` frames."""
+        return replace(self, **{f.name: getattr(self, f.name)[:stop] for f in fields(self)})
+
+    def frame(self, k: int) -> dict[str, np.ndarray]:
+        """Valid boxes of frame k as a dict of 1-D arrays."""
+        mask = self.valid[k]
+        return {f.name: getattr(self, f.name)[k, mask] for f in fields(self) if f.name != "valid"}
+
+    def first_invalid_field(self) -> tuple[str, int, int] | None:
+        """(field, frame, slot) of the first non-finite or non-positive-size valid entry, if any."""
+        for name in BOX_FIELDS[:-1]:
+            values = getattr(self, name)
+            bad = self.valid & ~np.isfinite(values)
+            if name in ("length", "width", "height"):
+                bad |= self.valid & (values <= 0.0)
+            if bad.any():
+                k, j = np.argwhere(bad)[0]
+                return name, int(k), int(j)
+        return None

@@ -1,0 +1,80 @@
+"""The paper's error tensor e and attack function I(y, e).
+
+e holds, per frame and agent, a world-frame position offset, a yaw offset and a false-negative
+flag. Size and velocity of a detection stay true (the paper gives the tracker ground truth for
+everything it does not attack).
+"""
+
+from dataclasses import dataclass, replace
+from functools import lru_cache
+
+import numpy as np
+
+from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.geometry import wrap_angle
+
+CONFIDENCE_SEED = 20240617
+
+
+@dataclass(frozen=True)
+class PerceptionErrors:
+    dx: np.ndarray  # (T, N) metres
+    dy: np.ndarray  # (T, N) metres
+    dyaw: np.ndarray  # (T, N) rad
+    fn: np.ndarray  # (T, N) bool, True drops the detection
+
+    @classmethod
+    def none(cls, num_frames: int, num_agents: int) -> "PerceptionErrors":
+        shape = (num_frames, num_agents)
+        return cls(np.zeros(shape), np.zeros(shape), np.zeros(shape), np.zeros(shape, dtype=bool))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.fn.shape
+
+    def copy(self) -> "PerceptionErrors":
+        return PerceptionErrors(self.dx.copy(), self.dy.copy(), self.dyaw.copy(), self.fn.copy())
+
+    def frames(self, stop: int) -> "PerceptionErrors":
+        """The errors of the first `stop` frames."""
+        return PerceptionErrors(self.dx[:stop], self.dy[:stop], self.dyaw[:stop], self.fn[:stop])
+
+    def with_drop(self, agent: int, start: int, end: int) -> "PerceptionErrors":
+        """These errors plus agent `agent` dropped on frames start..end inclusive."""
+        out = self.copy()
+        out.fn[start : end + 1, agent] = True
+        return out
+
+    def equals(self, other: "PerceptionErrors") -> bool:
+        return all(
+            np.array_equal(getattr(self, name), getattr(other, name)) for name in ("dx", "dy", "dyaw", "fn")
+        )
+
+
+@lru_cache(maxsize=64)
+def confidence_scores(num_frames: int, num_agents: int) -> np.ndarray:
+    """Confidence of the detection of agent j at frame k: strictly distinct, in (0, 1).
+
+    A fixed pseudo-random permutation of the object-frames, independent of the errors, so an attack
+    can neither exploit ties (the devkit would take ATE and AOE from a single box) nor choose which
+    of its errors the precision-recall curve sees first.
+    """
+    count = num_frames * num_agents
+    rank = np.random.default_rng(CONFIDENCE_SEED).permutation(count)
+    scores = ((rank + 1.0) / (count + 1.0)).reshape(num_frames, num_agents)
+    scores.setflags(write=False)
+    return scores
+
+
+def inject(truth: BoxSequence, errors: PerceptionErrors) -> BoxSequence:
+    """I(y, e): offset the true boxes and remove the dropped ones (whole sequences at once)."""
+    if errors.shape != truth.shape:
+        raise ValueError(f"error tensor shape {errors.shape} does not match ground truth {truth.shape}")
+    return replace(
+        truth,
+        valid=truth.valid & ~errors.fn,
+        x=truth.x + errors.dx,
+        y=truth.y + errors.dy,
+        yaw=wrap_angle(truth.yaw + errors.dyaw),
+        score=confidence_scores(*truth.shape),
+    )

@@ -1,0 +1,1 @@
+"""Motion planners and the plug-in protocol they share."""

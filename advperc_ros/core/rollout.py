@@ -1,0 +1,111 @@
+"""The paper's open-loop rollout: agents replay ground truth, only the ego reacts.
+
+Per frame k: score the collision rule for the ego at t_k, inject errors into the true boxes,
+track, plan, and move the ego along the plan to t_{k+1}. Agents never react to the ego, so a
+rollout is a pure function of (scenario, errors, stack) and is deterministic.
+"""
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.planners.base import Planner, Trajectory
+from advperc_ros.core.rules import collision_distances
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.tracker import Tracker
+
+
+@dataclass(frozen=True)
+class RolloutConfig:
+    ego_length: float = 4.6  # m
+    ego_width: float = 1.9  # m
+    stop_at_collision: bool = True
+
+
+@dataclass
+class RolloutResult:
+    ego: np.ndarray  # (K, 4): x, y, yaw, v at frames 0..K-1
+    distances: np.ndarray  # (K, N): signed distance to each agent, +inf where absent
+    inconclusive: str | None = None  # why the rollout has no verdict (planner failed), else None
+    tracks: list[dict[str, np.ndarray]] | None = None  # per frame, when recorded
+    plans: list[Trajectory] | None = None  # per frame, when recorded
+    planning_time: float = field(default=0.0, repr=False)  # s spent inside planner.plan
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.ego.shape[0])
+
+    @property
+    def ego_xy(self) -> np.ndarray:
+        return self.ego[:, :2]
+
+    @property
+    def rule(self) -> np.ndarray:
+        """Collision rule value per frame (minimum over agents)."""
+        return self.distances.min(axis=1, initial=np.inf)
+
+    @property
+    def min_signed_distance(self) -> float:
+        return float(self.rule.min(initial=np.inf))
+
+    @property
+    def collided(self) -> bool:
+        return self.inconclusive is None and self.min_signed_distance < 0.0
+
+
+def rollout(
+    scenario: Scenario,
+    errors: PerceptionErrors,
+    tracker: Tracker,
+    planner: Planner,
+    config: RolloutConfig = RolloutConfig(),
+    record: bool = False,
+) -> RolloutResult:
+    agents = scenario.agents
+    perceived = inject(agents, errors)
+    times = scenario.times
+    num_frames = scenario.num_frames
+    tracker.reset()
+    planner.reset()
+    ego = scenario.ego_start
+    ego_states = np.zeros((num_frames, 4))
+    distances = np.full((num_frames, agents.shape[1]), np.inf)
+    tracks_log: list[dict[str, np.ndarray]] = []
+    plans_log: list[Trajectory] = []
+    inconclusive = None
+    planning_time = 0.0
+    last = num_frames - 1
+    for k in range(num_frames):
+        ego_states[k] = (ego.x, ego.y, ego.yaw, ego.v)
+        distances[k] = collision_distances(ego, config.ego_length, config.ego_width, agents, k)
+        if config.stop_at_collision and distances[k].min(initial=np.inf) < 0.0:
+            last = k
+            break
+        tracks = tracker.step(float(times[k]), perceived.frame(k))
+        started = time.perf_counter()
+        try:
+            plan = planner.plan(float(times[k]), ego, tracks)
+            if k + 1 < num_frames:
+                ego = follow_plan(plan, float(times[k + 1]))
+        except PlanError as exc:
+            inconclusive, last = f"frame {k}: {exc}", k
+        except Exception as exc:  # a plug-in planner that crashes gives no verdict, not a pass
+            inconclusive, last = f"frame {k}: planner raised {type(exc).__name__}: {exc}", k
+        planning_time += time.perf_counter() - started
+        if record:
+            tracks_log.append(tracks)
+            if inconclusive is None:
+                plans_log.append(plan)
+        if inconclusive is not None:
+            break
+    return RolloutResult(
+        ego=ego_states[: last + 1],
+        distances=distances[: last + 1],
+        inconclusive=inconclusive,
+        tracks=tracks_log if record else None,
+        plans=plans_log if record else None,
+        planning_time=planning_time,
+    )

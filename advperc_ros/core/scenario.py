@@ -1,0 +1,73 @@
+"""Ground truth of a scenario as dense arrays: agents (T, N), road lanes, ego route and start.
+
+This is what a ground-truth bag decodes to and what every rollout reads; the search manipulates
+thousands of rollouts, so agents are kept as (frames x agents) numpy arrays, not objects.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.geometry import Polyline
+
+
+class ScenarioError(ValueError):
+    """Ground truth that cannot be used; the message names the offending field."""
+
+
+@dataclass(frozen=True)
+class EgoState:
+    """Ego pose and speed on the ground plane (rear axle is not modelled: centre of the box)."""
+
+    x: float
+    y: float
+    yaw: float
+    v: float
+
+
+@dataclass(frozen=True)
+class Lane:
+    id: str
+    centerline: Polyline
+    width: float
+
+
+@dataclass(frozen=True)
+class Scenario:
+    name: str
+    stamps_ns: np.ndarray  # (T,) int64, uniformly spaced
+    agents: BoxSequence  # slot j is agent j in every frame; `valid` marks presence
+    lanes: tuple[Lane, ...]
+    route: Polyline
+    ego_start: EgoState
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.stamps_ns.shape[0])
+
+    @property
+    def dt(self) -> float:
+        return float(self.stamps_ns[1] - self.stamps_ns[0]) * 1e-9 if self.num_frames > 1 else 0.1
+
+    @property
+    def times(self) -> np.ndarray:
+        """Seconds since the first frame."""
+        return (self.stamps_ns - self.stamps_ns[0]) * 1e-9
+
+    def validate(self, source: str) -> None:
+        if self.num_frames < 2:
+            raise ScenarioError(f"{source}: field 'frames' needs at least two frames, found {self.num_frames}")
+        steps = np.diff(self.stamps_ns)
+        if np.any(steps <= 0) or np.any(np.abs(steps - steps[0]) > max(1, steps[0] // 1000)):
+            raise ScenarioError(f"{source}: field 'header.stamp' must increase by a constant period")
+        bad = self.agents.first_invalid_field()
+        if bad is not None:
+            name, k, j = bad
+            agent = int(self.agents.ids[k, j])
+            raise ScenarioError(f"{source}: field '{name}' of agent {agent} at frame {k} is not a valid number")
+        ego = np.array([self.ego_start.x, self.ego_start.y, self.ego_start.yaw, self.ego_start.v])
+        if not np.all(np.isfinite(ego)):
+            raise ScenarioError(f"{source}: field 'ego.start' is not finite")
+        if not np.all(np.isfinite(self.route.points)):
+            raise ScenarioError(f"{source}: field 'route' is not finite")

@@ -1,0 +1,1 @@
+"""The paper's search algorithms: heuristic bisection and random search."""

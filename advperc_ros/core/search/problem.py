@@ -1,0 +1,96 @@
+"""What both searches share: rolling out an error tensor, scoring it, and logging every rollout."""
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.metrics.scores import PerceptionScores, score
+from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.scenario import Scenario
+
+OBJECTIVES = ("nds", "nds_t")
+
+
+class GroundTruthFails(RuntimeError):
+    """The stack already breaks the rule with perfect perception: there is nothing to attack."""
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """One rollout of an error tensor, with its perception scores over the rollout's frames."""
+
+    errors: PerceptionErrors
+    rollout: RolloutResult
+    scores: PerceptionScores
+    metric: float
+
+    @property
+    def adversarial(self) -> bool:
+        return self.rollout.collided
+
+
+@dataclass
+class LogRow:
+    rollout: int
+    phase: str
+    agent: int  # agent id the step concerns, -1 for none
+    metric: float
+    nds: float
+    nds_t: float
+    min_signed_distance: float
+    collided: bool
+    inconclusive: str
+    accepted: bool  # the search adopted this rollout (both algorithms adopt exactly the failing ones)
+    best_metric: float  # best metric of an adversarial rollout so far (nan before the first)
+
+
+@dataclass
+class AttackProblem:
+    """Binds a scenario, a rollout function and an objective; counts and logs every rollout."""
+
+    scenario: Scenario
+    run_rollout: Callable[[PerceptionErrors], RolloutResult]
+    objective: str
+    on_rollout: Callable[[LogRow], None] | None = None
+    log: list[LogRow] = field(default_factory=list)
+    best: Evaluation | None = None
+
+    def __post_init__(self) -> None:
+        if self.objective not in OBJECTIVES:
+            raise ValueError(f"unknown objective '{self.objective}' (known: {', '.join(OBJECTIVES)})")
+
+    def scores(self, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray) -> PerceptionScores:
+        """m(I(y, e), y) over the first `frames` frames of a rollout whose ego was at ego_xy."""
+        truth = self.scenario.agents.frames(frames)
+        return score(truth, inject(truth, errors.frames(frames)), ego_xy)
+
+    def metric(self, errors: PerceptionErrors, reference: RolloutResult) -> float:
+        """The objective of errors judged on a previous rollout's ground truth (Algorithm 2)."""
+        return getattr(self.scores(errors, reference.num_frames, reference.ego_xy), self.objective)
+
+    def evaluate(self, errors: PerceptionErrors, phase: str, agent: int = -1) -> Evaluation:
+        """Roll out errors, score them on that rollout, log the rollout."""
+        result = self.run_rollout(errors)
+        scores = self.scores(errors, result.num_frames, result.ego_xy)
+        evaluation = Evaluation(errors, result, scores, getattr(scores, self.objective))
+        if evaluation.adversarial and (self.best is None or evaluation.metric > self.best.metric):
+            self.best = evaluation
+        row = LogRow(
+            rollout=len(self.log) + 1,
+            phase=phase,
+            agent=agent,
+            metric=evaluation.metric,
+            nds=scores.nds,
+            nds_t=scores.nds_t,
+            min_signed_distance=result.min_signed_distance,
+            collided=result.collided,
+            inconclusive=result.inconclusive or "",
+            accepted=evaluation.adversarial and phase != "ground_truth",
+            best_metric=self.best.metric if self.best is not None else float("nan"),
+        )
+        self.log.append(row)
+        if self.on_rollout is not None:
+            self.on_rollout(row)
+        return evaluation

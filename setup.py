@@ -1,0 +1,45 @@
+"""ament_python package definition; also a plain `pip install .` off ROS."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "advperc_ros"
+NODES = ("scenario_player", "error_injector", "tracker", "planner", "rule_monitor", "orchestrator")
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
+    package_data={PACKAGE: ["py.typed"]},
+    data_files=[
+        ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
+        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/scenarios", glob("scenarios/*.yaml")),
+        *[(f"share/{PACKAGE}/{bag}", glob(f"{bag}/*")) for bag in glob("bags/*")],
+    ],
+    python_requires=">=3.10",
+    install_requires=[
+        "numpy>=1.26",
+        "scipy>=1.11",
+        "pyyaml>=6",
+        "filterpy>=1.4.5",
+        "shapely>=2.0",
+        "rosbags>=0.11.2",
+        "mcap>=1.1",
+        "mcap-ros2-support>=0.5",
+        "matplotlib>=3.6",
+        "tqdm>=4.60",
+    ],
+    extras_require={"test": ["pytest>=7"]},
+    zip_safe=True,
+    maintainer="advperc_ros developers",
+    maintainer_email="dev@advperc.invalid",
+    description="Adversarial perception error search against motion planners (ROS 2 Jazzy).",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": ["advperc = advperc_ros.cli:main"],
+    },
+)

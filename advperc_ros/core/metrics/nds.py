@@ -67,6 +67,8 @@ def greedy_match(dist: np.ndarray, order: np.ndarray, pred_ok: np.ndarray, gt_ok
     frames = np.arange(num_frames)
     taken = ~gt_ok.copy()
     pred_gt = np.full((num_frames, num_pred), -1)
+    if dist.shape[2] == 0:
+        return Matching(pred_gt=pred_gt)
     for rank in range(num_pred):
         p = order[:, rank]
         active = pred_ok[frames, p]

@@ -1,9 +1,9 @@
 """Algorithm 2 of the paper: random search that trades false negatives for small errors.
 
-Each step draws proposals that flip a random segment of a dropped track back to detected, with
-one position offset of uniform direction and U(0, max_offset) magnitude for the segment and
-per-frame yaw noise N(0, yaw_std). Proposals are scored on the previous rollout's ground truth;
-one improving proposal, chosen at random, is rolled out and kept if the rule is still broken.
+Each step draws proposals that flip a segment of a dropped track back to detected, with one
+position offset of uniform direction and U(0, max_offset) magnitude for the segment and per-frame
+yaw noise N(0, yaw_std). Proposals are scored on the previous rollout's ground truth; one
+improving proposal, chosen at random, is rolled out and kept if the rule is still broken.
 """
 
 from dataclasses import dataclass
@@ -22,16 +22,19 @@ class RandomSearchConfig:
     yaw_std: float = 0.1  # rad
 
 
-def propose(errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: RandomSearchConfig):
-    """p(e | e_prev): flip a random segment of a dropped track, within the first `frames` frames."""
+def propose(
+    errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: RandomSearchConfig
+) -> PerceptionErrors | None:
+    """p(e | e_prev): flip a segment of a dropped track within the first `frames` frames; its start
+    and end are uniform over the agent's dropped span."""
     dropped = errors.fn[:frames]
     agents = np.flatnonzero(dropped.any(axis=0))
     if agents.size == 0:
         return None
     j = int(agents[rng.integers(agents.size)])
-    dropped_frames = np.flatnonzero(dropped[:, j])
-    a, b = np.sort(rng.integers(dropped_frames[0], dropped_frames[-1] + 1, size=2))
-    flip = dropped_frames[(dropped_frames >= a) & (dropped_frames <= b)]
+    flip = np.flatnonzero(dropped[:, j])
+    a, b = np.sort(rng.integers(flip[0], flip[-1] + 1, size=2))
+    flip = flip[(flip >= a) & (flip <= b)]
     direction = rng.uniform(0.0, 2.0 * np.pi)
     magnitude = rng.uniform(0.0, cfg.max_offset)
     out = errors.copy()
@@ -49,9 +52,9 @@ def random_search(
     current = initial
     for _ in range(cfg.steps):
         alpha = current.metric
-        proposals = [propose(current.errors, current.rollout.num_frames, rng, cfg) for _ in range(cfg.proposals)]
-        proposals = [p for p in proposals if p is not None]
-        improving = [p for p in proposals if problem.metric(p, current.rollout) > alpha]
+        frames = current.rollout.num_frames
+        proposals = [propose(current.errors, frames, rng, cfg) for _ in range(cfg.proposals)]
+        improving = [p for p in proposals if p is not None and problem.metric(p, current.rollout) > alpha]
         if not improving:
             continue
         trial = problem.evaluate(improving[rng.integers(len(improving))], "random")

@@ -49,9 +49,13 @@ class BoxSequence:
                 getattr(out, name)[k, :m] = frame.get(name, np.nan if name == "score" else 0.0)
         return out
 
+    def select(self, rows: np.ndarray | slice) -> "BoxSequence":
+        """The frames `rows` (indices or a slice)."""
+        return replace(self, **{f.name: getattr(self, f.name)[rows] for f in fields(self)})
+
     def frames(self, stop: int) -> "BoxSequence":
         """The first `stop` frames."""
-        return replace(self, **{f.name: getattr(self, f.name)[:stop] for f in fields(self)})
+        return self.select(slice(0, stop))
 
     def frame(self, k: int) -> dict[str, np.ndarray]:
         """Valid boxes of frame k as a dict of 1-D arrays."""

@@ -20,13 +20,13 @@ class PlannerError(ValueError):
 
 @dataclass(frozen=True)
 class Trajectory:
-    """A plan: poses and speeds at absolute simulation times t[0] (= plan time) onward."""
+    """A plan: poses at simulation times t[0] (= plan time) onward; speed is implied by the poses,
+    exactly as in the nav_msgs/Path an external planner publishes."""
 
     t: np.ndarray  # (H,) s
     x: np.ndarray
     y: np.ndarray
     yaw: np.ndarray
-    v: np.ndarray
 
 
 @dataclass(frozen=True)

@@ -92,6 +92,6 @@ class IDMPlanner:
                 gap += v_lead * dt - travelled
         xy = self.context.route.position(s)
         self._last = Trajectory(
-            t=t + dt * np.arange(steps + 1), x=xy[:, 0], y=xy[:, 1], yaw=self.context.route.heading(s), v=v
+            t=t + dt * np.arange(steps + 1), x=xy[:, 0], y=xy[:, 1], yaw=self.context.route.heading(s)
         )
         return self._last

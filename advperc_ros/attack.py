@@ -1,0 +1,107 @@
+"""An attack end to end, embedded (one process): replay a ground-truth bag, search, return the
+outcome. The orchestrator node and `advperc attack` both call this."""
+
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from advperc_ros.core.planners.base import PlanningContext, load_planner
+from advperc_ros.core.rollout import RolloutConfig, RolloutResult, rollout
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.heuristic import heuristic_search
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow
+from advperc_ros.core.search.random_search import RandomSearchConfig, random_search
+from advperc_ros.core.tracker import Tracker, TrackerConfig
+from advperc_ros.params import AttackParams, ParamsError
+
+
+@dataclass(frozen=True)
+class AttackOutcome:
+    scenario: Scenario
+    params: AttackParams
+    heuristic_best: Evaluation | None  # None when no agent is influential
+    best: Evaluation | None  # best adversarial evaluation of the whole search
+    recorded: RolloutResult | None  # the best attack rolled out again with tracks and plans kept
+    log: list[LogRow]
+    wall_time_s: float
+
+
+def resolve_bag(params: AttackParams) -> Path:
+    """The bag named in the params: as given, next to the params file, or in the package share."""
+    name = Path(params["bag"])
+    candidates = [name]
+    if not name.is_absolute():
+        if params.source is not None:
+            candidates.append(params.source.parent / name)
+        candidates.append(Path(sys.prefix) / "share" / "advperc_ros" / name)
+    for candidate in candidates:
+        if candidate.exists():
+            return candidate
+    where = params.source or "params"
+    raise ParamsError(f"{where}: parameter 'bag' names '{name}', which does not exist")
+
+
+class Stack:
+    """The system under attack, built from the params: tracker + planner + rollout settings."""
+
+    def __init__(self, scenario: Scenario, params: AttackParams) -> None:
+        self.scenario = scenario
+        self.config = RolloutConfig(
+            ego_length=params["ego.length"], ego_width=params["ego.width"], stop_at_collision=params["stop_at_collision"]
+        )
+        context = PlanningContext(
+            route=scenario.route, lanes=scenario.lanes, dt=scenario.dt,
+            ego_length=self.config.ego_length, ego_width=self.config.ego_width,
+        )
+        self.tracker = Tracker(TrackerConfig(gate=params["tracker.gate"], max_age=params["tracker.max_age"]))
+        self.planner = load_planner(params["planner"], context, params.planner_params)
+
+    def rollout(self, errors, record: bool = False) -> RolloutResult:
+        return rollout(self.scenario, errors, self.tracker, self.planner, self.config, record=record)
+
+
+def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True) -> AttackOutcome:
+    started = time.perf_counter()
+    stack = Stack(scenario, params)
+    num_agents = scenario.agents.shape[1]
+    iterations = params["search.heuristic.iterations"]
+    budget = 1 + num_agents * (1 + 2 * iterations) + params["search.random.steps"]
+    bar = tqdm(
+        total=budget, desc=scenario.name, unit="rollout", disable=not progress, file=sys.stderr, mininterval=1.0
+    )
+
+    def on_rollout(row: LogRow) -> None:
+        phase = "random search" if row.phase == "random" else "heuristic"
+        bar.set_description(f"{scenario.name} ({phase})", refresh=False)
+        bar.set_postfix(best=f"{row.best_metric:.4f}", refresh=False)
+        bar.update()
+
+    problem = AttackProblem(scenario, stack.rollout, params["objective"], on_rollout=on_rollout)
+    try:
+        modes = heuristic_search(problem, iterations)
+        heuristic_best = max(modes, key=lambda m: m.metric) if modes else None
+        if heuristic_best is not None:
+            cfg = RandomSearchConfig(
+                steps=params["search.random.steps"],
+                proposals=params["search.random.proposals"],
+                max_offset=params["search.random.max_offset"],
+                yaw_std=params["search.random.yaw_std"],
+            )
+            random_search(problem, heuristic_best, np.random.default_rng(params["seed"]), cfg)
+    finally:
+        bar.close()
+    best = problem.best
+    recorded = stack.rollout(best.errors, record=True) if best is not None else None
+    return AttackOutcome(
+        scenario=scenario,
+        params=params,
+        heuristic_best=heuristic_best,
+        best=best,
+        recorded=recorded,
+        log=problem.log,
+        wall_time_s=time.perf_counter() - started,
+    )

@@ -1,0 +1,146 @@
+"""The orchestrator's parameters: one schema for the params file, the CLI and the ROS 2 node.
+
+A params file uses the ROS layout (`orchestrator: ros__parameters: ...`, nested mappings become
+dotted names), so the same file serves `advperc attack` and `ros2 run ... --params-file`. Types are
+as strict as ROS 2's: a YAML `1` where a float is declared is refused, and so is any unknown key.
+Everything is checked before any work starts; errors name the file and the parameter.
+"""
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+NODE = "orchestrator"
+
+
+class ParamsError(ValueError):
+    """A params file that cannot be used; the message names the file and the parameter."""
+
+
+@dataclass(frozen=True)
+class Param:
+    type: type
+    default: Any
+    description: str
+    choices: tuple[str, ...] = ()
+
+
+SCHEMA: dict[str, Param] = {
+    "bag": Param(str, None, "ground-truth rosbag2 bag to attack (directory); relative paths are tried "
+                 "against the working directory, then the params file's directory, then the package share"),
+    "planner": Param(str, "idm", "bundled planner name or a plug-in as module:Class"),
+    "objective": Param(str, "nds_t", "perception metric the search maximises", ("nds", "nds_t")),
+    "seed": Param(int, 0, "seed of the random search; same params and seed give the same attack"),
+    "stop_at_collision": Param(bool, True, "end a rollout at its first rule violation"),
+    "ego.length": Param(float, 4.6, "ego box length (m)"),
+    "ego.width": Param(float, 1.9, "ego box width (m)"),
+    "tracker.gate": Param(float, 2.0, "association gate on centre distance (m)"),
+    "tracker.max_age": Param(float, 1.0, "seconds without an observation before a track is deleted"),
+    "search.heuristic.iterations": Param(int, 3, "bisection iterations for each bound (paper: 3)"),
+    "search.random.steps": Param(int, 40, "random search steps N_steps (paper: 40)"),
+    "search.random.proposals": Param(int, 100, "proposals per step N_proposal (paper: 100)"),
+    "search.random.max_offset": Param(float, 5.0, "largest position offset of a flipped segment (m)"),
+    "search.random.yaw_std": Param(float, 0.1, "yaw noise of flipped detections (rad)"),
+}
+PLANNER_PARAMS = "planner_params"  # free mapping handed to the planner's constructor
+
+
+@dataclass(frozen=True)
+class AttackParams:
+    values: dict[str, Any]  # every SCHEMA key, validated
+    planner_params: dict[str, Any]
+    source: Path | None
+
+    def __getitem__(self, name: str) -> Any:
+        return self.values[name]
+
+    def with_seed(self, seed: int) -> "AttackParams":
+        return AttackParams({**self.values, "seed": seed}, self.planner_params, self.source)
+
+    def canonical(self) -> dict[str, Any]:
+        return {**self.values, PLANNER_PARAMS: self.planner_params}
+
+    def config_hash(self) -> str:
+        return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()[:16]
+
+
+def _flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
+    out = {}
+    for key, value in mapping.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict) and name != PLANNER_PARAMS:
+            out.update(_flatten(value, f"{name}."))
+        else:
+            out[name] = value
+    return out
+
+
+def _check_type(where: str, name: str, value: Any, param: Param) -> Any:
+    expected = param.type
+    ok = isinstance(value, expected) and not (expected is int and isinstance(value, bool))
+    if expected is float and isinstance(value, int) and not isinstance(value, bool):
+        raise ParamsError(f"{where}: parameter '{name}' must be a float (write {value}.0), got integer {value}")
+    if not ok:
+        raise ParamsError(f"{where}: parameter '{name}' must be of type {expected.__name__}, got {type(value).__name__} {value!r}")
+    if expected is float and value != value:
+        raise ParamsError(f"{where}: parameter '{name}' is NaN")
+    if param.choices and value not in param.choices:
+        raise ParamsError(f"{where}: parameter '{name}' must be one of {', '.join(param.choices)}, got {value!r}")
+    return value
+
+
+def _check_planner_params(where: str, raw: Any) -> dict[str, Any]:
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise ParamsError(f"{where}: parameter '{PLANNER_PARAMS}' must be a mapping")
+    for key, value in raw.items():
+        if not isinstance(value, (bool, int, float, str)) or (isinstance(value, float) and value != value):
+            raise ParamsError(f"{where}: parameter '{PLANNER_PARAMS}.{key}' must be a finite scalar, got {value!r}")
+    return dict(raw)
+
+
+def parse_params(document: Any, where: str, source: Path | None = None) -> AttackParams:
+    if not isinstance(document, dict) or NODE not in document:
+        raise ParamsError(f"{where}: expected a top-level '{NODE}:' mapping with 'ros__parameters:'")
+    unknown_nodes = sorted(set(document) - {NODE})
+    if unknown_nodes:
+        raise ParamsError(f"{where}: unknown node '{unknown_nodes[0]}' (only '{NODE}' is configured here)")
+    node = document[NODE]
+    if not isinstance(node, dict) or not isinstance(node.get("ros__parameters"), dict) or len(node) != 1:
+        raise ParamsError(f"{where}: '{NODE}' must hold exactly one mapping 'ros__parameters:'")
+    flat = _flatten(node["ros__parameters"])
+    planner_params = _check_planner_params(where, flat.pop(PLANNER_PARAMS, None))
+    for name in flat:
+        if name not in SCHEMA:
+            raise ParamsError(f"{where}: unknown parameter '{name}'")
+    values = {}
+    for name, param in SCHEMA.items():
+        if name in flat:
+            values[name] = _check_type(where, name, flat[name], param)
+        elif param.default is None:
+            raise ParamsError(f"{where}: parameter '{name}' is required")
+        else:
+            values[name] = param.default
+    for name in ("search.heuristic.iterations", "search.random.steps", "search.random.proposals"):
+        if values[name] < 0:
+            raise ParamsError(f"{where}: parameter '{name}' must not be negative")
+    for name in ("ego.length", "ego.width", "tracker.gate", "tracker.max_age", "search.random.max_offset"):
+        if not values[name] > 0:
+            raise ParamsError(f"{where}: parameter '{name}' must be positive")
+    return AttackParams(values=values, planner_params=planner_params, source=source)
+
+
+def load_params(path: str | Path) -> AttackParams:
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ParamsError(f"{path}: no such params file") from None
+    except (OSError, yaml.YAMLError) as exc:
+        raise ParamsError(f"{path}: cannot read params file: {exc}".replace("\n", " ")) from exc
+    return parse_params(document, str(path), path)

@@ -1,0 +1,188 @@
+"""The results folder of an attack: bag, report (JSON and Markdown), search log, plots.
+
+Everything is written into a hidden staging folder that is renamed into place at the end, so an
+interrupted run never leaves a folder that looks complete.
+"""
+
+import csv
+import json
+import math
+import platform
+import shutil
+from dataclasses import asdict, fields
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from advperc_ros import __version__
+from advperc_ros.attack import AttackOutcome
+from advperc_ros.core.errors import inject
+from advperc_ros.core.scenario import EgoState
+from advperc_ros.core.search.problem import Evaluation, LogRow
+from advperc_ros.ros import bag as bags
+from advperc_ros.ros import messages as msgs
+
+REPORT_JSON = "report.json"
+REPORT_MD = "report.md"
+SEARCH_LOG = "search_log.csv"
+BAG_DIR = "attack"  # rosbag2 directory: attack/attack.mcap + attack/metadata.yaml
+METRIC_PLOT = "metric_vs_rollouts.png"
+BEV_PLOT = "bev.png"
+WALL_CLOCK_FIELDS = ("wall_time_s",)
+LIBRARIES = ("numpy", "scipy", "filterpy", "shapely", "rosbags", "mcap-ros2-support", "matplotlib")
+
+
+def _finite_or_none(value: float) -> float | None:
+    return None if value is None or (isinstance(value, float) and math.isnan(value)) else value
+
+
+def _scores(evaluation: Evaluation) -> dict:
+    return {k: _finite_or_none(v) for k, v in evaluation.scores.as_dict().items()}
+
+
+def versions() -> dict[str, str]:
+    out = {"advperc_ros": __version__, "python": platform.python_version()}
+    for name in LIBRARIES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "not installed"
+    return out
+
+
+def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
+    params = outcome.params
+    best = outcome.best
+    report = {
+        "scenario": outcome.scenario.name,
+        "bag": str(bag_path),
+        "planner": params["planner"],
+        "objective": params["objective"],
+        "seed": params["seed"],
+        "collision": best is not None,
+        "min_signed_distance": None,
+        "collision_frame": None,
+        "collision_agent": None,
+    }
+    if best is not None:
+        rollout = outcome.recorded
+        frame = int(np.argmin(rollout.rule))
+        slot = int(np.argmin(rollout.distances[frame]))
+        report.update(
+            min_signed_distance=rollout.min_signed_distance,
+            collision_frame=frame,
+            collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
+            **_scores(best),
+        )
+    else:
+        report["message"] = "no agent whose drop breaks the rule: the heuristic found no failure to refine"
+    if outcome.heuristic_best is not None:
+        report["heuristic"] = {"metric": outcome.heuristic_best.metric, **_scores(outcome.heuristic_best)}
+    report.update(
+        rollouts=len(outcome.log),
+        inconclusive_rollouts=sum(1 for row in outcome.log if row.inconclusive),
+        wall_time_s=outcome.wall_time_s,
+        config_hash=params.config_hash(),
+        params=params.canonical(),
+        versions=versions(),
+    )
+    return report
+
+
+def _fmt(value, digits: int = 2) -> str:
+    return "N/A" if value is None else f"{value:.{digits}f}"
+
+
+def report_markdown(report: dict) -> str:
+    lines = [
+        f"# Attack on {report['scenario']} ({report['planner']} planner, objective {report['objective']})",
+        "",
+        "| Search | Total FN/TP | MPE (m) | MAOE (rad) | NDS | NDS-t | Rollouts |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    rows = [("heuristic", report.get("heuristic"), "")]
+    if report["collision"]:
+        rows.append((report["objective"], report, str(report["rollouts"])))
+    for name, row, rollouts in rows:
+        if row is None:
+            continue
+        lines.append(
+            f"| {name} | {row['fn']}/{row['tp']} | {_fmt(row['mpe'])} | {_fmt(row['maoe'])} | "
+            f"{_fmt(row['nds'], 4)} | {_fmt(row['nds_t'], 4)} | {rollouts} |"
+        )
+    lines += [
+        "",
+        f"- collision: {report['collision']}"
+        + (f" with agent {report['collision_agent']} at frame {report['collision_frame']}, "
+           f"min signed distance {report['min_signed_distance']:.3f} m" if report["collision"] else ""),
+        f"- seed {report['seed']}, config hash {report['config_hash']}, wall time {report['wall_time_s']:.1f} s",
+        f"- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_search_log(path: Path, log: list[LogRow]) -> None:
+    names = [f.name for f in fields(LogRow)]
+    with path.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=names)
+        writer.writeheader()
+        for row in log:
+            writer.writerow({k: (f"{v:.10g}" if isinstance(v, float) else v) for k, v in asdict(row).items()})
+
+
+def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
+    """Per frame: ground truth, perceived objects, tracks, ego odometry, plan and rule value."""
+    scenario = outcome.scenario
+    rollout = outcome.recorded
+    perceived = inject(scenario.agents, outcome.best.errors)
+    with bags.open_bag_for_writing(path) as bag:
+        bags.write_scenario_static(bag, scenario)
+        for k in range(rollout.num_frames):
+            ns = int(scenario.stamps_ns[k])
+            bag.write(bags.CLOCK, ns, msgs.clock(ns))
+            bag.write(bags.GROUND_TRUTH, ns, msgs.objects_to_markers(scenario.agents.frame(k), ns, "ground_truth"))
+            bag.write(bags.ODOMETRY, ns, msgs.odometry(_ego(rollout.ego[k]), ns))
+            distance = float(rollout.rule[k])
+            bag.write(bags.RULE, ns, msgs.float64(distance))
+            bag.write(bags.RULE_DIAGNOSTICS, ns, msgs.diagnostics(
+                ns, "collision", "violated" if distance < 0 else "ok", {"min_signed_distance": repr(distance)},
+                level=2 if distance < 0 else 0,
+            ))
+            if k < len(rollout.tracks):
+                bag.write(bags.PERCEPTION, ns, msgs.objects_to_markers(perceived.frame(k), ns, "perception"))
+                bag.write(bags.TRACKING, ns, msgs.objects_to_markers(rollout.tracks[k], ns, "tracking"))
+            if k < len(rollout.plans):
+                bag.write(bags.PLAN, ns, msgs.trajectory_to_path(rollout.plans[k], ns))
+        bag.write(bags.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
+
+
+def _ego(row: np.ndarray) -> EgoState:
+    return EgoState(*(float(v) for v in row))
+
+
+def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
+    """Write the whole folder atomically; returns the report."""
+    from advperc_ros import plots
+
+    output = Path(output)
+    staging = output.with_name(f".{output.name}.partial")
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir(parents=True)
+    try:
+        report = build_report(outcome, bag_path)
+        text = json.dumps(report, indent=2, sort_keys=True)
+        (staging / REPORT_JSON).write_text(text + "\n")
+        (staging / REPORT_MD).write_text(report_markdown(report))
+        write_search_log(staging / SEARCH_LOG, outcome.log)
+        plots.metric_vs_rollouts(staging / METRIC_PLOT, outcome.log, outcome.params["objective"])
+        if outcome.best is not None:
+            write_attack_bag(staging / BAG_DIR, outcome, text)
+            plots.birds_eye_view(staging / BEV_PLOT, outcome)
+        staging.rename(output)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging)
+    return report

@@ -17,7 +17,7 @@ import numpy as np
 
 from advperc_ros import __version__
 from advperc_ros.attack import AttackOutcome
-from advperc_ros.core.errors import inject
+from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.ros import bag as bags
@@ -29,6 +29,7 @@ SEARCH_LOG = "search_log.csv"
 BAG_DIR = "attack"  # rosbag2 directory: attack/attack.mcap + attack/metadata.yaml
 METRIC_PLOT = "metric_vs_rollouts.png"
 BEV_PLOT = "bev.png"
+ERRORS = "attack_errors.npz"  # the error tensor e of the best attack, with agent ids and stamps
 WALL_CLOCK_FIELDS = ("wall_time_s",)
 LIBRARIES = ("numpy", "scipy", "filterpy", "shapely", "rosbags", "mcap-ros2-support", "matplotlib")
 
@@ -150,12 +151,27 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
                 ns, "collision", "violated" if distance < 0 else "ok", {"min_signed_distance": repr(distance)},
                 level=2 if distance < 0 else 0,
             ))
+            bag.write(bags.PERCEPTION, ns, msgs.objects_to_markers(perceived.frame(k), ns, "perception"))
             if k < len(rollout.tracks):
-                bag.write(bags.PERCEPTION, ns, msgs.objects_to_markers(perceived.frame(k), ns, "perception"))
                 bag.write(bags.TRACKING, ns, msgs.objects_to_markers(rollout.tracks[k], ns, "tracking"))
             if k < len(rollout.plans):
                 bag.write(bags.PLAN, ns, msgs.trajectory_to_path(rollout.plans[k], ns))
         bag.write(bags.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
+
+
+def write_errors(path: Path, outcome: AttackOutcome) -> None:
+    errors = outcome.best.errors
+    agents = outcome.scenario.agents
+    slot_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]
+    np.savez_compressed(
+        path, dx=errors.dx, dy=errors.dy, dyaw=errors.dyaw, fn=errors.fn, agent_ids=slot_ids,
+        stamps_ns=outcome.scenario.stamps_ns,
+    )
+
+
+def load_errors(path: Path) -> PerceptionErrors:
+    with np.load(path) as data:
+        return PerceptionErrors(dx=data["dx"], dy=data["dy"], dyaw=data["dyaw"], fn=data["fn"])
 
 
 def _ego(row: np.ndarray) -> EgoState:
@@ -179,6 +195,7 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
         write_search_log(staging / SEARCH_LOG, outcome.log)
         plots.metric_vs_rollouts(staging / METRIC_PLOT, outcome.log, outcome.params["objective"])
         if outcome.best is not None:
+            write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
         staging.rename(output)

@@ -35,10 +35,6 @@ class PerceptionErrors:
     def copy(self) -> "PerceptionErrors":
         return PerceptionErrors(self.dx.copy(), self.dy.copy(), self.dyaw.copy(), self.fn.copy())
 
-    def frames(self, stop: int) -> "PerceptionErrors":
-        """The errors of the first `stop` frames."""
-        return PerceptionErrors(self.dx[:stop], self.dy[:stop], self.dyaw[:stop], self.fn[:stop])
-
     def with_drop(self, agent: int, start: int, end: int) -> "PerceptionErrors":
         """These errors plus agent `agent` dropped on frames start..end inclusive."""
         out = self.copy()

@@ -62,6 +62,7 @@ class Tracker:
         self._r = np.diag([config.position_std**2] * 2 + [config.heading_std**2] * 2)
         self._h = np.zeros((4, 8))
         self._h[np.arange(4), _MEASURED] = 1.0
+        self._models: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -69,11 +70,15 @@ class Tracker:
         self._tracks: list[_Track] = []
         self._next_id = 1
 
-    def _process_noise(self, dt: float) -> np.ndarray:
-        cfg = self.config
-        q_pos = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.accel_std**2, block_size=2, order_by_dim=False)
-        q_head = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.heading_accel_std**2, block_size=2, order_by_dim=False)
-        return block_diag(q_pos, q_head)
+    def _motion_model(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(F, Q) for a step of dt, cached: frames come at a fixed period."""
+        key = round(dt, 9)
+        if key not in self._models:
+            cfg = self.config
+            q_pos = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.accel_std**2, block_size=2, order_by_dim=False)
+            q_head = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.heading_accel_std**2, block_size=2, order_by_dim=False)
+            self._models[key] = (_transition(dt), block_diag(q_pos, q_head))
+        return self._models[key]
 
     def _spawn(self, t: float, det: dict[str, np.ndarray], i: int) -> None:
         cfg = self.config
@@ -95,7 +100,8 @@ class Tracker:
         for track in self._tracks:
             dt = t - track.t
             if dt > 0.0:
-                track.kf.predict(F=_transition(dt), Q=self._process_noise(dt))
+                transition, noise = self._motion_model(dt)
+                track.kf.predict(F=transition, Q=noise)
                 _renormalise_heading(track.kf)
                 track.t = t
 

@@ -153,7 +153,8 @@ def read_topics(path: Path, topics: Iterable[str]) -> tuple[dict[str, list[tuple
                 expected = TOPIC_TYPES.get(connection.topic)
                 if expected is not None and connection.msgtype != expected:
                     raise BagError(f"{path}: topic '{connection.topic}' has type {connection.msgtype}, expected {expected}")
-            for connection, log_time, raw in reader.messages(connections=connections):
+            # an empty connection list means "all connections" to rosbags
+            for connection, log_time, raw in reader.messages(connections=connections) if connections else ():
                 out[connection.topic].append((log_time, msgs.TYPESTORE.deserialize_cdr(raw, connection.msgtype)))
     except BagError:
         raise

@@ -7,6 +7,7 @@ never leaves the route: it can only slow down or stop, which is why dropping the
 detections for long enough makes it collide.
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -37,9 +38,9 @@ def idm_acceleration(v: float, v_lead: float | None, gap: float, cfg: IDMConfig)
         accel = -cfg.max_decel
     else:
         dv = v - v_lead
-        desired = cfg.min_gap + max(0.0, v * cfg.headway + v * dv / (2.0 * np.sqrt(cfg.max_accel * cfg.max_decel)))
+        desired = cfg.min_gap + max(0.0, v * cfg.headway + v * dv / (2.0 * math.sqrt(cfg.max_accel * cfg.max_decel)))
         accel = cfg.max_accel * (free - (desired / gap) ** 2)
-    return float(np.clip(accel, -cfg.max_decel, cfg.max_accel))
+    return min(max(accel, -cfg.max_decel), cfg.max_accel)
 
 
 class IDMPlanner:
@@ -82,12 +83,14 @@ class IDMPlanner:
         gap, v_lead = lead if lead is not None else (np.inf, None)
         s = np.empty(steps + 1)
         v = np.empty(steps + 1)
-        s[0], v[0] = s_ego, max(ego.v, 0.0)
-        for i in range(steps):
-            accel = idm_acceleration(v[i], v_lead, gap, cfg)
-            v_next = max(v[i] + accel * dt, 0.0)
-            travelled = 0.5 * (v[i] + v_next) * dt
-            s[i + 1], v[i + 1] = s[i] + travelled, v_next
+        s_i, v_i = s_ego, max(float(ego.v), 0.0)
+        s[0], v[0] = s_i, v_i
+        for i in range(steps):  # plain floats: this loop is the planner's hot path
+            accel = idm_acceleration(v_i, v_lead, gap, cfg)
+            v_next = max(v_i + accel * dt, 0.0)
+            travelled = 0.5 * (v_i + v_next) * dt
+            s_i, v_i = s_i + travelled, v_next
+            s[i + 1], v[i + 1] = s_i, v_i
             if v_lead is not None:
                 gap += v_lead * dt - travelled
         xy = self.context.route.position(s)

@@ -63,8 +63,10 @@ class AttackProblem:
 
     def scores(self, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray) -> PerceptionScores:
         """m(I(y, e), y) over the first `frames` frames of a rollout whose ego was at ego_xy."""
-        truth = self.scenario.agents.frames(frames)
-        return score(truth, inject(truth, errors.frames(frames)), ego_xy)
+        agents = self.scenario.agents
+        # inject over the whole scenario first: a detection's confidence depends on its frame and
+        # agent only, never on where this rollout stopped
+        return score(agents.frames(frames), inject(agents, errors).frames(frames), ego_xy)
 
     def metric(self, errors: PerceptionErrors, reference: RolloutResult) -> float:
         """The objective of errors judged on a previous rollout's ground truth (Algorithm 2)."""

@@ -1,0 +1,306 @@
+"""Polyline, oriented boxes and the signed box distance, against hand-computed and independent references."""
+
+import functools
+import math
+
+import numpy as np
+import pytest
+import shapely
+
+from advperc_ros.core.geometry import Polyline, box_corners, signed_box_distance, wrap_angle
+
+# An L: east 10 m from the origin, then north 10 m.  Arc length 0..10 on the first leg, 10..20 on the second.
+L_SHAPE = Polyline(np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
+
+
+# ---------------------------------------------------------------- Polyline
+
+def test_length_and_stations():
+    assert L_SHAPE.length == pytest.approx(20.0)
+    np.testing.assert_allclose(L_SHAPE.stations, [0.0, 10.0, 20.0])
+
+
+def test_duplicate_points_are_dropped_and_degenerate_lines_rejected():
+    line = Polyline(np.array([[0.0, 0.0], [0.0, 0.0], [3.0, 4.0]]))
+    assert line.length == pytest.approx(5.0)
+    with pytest.raises(ValueError):
+        Polyline(np.array([[1.0, 1.0], [1.0, 1.0]]))
+
+
+@pytest.mark.parametrize(
+    "s, xy, heading",
+    [
+        (0.0, (0.0, 0.0), 0.0),
+        (5.0, (5.0, 0.0), 0.0),
+        (10.0, (10.0, 0.0), math.pi / 2),  # the vertex belongs to the second leg
+        (15.0, (10.0, 5.0), math.pi / 2),
+        (20.0, (10.0, 10.0), math.pi / 2),
+        (-3.0, (-3.0, 0.0), 0.0),  # before the start: the first leg extended backwards
+        (25.0, (10.0, 15.0), math.pi / 2),  # past the end: the last leg extended
+    ],
+)
+def test_position_and_heading_on_l_shape(s, xy, heading):
+    np.testing.assert_allclose(L_SHAPE.position(s), xy, atol=1e-12)
+    assert float(L_SHAPE.heading(s)) == pytest.approx(heading, abs=1e-12)
+
+
+def test_position_and_heading_vectorised():
+    s = np.array([[2.0, 12.0], [-1.0, 30.0]])
+    pos = L_SHAPE.position(s)
+    assert pos.shape == (2, 2, 2)
+    np.testing.assert_allclose(pos, [[[2.0, 0.0], [10.0, 2.0]], [[-1.0, 0.0], [10.0, 20.0]]], atol=1e-12)
+    np.testing.assert_allclose(L_SHAPE.heading(s), [[0.0, math.pi / 2], [0.0, math.pi / 2]], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    "xy, s, lateral",
+    [
+        ((5.0, 2.0), 5.0, 2.0),  # left of the eastbound leg
+        ((5.0, -2.0), 5.0, -2.0),  # right of it
+        ((12.0, 5.0), 15.0, -2.0),  # east of the northbound leg is its right
+        ((9.0, 3.0), 13.0, 1.0),  # inside the L, nearer the second leg
+        ((8.0, 1.0), 8.0, 1.0),  # inside the L, nearer the first leg
+        ((-3.0, 1.0), -3.0, 1.0),  # before the start
+        ((-7.0, -0.5), -7.0, -0.5),
+        ((10.5, 14.0), 24.0, -0.5),  # past the end
+        ((9.0, 25.0), 35.0, 1.0),
+    ],
+)
+def test_project_on_l_shape(xy, s, lateral):
+    got_s, got_lat = L_SHAPE.project(np.array(xy))
+    assert float(got_s) == pytest.approx(s, abs=1e-12)
+    assert float(got_lat) == pytest.approx(lateral, abs=1e-12)
+
+
+def test_project_is_inverse_of_position_with_offset():
+    """A point placed at arc length s and lateral offset d (inside the no-ambiguity region) projects back."""
+    rng = np.random.default_rng(3)
+    s = np.concatenate([rng.uniform(-20.0, 8.0, 50), rng.uniform(12.0, 40.0, 50)])
+    d = rng.uniform(-1.5, 1.5, s.size)
+    h = L_SHAPE.heading(s)
+    xy = L_SHAPE.position(s) + d[:, None] * np.stack([-np.sin(h), np.cos(h)], axis=1)
+    got_s, got_d = L_SHAPE.project(xy)
+    assert got_s.shape == (100,)
+    np.testing.assert_allclose(got_s, s, atol=1e-9)
+    np.testing.assert_allclose(got_d, d, atol=1e-9)
+
+
+# ---------------------------------------------------------------- wrap_angle
+
+def test_wrap_angle_range_and_equivalence():
+    a = np.concatenate([np.linspace(-50.0, 50.0, 10001), [np.pi, -np.pi, 3 * np.pi, 0.0]])
+    w = wrap_angle(a)
+    assert np.all(w >= -np.pi) and np.all(w < np.pi)
+    # same angle: the difference is a multiple of 2 pi
+    k = (a - w) / (2 * np.pi)
+    np.testing.assert_allclose(k, np.round(k), atol=1e-9)
+    assert float(wrap_angle(np.pi)) == pytest.approx(-np.pi)
+    assert float(wrap_angle(0.3)) == pytest.approx(0.3)
+    assert float(wrap_angle(-0.3 - 4 * np.pi)) == pytest.approx(-0.3)
+
+
+# ---------------------------------------------------------------- boxes
+
+def test_box_corners_counter_clockwise_and_sized():
+    c = box_corners(np.array(1.0), np.array(2.0), np.array(np.pi / 2), 4.0, 2.0)
+    # length along +y after a quarter turn: x spans 1 +- 1, y spans 2 +- 2
+    np.testing.assert_allclose(np.sort(c[:, 0]), [0.0, 0.0, 2.0, 2.0], atol=1e-12)
+    np.testing.assert_allclose(np.sort(c[:, 1]), [0.0, 0.0, 4.0, 4.0], atol=1e-12)
+    poly = shapely.Polygon(c)
+    assert poly.area == pytest.approx(8.0)
+    assert poly.exterior.is_ccw
+
+
+def _random_boxes(rng, n):
+    return (
+        rng.uniform(-1.0, 1.0, n),
+        rng.uniform(-1.0, 1.0, n),
+        rng.uniform(-np.pi, np.pi, n),
+        rng.uniform(1.0, 5.0, n),
+        rng.uniform(0.5, 2.5, n),
+    )
+
+
+def _segment_point_distance(p, a, b):
+    ab = b - a
+    t = np.clip(np.dot(p - a, ab) / np.dot(ab, ab), 0.0, 1.0)
+    return np.linalg.norm(p - (a + t * ab))
+
+
+def _naive_gap(ca, cb):
+    """Distance of two disjoint convex polygons: the minimum vertex-to-edge distance either way."""
+    best = np.inf
+    for p_set, q_set in ((ca, cb), (cb, ca)):
+        for p in p_set:
+            for i in range(4):
+                best = min(best, _segment_point_distance(p, q_set[i], q_set[(i + 1) % 4]))
+    return best
+
+
+def test_gap_of_separated_boxes_matches_shapely_and_naive_reference():
+    rng = np.random.default_rng(11)
+    x, y, yaw, length, width = _random_boxes(rng, 200)
+    a = box_corners(x, y, yaw, length, width)
+    angle = rng.uniform(0, 2 * np.pi, 200)
+    dist = rng.uniform(4.0, 12.0, 200)
+    b = box_corners(x + dist * np.cos(angle), y + dist * np.sin(angle), rng.uniform(-np.pi, np.pi, 200),
+                    rng.uniform(1.0, 5.0, 200), rng.uniform(0.5, 2.5, 200))
+    got = signed_box_distance(a, b)
+    assert got.shape == (200,)
+    ref = np.array([shapely.Polygon(pa).distance(shapely.Polygon(pb)) for pa, pb in zip(a, b)])
+    naive = np.array([_naive_gap(pa, pb) for pa, pb in zip(a, b)])
+    separated = ref > 1e-6
+    assert separated.sum() > 150  # the sample mostly contains separated boxes
+    np.testing.assert_allclose(got[separated], ref[separated], rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(got[separated], naive[separated], rtol=1e-9, atol=1e-9)
+    # symmetric in its arguments
+    np.testing.assert_allclose(signed_box_distance(b, a)[separated], got[separated], atol=1e-12)
+
+
+def test_broadcast_one_box_against_many_and_empty():
+    ego = box_corners(0.0, 0.0, 0.0, 4.0, 2.0)
+    others = box_corners(np.array([10.0, 0.0, 0.0]), np.array([0.0, 5.0, 0.0]), np.zeros(3), 4.0, 2.0)
+    got = signed_box_distance(ego[None], others)
+    np.testing.assert_allclose(got, [6.0, 3.0, -2.0], atol=1e-12)  # identical boxes: depth = width
+    assert signed_box_distance(np.zeros((0, 4, 2)), np.zeros((0, 4, 2))).shape == (0,)
+
+
+def _separation_along(a_poly, b_corners, directions, t_hi, iterations=42):
+    """Per direction, the smallest translation of b along it after which a and b no longer intersect.
+
+    For convex a and b the translations that keep them intersecting form an interval containing 0,
+    so bisection on `intersects` finds its upper end."""
+    lo = np.zeros(len(directions))
+    hi = np.full(len(directions), t_hi)
+    for _ in range(iterations):
+        mid = 0.5 * (lo + hi)
+        moved = shapely.polygons(b_corners[None] + mid[:, None, None] * directions[:, None, :])
+        hit = shapely.intersects(a_poly, moved)
+        lo = np.where(hit, mid, lo)
+        hi = np.where(hit, hi, mid)
+    return hi
+
+
+def _sweep_directions(a, b):
+    """A fine sweep of directions, plus the edge normals of both boxes so the optimum is in the set."""
+    theta = np.linspace(0.0, 2 * np.pi, 3600, endpoint=False)
+    edges = np.concatenate([np.roll(a, -1, axis=0) - a, np.roll(b, -1, axis=0) - b])
+    normal_angles = np.arctan2(edges[:, 0], -edges[:, 1])
+    theta = np.concatenate([theta, normal_angles, normal_angles + np.pi])
+    return np.stack([np.cos(theta), np.sin(theta)], axis=1)
+
+
+def _check_depth_is_minimum_translation(a, b):
+    result = float(signed_box_distance(a, b))
+    assert result < 0.0
+    depth = -result
+    directions = _sweep_directions(a, b)
+    a_poly = shapely.Polygon(a)
+    needed = _separation_along(a_poly, b, directions, t_hi=20.0)
+    best = int(np.argmin(needed))
+    # the smallest separating translation over all directions is the depth
+    assert needed[best] == pytest.approx(depth, abs=1e-3)
+    # translating by slightly more than the depth along SOME direction separates ...
+    moved = shapely.polygons(b[None] + depth * (1 + 1e-6) * directions[:, None, :])
+    assert np.any(~shapely.intersects(a_poly, moved))
+    # ... and translating by 0.99 of the depth never does, whatever the direction
+    shrunk = shapely.polygons(b[None] + 0.99 * depth * directions[:, None, :])
+    assert np.all(shapely.area(shapely.intersection(a_poly, shrunk)) > 0.0)
+    # the depth is symmetric in the two boxes
+    assert float(signed_box_distance(b, a)) == pytest.approx(result, abs=1e-9)
+
+
+def _car_box(rng, x=0.0, y=0.0):
+    return box_corners(x, y, rng.uniform(-np.pi, np.pi), rng.uniform(3.5, 5.0), rng.uniform(1.6, 2.1))
+
+
+@functools.lru_cache(maxsize=None)
+def _shallow_pairs(count=10, seed=5):
+    """Car-sized boxes brought into contact along a random direction, then pushed 2..50 cm further in:
+    the kind of overlap a rollout sees at its first collision frame."""
+    rng = np.random.default_rng(seed)
+    pairs = []
+    for _ in range(count):
+        a = _car_box(rng)
+        b_far = _car_box(rng)
+        u = rng.normal(size=2)
+        u /= np.linalg.norm(u)
+        start = b_far + 20.0 * u  # far away along u
+        # bring b back along -u until it touches a
+        lo, hi = 0.0, 20.0  # distance moved back from `start` towards a
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if shapely.Polygon(a).intersects(shapely.Polygon(start - mid * u)):
+                hi = mid
+            else:
+                lo = mid
+        push = rng.uniform(0.02, 0.5)
+        pairs.append((a, start - (hi + push) * u))
+    return pairs
+
+
+@pytest.mark.parametrize("case", range(10))
+def test_shallow_penetration_depth_is_the_minimum_translation(case):
+    a, b = _shallow_pairs()[case]
+    _check_depth_is_minimum_translation(a, b)
+
+
+def _deep_pairs(count=12, seed=5):
+    """Random boxes of unequal size with heavily overlapping centres (one often inside the other along an axis)."""
+    rng = np.random.default_rng(seed)
+    pairs = []
+    while len(pairs) < count:
+        xa, ya, yawa, la, wa = (v[0] for v in _random_boxes(rng, 1))
+        xb, yb, yawb, lb, wb = (v[0] for v in _random_boxes(rng, 1))
+        a = box_corners(xa, ya, yawa, la, wa)
+        b = box_corners(xb, yb, yawb, lb, wb)
+        if shapely.Polygon(a).intersection(shapely.Polygon(b)).area > 1e-3:
+            pairs.append((a, b))
+    return pairs
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="SAT depth uses the interval overlap min(max)-max(min) per axis, which underestimates the "
+    "translation needed when one box's projection contains the other's (needs min(amax-bmin, bmax-amin))",
+)
+def test_deep_penetration_depth_is_the_minimum_translation():
+    for a, b in _deep_pairs():
+        _check_depth_is_minimum_translation(a, b)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="SAT containment bug: a 1x1 box centred inside a 4x2 box needs 1.5 m to get out, depth returned is 1.0",
+)
+def test_depth_of_box_inside_box():
+    big = box_corners(0.0, 0.0, 0.0, 4.0, 2.0)
+    small = box_corners(0.0, 0.0, 0.0, 1.0, 1.0)
+    # leaving along +-y needs 1 + 0.5 = 1.5 m, along +-x 2 + 0.5 = 2.5 m
+    assert float(signed_box_distance(big, small)) == pytest.approx(-1.5, abs=1e-9)
+
+
+def test_depth_of_box_inside_box_is_still_a_violation():
+    """Whatever its magnitude, containment is an overlap: the sign must be negative."""
+    big = box_corners(0.0, 0.0, 0.0, 4.0, 2.0)
+    small = box_corners(0.3, -0.2, 0.4, 1.0, 1.0)
+    assert float(signed_box_distance(big, small)) < -0.4
+
+
+def test_depth_of_axis_aligned_overlap_is_smaller_overlap_extent():
+    a = box_corners(0.0, 0.0, 0.0, 4.0, 2.0)
+    b = box_corners(3.5, 0.5, 0.0, 4.0, 2.0)  # overlap 0.5 m in x, 1.5 m in y
+    assert float(signed_box_distance(a, b)) == pytest.approx(-0.5, abs=1e-12)
+    c = box_corners(0.3, 1.6, 0.0, 4.0, 2.0)  # overlap 3.7 m in x, 0.4 m in y
+    assert float(signed_box_distance(a, c)) == pytest.approx(-0.4, abs=1e-12)
+
+
+@pytest.mark.parametrize("yaw", [0.0, 0.3, 1.0, -2.2])
+def test_touching_boxes_give_zero(yaw):
+    d = np.array([np.cos(yaw), np.sin(yaw)])
+    n = np.array([-np.sin(yaw), np.cos(yaw)])
+    a = box_corners(1.0, -2.0, yaw, 4.0, 2.0)
+    end_to_end = box_corners(1.0 + 4.0 * d[0], -2.0 + 4.0 * d[1], yaw, 4.0, 2.0)
+    side_by_side = box_corners(1.0 + 2.0 * n[0] + 1.0 * d[0], -2.0 + 2.0 * n[1] + 1.0 * d[1], yaw, 4.0, 2.0)
+    assert abs(float(signed_box_distance(a, end_to_end))) < 1e-9
+    assert abs(float(signed_box_distance(a, side_by_side))) < 1e-9

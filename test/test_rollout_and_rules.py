@@ -1,0 +1,304 @@
+"""Open-loop rollout, collision rule and ego motion (DESIGN.md sections 6 and 8)."""
+
+import numpy as np
+import pytest
+import shapely
+
+from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.geometry import box_corners, signed_box_distance
+from advperc_ros.core.planners.base import PlanningContext, Trajectory
+from advperc_ros.core.planners.idm import IDMPlanner
+from advperc_ros.core.rollout import RolloutConfig, rollout
+from advperc_ros.core.rules import collision_distances
+from advperc_ros.core.scenario import EgoState
+from advperc_ros.core.scenario_spec import build_scenario
+from advperc_ros.core.tracker import Tracker
+
+EGO_LENGTH, EGO_WIDTH = 4.6, 1.9
+
+SPEC = {
+    "name": "follow",
+    "dt": 0.1,
+    "duration": 10.0,
+    "lanes": [
+        {"id": "east", "centerline": [[-100.0, -1.75], [500.0, -1.75]], "width": 3.5},
+        {"id": "west", "centerline": [[500.0, 1.75], [-100.0, 1.75]], "width": 3.5},
+    ],
+    "ego": {"route": ["east"], "start_s": 100.0, "speed": 8.0},
+    "agents": [
+        {"id": 1, "lane": "east", "start_s": 120.0, "speed": 8.0, "size": [4.6, 1.9, 1.6]},  # lead
+        {"id": 2, "lane": "west", "start_s": 250.0, "speed": 10.0, "size": [4.4, 1.8, 1.5]},  # oncoming
+    ],
+}
+SCENARIO = build_scenario(SPEC)
+T, N = SCENARIO.agents.shape
+CONTEXT = PlanningContext(
+    route=SCENARIO.route, lanes=SCENARIO.lanes, dt=SCENARIO.dt, ego_length=EGO_LENGTH, ego_width=EGO_WIDTH
+)
+
+
+def idm():
+    return IDMPlanner(CONTEXT, target_speed=14.0)
+
+
+def run(errors, planner=None, tracker=None, **config):
+    return rollout(SCENARIO, errors, tracker or Tracker(), planner or idm(), RolloutConfig(**config))
+
+
+NONE = PerceptionErrors.none(T, N)
+DROP_LEAD = NONE.with_drop(0, 0, T - 1)
+
+
+def agent_box(k, j):
+    a = SCENARIO.agents
+    return box_corners(a.x[k, j], a.y[k, j], a.yaw[k, j], a.length[k, j], a.width[k, j])
+
+
+def ego_box(row):
+    return box_corners(row[0], row[1], row[2], EGO_LENGTH, EGO_WIDTH)
+
+
+# ---------------------------------------------------------------- scenario sanity
+
+def test_scenario_built_as_specified():
+    assert (T, N) == (101, 2)
+    assert SCENARIO.dt == pytest.approx(0.1)
+    a = SCENARIO.agents
+    np.testing.assert_allclose(a.x[:, 0], -100.0 + 120.0 + 8.0 * SCENARIO.times)
+    np.testing.assert_allclose(a.y[:, 0], -1.75)
+    np.testing.assert_allclose(a.x[:, 1], 500.0 - 250.0 - 10.0 * SCENARIO.times)
+    np.testing.assert_allclose(a.yaw[:, 1], np.pi)
+    assert SCENARIO.ego_start == EgoState(0.0, -1.75, 0.0, 8.0)
+
+
+# ---------------------------------------------------------------- verdicts
+
+def test_ground_truth_rollout_does_not_collide():
+    result = run(NONE)
+    assert result.inconclusive is None
+    assert not result.collided
+    assert result.num_frames == T
+    assert result.min_signed_distance > 1.0
+    # the ego keeps behind the lead: its speed settles near the lead's
+    assert result.ego[-1, 3] == pytest.approx(8.0, abs=0.5)
+
+
+def test_full_drop_of_lead_collides_and_rule_is_signed_box_distance():
+    result = run(DROP_LEAD)
+    assert result.collided
+    assert result.inconclusive is None
+    k = result.num_frames - 1
+    assert k < T - 1  # stopped at the collision
+    rule = result.rule
+    assert rule[k] < 0.0
+    assert np.all(rule[:k] >= 0.0)  # the first violation
+    assert result.min_signed_distance == rule[k]
+    # at the collision frame, the rule is the signed box distance of ego and lead boxes
+    assert rule[k] == pytest.approx(float(signed_box_distance(ego_box(result.ego[k]), agent_box(k, 0))), abs=1e-12)
+    assert shapely.Polygon(ego_box(result.ego[k])).intersects(shapely.Polygon(agent_box(k, 0)))
+    # a rear-end: at 10 Hz and a few m/s closing speed the penetration is shallow
+    assert -1.0 < rule[k]
+    # before, the rule is the gap as shapely measures it, for both agents
+    for kk in (0, k // 2, k - 1):
+        for j in range(N):
+            gap = shapely.Polygon(ego_box(result.ego[kk])).distance(shapely.Polygon(agent_box(kk, j)))
+            assert result.distances[kk, j] == pytest.approx(gap, abs=1e-9)
+
+
+def test_lateral_offset_hides_the_lead_like_a_drop():
+    """Detections shifted 3.5 m into the next lane leave the corridor: the IDM ego runs into the lead."""
+    errors = NONE.copy()
+    errors.dy[:, 0] = 3.5
+    result = run(errors)
+    assert result.collided
+
+
+def test_short_early_drop_does_not_collide():
+    result = run(NONE.with_drop(0, 0, 9))
+    assert not result.collided
+    assert result.num_frames == T
+
+
+def test_stop_at_collision_truncates_otherwise_runs_all_frames():
+    short = run(DROP_LEAD, stop_at_collision=True)
+    full = run(DROP_LEAD, stop_at_collision=False)
+    k = short.num_frames - 1
+    assert full.num_frames == T
+    assert full.collided
+    np.testing.assert_array_equal(full.ego[: k + 1], short.ego)
+    np.testing.assert_array_equal(full.distances[: k + 1], short.distances)
+    assert full.min_signed_distance <= short.min_signed_distance
+
+
+def test_collision_distances_inf_for_absent_agents():
+    spec = dict(SPEC, agents=[dict(SPEC["agents"][0], appear=2.0, disappear=5.0), SPEC["agents"][1]])
+    scenario = build_scenario(spec)
+    ego = scenario.ego_start
+    d = collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 0)
+    assert d[0] == np.inf and np.isfinite(d[1])
+    assert np.isfinite(collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 30)[0])
+    assert collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 60)[0] == np.inf
+    result = rollout(scenario, PerceptionErrors.none(*scenario.agents.shape), Tracker(),
+                     IDMPlanner(CONTEXT, target_speed=14.0))
+    assert np.all(np.isinf(result.distances[:20, 0]))
+    assert np.all(np.isfinite(result.distances[20:51, 0]))
+    assert np.all(np.isinf(result.distances[51:, 0]))
+
+
+def test_ego_footprint_from_config():
+    """A longer ego touches the lead earlier."""
+    normal = run(DROP_LEAD)
+    long_ego = run(DROP_LEAD, ego_length=8.0)
+    assert long_ego.collided
+    assert long_ego.num_frames < normal.num_frames
+
+
+# ---------------------------------------------------------------- inconclusive rollouts
+
+class RaisingPlanner:
+    """Drives like the IDM planner, raises at a given time."""
+
+    def __init__(self, fail_at):
+        self.inner = idm()
+        self.fail_at = fail_at
+
+    def reset(self):
+        self.inner.reset()
+
+    def plan(self, t, ego, tracks):
+        if t >= self.fail_at - 1e-9:
+            raise RuntimeError("solver exploded")
+        return self.inner.plan(t, ego, tracks)
+
+
+class ShortPlanner:
+    """Returns a plan that ends before the next frame."""
+
+    def reset(self):
+        pass
+
+    def plan(self, t, ego, tracks):
+        return Trajectory(t=np.array([t, t + 0.05]), x=np.array([ego.x, ego.x + 0.4]),
+                          y=np.array([ego.y, ego.y]), yaw=np.zeros(2))
+
+
+def test_planner_that_raises_makes_rollout_inconclusive():
+    result = run(NONE, planner=RaisingPlanner(fail_at=0.5))
+    assert result.inconclusive is not None
+    assert "RuntimeError" in result.inconclusive and "solver exploded" in result.inconclusive
+    assert "frame 5" in result.inconclusive
+    assert not result.collided
+    assert result.num_frames == 6
+
+
+def test_planner_raising_after_a_collision_gives_no_verdict():
+    full = run(DROP_LEAD, stop_at_collision=False)
+    k = int(np.argmax(full.rule < 0))
+    result = run(DROP_LEAD, planner=RaisingPlanner(fail_at=(k + 5) * 0.1), stop_at_collision=False)
+    assert result.min_signed_distance < 0.0
+    assert result.inconclusive is not None
+    assert not result.collided
+
+
+def test_plan_not_covering_next_frame_is_inconclusive():
+    result = run(DROP_LEAD, planner=ShortPlanner())
+    assert result.inconclusive is not None
+    assert "next frame" in result.inconclusive
+    assert not result.collided
+    assert result.num_frames == 1
+
+
+def test_record_keeps_tracks_and_plans_per_frame():
+    result = rollout(SCENARIO, NONE.with_drop(0, 30, 40), Tracker(), idm(), record=True)
+    assert len(result.tracks) == len(result.plans) == result.num_frames == T
+    assert all(isinstance(p, Trajectory) for p in result.plans)
+    assert 1 in result.tracks[29]["ids"]
+    # dropped but coasting: still tracked during the 1.1 s drop until it ages out
+    assert 1 in result.tracks[39]["ids"]
+    assert 1 not in result.tracks[40]["ids"]
+    assert all(p.t[0] == pytest.approx(k * 0.1) for k, p in enumerate(result.plans))
+    assert run(NONE).tracks is None
+
+
+# ---------------------------------------------------------------- determinism
+
+def test_rollout_is_deterministic_and_independent_of_previous_rollouts():
+    rng = np.random.default_rng(0)
+    errors = NONE.copy()
+    errors.dx[:] = rng.normal(0.0, 0.3, errors.dx.shape)
+    errors.dy[:] = rng.normal(0.0, 0.3, errors.dy.shape)
+    errors.dyaw[:] = rng.normal(0.0, 0.05, errors.dyaw.shape)
+    errors.fn[:] = rng.random(errors.fn.shape) < 0.2
+    tracker, planner = Tracker(), idm()
+    first = rollout(SCENARIO, errors, tracker, planner)
+    rollout(SCENARIO, DROP_LEAD, tracker, planner)  # a different rollout in between, same objects
+    second = rollout(SCENARIO, errors, tracker, planner)
+    fresh = run(errors)
+    for other in (second, fresh):
+        assert np.array_equal(first.ego, other.ego)
+        assert np.array_equal(first.distances, other.distances)
+        assert first.inconclusive == other.inconclusive
+
+
+def test_errors_must_match_scenario_shape():
+    with pytest.raises(ValueError, match="shape"):
+        run(PerceptionErrors.none(T - 1, N))
+
+
+def test_inject_applies_offsets_and_drops():
+    errors = NONE.copy()
+    errors.dx[3, 0], errors.dy[3, 0], errors.dyaw[3, 1] = 1.5, -0.5, 0.2
+    errors.fn[4, 1] = True
+    seen = inject(SCENARIO.agents, errors)
+    truth = SCENARIO.agents
+    assert seen.x[3, 0] == truth.x[3, 0] + 1.5 and seen.y[3, 0] == truth.y[3, 0] - 0.5
+    assert seen.yaw[3, 1] == pytest.approx(-np.pi + 0.2)  # wrapped
+    assert not seen.valid[4, 1] and seen.valid[4, 0]
+    np.testing.assert_array_equal(seen.vx, truth.vx)  # velocity and size stay true
+    np.testing.assert_array_equal(seen.length, truth.length)
+
+
+# ---------------------------------------------------------------- ego motion
+
+def constant_speed_plan(t0=0.0, speed=5.0, yaw=0.0, steps=80, dt=0.1):
+    t = t0 + dt * np.arange(steps + 1)
+    d = speed * (t - t0)
+    return Trajectory(t=t, x=10.0 + d * np.cos(yaw), y=-3.0 + d * np.sin(yaw), yaw=np.full(t.size, yaw))
+
+
+@pytest.mark.parametrize("t_next", [0.1, 0.25, 4.0, 7.95, 8.0])
+def test_follow_plan_derives_speed_from_poses(t_next):
+    state = follow_plan(constant_speed_plan(yaw=0.7), t_next)
+    assert state.v == pytest.approx(5.0, rel=1e-9)
+    assert state.x == pytest.approx(10.0 + 5.0 * t_next * np.cos(0.7))
+    assert state.y == pytest.approx(-3.0 + 5.0 * t_next * np.sin(0.7))
+    assert state.yaw == pytest.approx(0.7)
+
+
+def test_follow_plan_speed_of_accelerating_plan():
+    t = 0.1 * np.arange(81)
+    plan = Trajectory(t=t, x=0.5 * 2.0 * t**2, y=np.zeros_like(t), yaw=np.zeros_like(t))
+    # central difference over [0.95, 1.05] of x = t^2 is exactly 2 t
+    assert follow_plan(plan, 1.0).v == pytest.approx(2.0, abs=0.011)
+
+
+def test_follow_plan_interpolates_yaw_across_the_wrap():
+    t = np.array([0.0, 0.2])
+    plan = Trajectory(t=t, x=np.array([0.0, -1.0]), y=np.zeros(2), yaw=np.array([np.pi - 0.1, -np.pi + 0.1]))
+    state = follow_plan(plan, 0.1)
+    assert abs(abs(state.yaw) - np.pi) < 1e-9  # halfway is pi, not 0
+
+
+def test_follow_plan_rejects_bad_plans():
+    plan = constant_speed_plan(t0=1.0)
+    with pytest.raises(PlanError, match="next frame"):
+        follow_plan(plan, 9.5)
+    with pytest.raises(PlanError, match="next frame"):
+        follow_plan(plan, 0.9)
+    bad_t = Trajectory(t=np.array([0.0, 0.1, 0.1]), x=np.zeros(3), y=np.zeros(3), yaw=np.zeros(3))
+    with pytest.raises(PlanError):
+        follow_plan(bad_t, 0.05)
+    nan_pose = Trajectory(t=np.array([0.0, 0.1]), x=np.array([0.0, np.nan]), y=np.zeros(2), yaw=np.zeros(2))
+    with pytest.raises(PlanError):
+        follow_plan(nan_pose, 0.05)

@@ -1,0 +1,301 @@
+"""The Kalman + Hungarian tracker (DESIGN.md section 7): association, gating, coasting, ageing, heading."""
+
+import numpy as np
+import pytest
+
+from advperc_ros.core.geometry import wrap_angle
+from advperc_ros.core.tracker import Tracker, TrackerConfig
+
+DT = 0.1
+
+
+def dets(*boxes):
+    """Detections from (x, y, yaw, vx, vy) tuples; size 4.5 x 1.9 x 1.6."""
+    arr = np.array(boxes, dtype=float).reshape(-1, 5)
+    n = arr.shape[0]
+    return {
+        "ids": np.arange(n, dtype=np.int64),
+        "x": arr[:, 0],
+        "y": arr[:, 1],
+        "yaw": arr[:, 2],
+        "vx": arr[:, 3],
+        "vy": arr[:, 4],
+        "length": np.full(n, 4.5),
+        "width": np.full(n, 1.9),
+        "height": np.full(n, 1.6),
+        "score": np.linspace(0.9, 0.5, n) if n else np.zeros(0),
+    }
+
+
+NONE = dets()
+
+
+def by_id(tracks, track_id):
+    i = np.flatnonzero(tracks["ids"] == track_id)
+    assert i.size == 1, f"track {track_id} not in output {tracks['ids']}"
+    return {k: v[i[0]] for k, v in tracks.items()}
+
+
+def t_of(k):
+    return k * DT
+
+
+# ---------------------------------------------------------------- a single car
+
+def test_constant_velocity_car_keeps_its_id_and_converges():
+    tracker = Tracker()
+    v = np.array([8.0, 1.0])
+    yaw = np.arctan2(v[1], v[0])
+    for k in range(60):
+        pos = np.array([3.0, -2.0]) + v * t_of(k)
+        # the first detection reports no velocity, so the filter must learn it from positions
+        reported = (0.0, 0.0) if k == 0 else tuple(v)
+        out = tracker.step(t_of(k), dets((pos[0], pos[1], yaw, *reported)))
+        assert list(out["ids"]) == [1]
+    track = by_id(out, 1)
+    assert np.hypot(track["x"] - pos[0], track["y"] - pos[1]) < 0.05
+    assert np.hypot(track["vx"] - v[0], track["vy"] - v[1]) < 0.1
+    assert abs(wrap_angle(track["yaw"] - yaw)) < 1e-3
+    assert (track["length"], track["width"], track["height"]) == (4.5, 1.9, 1.6)
+    assert np.isnan(track["score"])
+
+
+def test_new_track_takes_velocity_and_pose_from_the_detection():
+    tracker = Tracker()
+    out = tracker.step(0.0, dets((10.0, 5.0, 0.5, 7.0, -3.0)))
+    track = by_id(out, 1)
+    assert (track["x"], track["y"], track["vx"], track["vy"]) == pytest.approx((10.0, 5.0, 7.0, -3.0))
+    assert track["yaw"] == pytest.approx(0.5)
+    # unobserved next frame: it coasts with that velocity
+    out = tracker.step(0.1, NONE)
+    track = by_id(out, 1)
+    assert (track["x"], track["y"]) == pytest.approx((10.7, 4.7))
+
+
+def test_association_is_gated_at_two_metres():
+    tracker = Tracker()
+    tracker.step(0.0, dets((0.0, 0.0, 0.0, 0.0, 0.0)))
+    # 1.9 m from the (stationary) prediction: same track
+    out = tracker.step(0.1, dets((0.0, 1.9, 0.0, 0.0, 0.0)))
+    assert list(out["ids"]) == [1]
+    # 2.5 m from the prediction: a new track, the old one coasts
+    pred = by_id(out, 1)
+    out = tracker.step(0.2, dets((pred["x"] + pred["vx"] * 0.1 + 2.5, pred["y"] + pred["vy"] * 0.1, 0.0, 0.0, 0.0)))
+    assert sorted(out["ids"]) == [1, 2]
+    assert by_id(out, 2)["x"] == pytest.approx(pred["x"] + pred["vx"] * 0.1 + 2.5)
+
+
+def test_gate_is_configurable():
+    tracker = Tracker(TrackerConfig(gate=3.0))
+    tracker.step(0.0, dets((0.0, 0.0, 0.0, 0.0, 0.0)))
+    out = tracker.step(0.1, dets((2.5, 0.0, 0.0, 0.0, 0.0)))
+    assert list(out["ids"]) == [1]
+
+
+def test_coasting_then_deleted_after_max_age():
+    """Unobserved for < 1 s: still output, moving at its velocity. Deleted when t - last_seen >= max_age,
+    i.e. at the 10th unobserved frame at 10 Hz."""
+    tracker = Tracker()
+    v = 10.0
+    last_seen = 20
+    for k in range(last_seen + 1):
+        out = tracker.step(t_of(k), dets((v * t_of(k), 0.0, 0.0, v, 0.0)))
+    x_last = by_id(out, 1)["x"]
+    for k in range(last_seen + 1, last_seen + 10):
+        out = tracker.step(t_of(k), NONE)
+        track = by_id(out, 1)
+        assert track["x"] == pytest.approx(x_last + v * (t_of(k) - t_of(last_seen)), abs=1e-6)
+        assert track["vx"] == pytest.approx(v, abs=1e-6)
+    out = tracker.step(t_of(last_seen + 10), NONE)
+    assert out["ids"].size == 0
+    assert out["x"].shape == (0,)
+    # a later detection starts a fresh id
+    out = tracker.step(t_of(last_seen + 11), dets((0.0, 0.0, 0.0, 0.0, 0.0)))
+    assert list(out["ids"]) == [2]
+
+
+def test_max_age_is_configurable():
+    tracker = Tracker(TrackerConfig(max_age=0.5))
+    tracker.step(0.0, dets((0.0, 0.0, 0.0, 0.0, 0.0)))
+    for k in range(1, 5):
+        assert list(tracker.step(t_of(k), NONE)["ids"]) == [1]
+    assert tracker.step(t_of(5), NONE)["ids"].size == 0
+
+
+def test_observation_refreshes_age():
+    tracker = Tracker()
+    tracker.step(0.0, dets((0.0, 0.0, 0.0, 0.0, 0.0)))
+    for k in range(1, 40):
+        # observed every 9th frame: never 10 frames without an observation
+        out = tracker.step(t_of(k), dets((0.0, 0.0, 0.0, 0.0, 0.0)) if k % 9 == 0 else NONE)
+        assert list(out["ids"]) == [1]
+
+
+# ---------------------------------------------------------------- heading
+
+def test_heading_renormalised_and_stable_near_pi():
+    """A westbound car weaving around yaw = +-pi, its detected yaw jumping across the wrap: (cos, sin)
+    stays on the unit circle and the tracked yaw follows without flipping."""
+    tracker = Tracker()
+    rng = np.random.default_rng(2)
+    speed, x, errors = 6.0, 0.0, []
+    for k in range(80):
+        yaw = float(wrap_angle(np.pi + 0.3 * np.sin(0.1 * k)))
+        measured = float(wrap_angle(yaw + rng.uniform(-0.02, 0.02)))
+        out = tracker.step(t_of(k), dets((x, 0.0, measured, speed * np.cos(yaw), speed * np.sin(yaw))))
+        x += speed * np.cos(yaw) * DT
+        assert list(out["ids"]) == [1]
+        errors.append(abs(float(wrap_angle(by_id(out, 1)["yaw"] - yaw))))
+        state = tracker._tracks[0].kf.x[:, 0]
+        assert np.hypot(state[4], state[5]) == pytest.approx(1.0, abs=1e-12)
+    assert max(errors) < 0.1
+    # and while coasting (the predicted heading rate would otherwise shrink or grow the vector)
+    for k in range(80, 85):
+        tracker.step(t_of(k), NONE)
+        state = tracker._tracks[0].kf.x[:, 0]
+        assert np.hypot(state[4], state[5]) == pytest.approx(1.0, abs=1e-12)
+
+
+def test_heading_noise_across_the_wrap_does_not_flip():
+    tracker = Tracker()
+    for k in range(30):
+        measured = np.pi - 0.02 if k % 2 else -np.pi + 0.02
+        out = tracker.step(t_of(k), dets((-5.0 * t_of(k), 0.0, measured, -5.0, 0.0)))
+        assert abs(float(wrap_angle(by_id(out, 1)["yaw"] - np.pi))) < 0.03
+
+
+def test_turning_car_heading_followed():
+    tracker = Tracker()
+    rate = 0.5  # rad/s, a left turn through +-pi
+    for k in range(80):
+        yaw = float(wrap_angle(2.5 + rate * t_of(k)))
+        pos = 10.0 * np.array([np.sin(2.5 + rate * t_of(k)), -np.cos(2.5 + rate * t_of(k))])  # circle radius 10
+        v = 5.0 * np.array([np.cos(yaw), np.sin(yaw)])
+        out = tracker.step(t_of(k), dets((pos[0], pos[1], yaw, v[0], v[1])))
+        assert list(out["ids"]) == [1]
+        assert abs(float(wrap_angle(by_id(out, 1)["yaw"] - yaw))) < 0.1
+
+
+# ---------------------------------------------------------------- the documented phantom
+
+def test_dropped_braking_car_spawns_second_track_and_phantom_ages_out():
+    tracker = Tracker()
+    v0, decel = 15.0, 8.0
+    last_seen, reappear = 20, 29  # frames 21..28 dropped: 0.8 s without detections
+
+    def car(k):
+        """Constant speed until frame 20, brakes at 8 m/s^2 for 0.8 s, then constant speed again."""
+        tau = np.clip(t_of(k) - t_of(last_seen), 0.0, 0.8)  # time spent braking so far
+        after = max(t_of(k) - t_of(last_seen) - 0.8, 0.0)  # time since braking ended
+        speed = v0 - decel * tau
+        x = v0 * min(t_of(k), t_of(last_seen)) + v0 * tau - 0.5 * decel * tau**2 + speed * after
+        return x, speed
+
+    for k in range(last_seen + 1):
+        x, speed = car(k)
+        out = tracker.step(t_of(k), dets((x, 0.0, 0.0, speed, 0.0)))
+    assert list(out["ids"]) == [1]
+    x_last = by_id(out, 1)["x"]
+    for k in range(last_seen + 1, reappear):
+        out = tracker.step(t_of(k), NONE)
+        assert list(out["ids"]) == [1]
+    x, speed = car(reappear)
+    coast = x_last + v0 * (t_of(reappear) - t_of(last_seen))
+    assert coast - x > 2.0  # the car is out of the coasting track's gate
+    out = tracker.step(t_of(reappear), dets((x, 0.0, 0.0, speed, 0.0)))
+    assert sorted(out["ids"]) == [1, 2]
+    assert by_id(out, 1)["x"] == pytest.approx(coast, abs=1e-6)  # the phantom, still coasting
+    assert by_id(out, 2)["x"] == pytest.approx(x)
+    assert by_id(out, 2)["vx"] == pytest.approx(speed)
+    # the phantom goes once unobserved for max_age (1 s after frame 20: frame 30)
+    x, speed = car(reappear + 1)
+    out = tracker.step(t_of(reappear + 1), dets((x, 0.0, 0.0, speed, 0.0)))
+    assert list(out["ids"]) == [2]
+    for k in range(reappear + 2, reappear + 20):
+        x, speed = car(k)
+        out = tracker.step(t_of(k), dets((x, 0.0, 0.0, speed, 0.0)))
+        assert list(out["ids"]) == [2]
+
+
+def test_short_drop_without_speed_change_keeps_one_track():
+    tracker = Tracker()
+    for k in range(40):
+        observed = not (20 < k < 29)
+        out = tracker.step(t_of(k), dets((15.0 * t_of(k), 0.0, 0.0, 15.0, 0.0)) if observed else NONE)
+        assert list(out["ids"]) == [1]
+
+
+# ---------------------------------------------------------------- two cars
+
+def _greedy_nearest(cost, gate):
+    """Globally-nearest-pair-first greedy assignment."""
+    pairs, used_t, used_d = [], set(), set()
+    for flat in np.argsort(cost, axis=None):
+        ti, di = np.unravel_index(flat, cost.shape)
+        if ti in used_t or di in used_d or cost[ti, di] > gate:
+            continue
+        pairs.append((int(ti), int(di)))
+        used_t.add(ti)
+        used_d.add(di)
+    return sorted(pairs)
+
+
+def test_crossing_cars_keep_ids_where_greedy_would_swap():
+    """Car A eastbound, car B northbound crossing 2 m ahead of A. At t = 1 s both detections are off by
+    about a metre so that the nearest pair is (track B, detection of A): greedy nearest neighbour swaps
+    the cars, the Hungarian assignment does not."""
+    tracker = Tracker()
+
+    def car_a(t):
+        return np.array([5.0 * (t - 1.0), 0.0]), 0.0, (5.0, 0.0)
+
+    def car_b(t):
+        return np.array([2.0, 5.0 * (t - 1.0)]), np.pi / 2, (0.0, 5.0)
+
+    def exact(t):
+        (pa, ya, va), (pb, yb, vb) = car_a(t), car_b(t)
+        return dets((pa[0], pa[1], ya, *va), (pb[0], pb[1], yb, *vb))
+
+    for k in range(10):
+        out = tracker.step(t_of(k), exact(t_of(k)))
+    assert sorted(out["ids"]) == [1, 2]
+    # id 1 is A (first detection), id 2 is B
+    pred = {i: np.array([by_id(out, i)["x"], by_id(out, i)["y"]]) + DT * np.array([by_id(out, i)["vx"], by_id(out, i)["vy"]])
+            for i in (1, 2)}
+    np.testing.assert_allclose(pred[1], [0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(pred[2], [2.0, 0.0], atol=1e-6)
+    noisy_a, noisy_b = np.array([1.2, 0.0]), np.array([1.6, 1.0])
+    cost = np.array([[np.linalg.norm(pred[i] - d) for d in (noisy_a, noisy_b)] for i in (1, 2)])
+    assert _greedy_nearest(cost, 2.0) == [(0, 1), (1, 0)]  # greedy would swap the cars
+    out = tracker.step(t_of(10), dets((*noisy_a, 0.0, 5.0, 0.0), (*noisy_b, np.pi / 2, 0.0, 5.0)))
+    assert sorted(out["ids"]) == [1, 2]
+    a1, b2 = by_id(out, 1), by_id(out, 2)
+    assert np.hypot(a1["x"] - noisy_a[0], a1["y"] - noisy_a[1]) < np.hypot(a1["x"] - noisy_b[0], a1["y"] - noisy_b[1])
+    assert np.hypot(b2["x"] - noisy_b[0], b2["y"] - noisy_b[1]) < np.hypot(b2["x"] - noisy_a[0], b2["y"] - noisy_a[1])
+    for k in range(11, 30):
+        out = tracker.step(t_of(k), exact(t_of(k)))
+        assert sorted(out["ids"]) == [1, 2]
+    pa, pb = car_a(t_of(29))[0], car_b(t_of(29))[0]
+    assert np.hypot(by_id(out, 1)["x"] - pa[0], by_id(out, 1)["y"] - pa[1]) < 0.5
+    assert np.hypot(by_id(out, 2)["x"] - pb[0], by_id(out, 2)["y"] - pb[1]) < 0.5
+
+
+def test_two_detections_one_track_spawns_only_for_the_unmatched():
+    tracker = Tracker()
+    tracker.step(0.0, dets((0.0, 0.0, 0.0, 0.0, 0.0)))
+    out = tracker.step(0.1, dets((30.0, 0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 0.0, 0.0)))
+    assert sorted(out["ids"]) == [1, 2]
+    assert by_id(out, 2)["x"] == pytest.approx(30.0)
+    assert abs(by_id(out, 1)["x"] - 0.5) < 0.5
+
+
+def test_reset_forgets_everything():
+    tracker = Tracker()
+    for k in range(5):
+        tracker.step(t_of(k), dets((k, 0.0, 0.0, 10.0, 0.0), (k, 10.0, 0.0, 10.0, 0.0)))
+    tracker.reset()
+    out = tracker.step(0.0, NONE)
+    assert out["ids"].size == 0
+    out = tracker.step(0.0, dets((100.0, 0.0, 0.0, 0.0, 0.0)))
+    assert list(out["ids"]) == [1]
+    assert by_id(out, 1)["x"] == pytest.approx(100.0)

@@ -5,7 +5,7 @@ from glob import glob
 from setuptools import find_packages, setup
 
 PACKAGE = "advperc_ros"
-NODES = ("scenario_player", "error_injector", "tracker", "planner", "rule_monitor", "orchestrator")
+NODES = ("orchestrator",)  # one executable per module in advperc_ros/nodes/, as `ros2 run` names them
 
 setup(
     name=PACKAGE,
@@ -40,6 +40,9 @@ setup(
     description="Adversarial perception error search against motion planners (ROS 2 Jazzy).",
     license="Apache-2.0",
     entry_points={
-        "console_scripts": ["advperc = advperc_ros.cli:main"],
+        "console_scripts": [
+            "advperc = advperc_ros.cli:main",
+            *[f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES],
+        ],
     },
 )

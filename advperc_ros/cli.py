@@ -39,7 +39,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
 
     params = load_params(args.params)
     if args.seed is not None:
-        params = params.with_seed(args.seed)
+        params = params.with_values(seed=args.seed)
     output = Path(args.output) if args.output else _default_output(Path(args.params), params["seed"])
     if output.exists():
         raise ParamsError(f"{output}: output folder exists already; choose another --output")

@@ -58,8 +58,12 @@ class AttackParams:
     def __getitem__(self, name: str) -> Any:
         return self.values[name]
 
-    def with_seed(self, seed: int) -> "AttackParams":
-        return AttackParams({**self.values, "seed": seed}, self.planner_params, self.source)
+    def with_values(self, **changes: Any) -> "AttackParams":
+        """These params with some values replaced (names with dots: pass via **{"a.b": v})."""
+        unknown = set(changes) - set(SCHEMA)
+        if unknown:
+            raise ParamsError(f"unknown parameter '{sorted(unknown)[0]}'")
+        return AttackParams({**self.values, **changes}, self.planner_params, self.source)
 
     def canonical(self) -> dict[str, Any]:
         return {**self.values, PLANNER_PARAMS: self.planner_params}

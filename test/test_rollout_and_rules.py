@@ -213,10 +213,13 @@ def test_record_keeps_tracks_and_plans_per_frame():
     result = rollout(SCENARIO, NONE.with_drop(0, 30, 40), Tracker(), idm(), record=True)
     assert len(result.tracks) == len(result.plans) == result.num_frames == T
     assert all(isinstance(p, Trajectory) for p in result.plans)
-    assert 1 in result.tracks[29]["ids"]
-    # dropped but coasting: still tracked during the 1.1 s drop until it ages out
-    assert 1 in result.tracks[39]["ids"]
-    assert 1 not in result.tracks[40]["ids"]
+    # track ids are the tracker's: the lead (slot 0) got 1, the oncoming car 2
+    assert sorted(result.tracks[29]["ids"]) == [1, 2]
+    # the lead is dropped on frames 30..40: its track coasts 9 frames and goes at the 10th (t - last_seen = 1 s)
+    assert sorted(result.tracks[38]["ids"]) == [1, 2]
+    assert list(result.tracks[39]["ids"]) == [2]
+    assert list(result.tracks[40]["ids"]) == [2]
+    assert sorted(result.tracks[41]["ids"]) == [2, 3]  # back, as a new track
     assert all(p.t[0] == pytest.approx(k * 0.1) for k, p in enumerate(result.plans))
     assert run(NONE).tracks is None
 
@@ -281,6 +284,15 @@ def test_follow_plan_speed_of_accelerating_plan():
     plan = Trajectory(t=t, x=0.5 * 2.0 * t**2, y=np.zeros_like(t), yaw=np.zeros_like(t))
     # central difference over [0.95, 1.05] of x = t^2 is exactly 2 t
     assert follow_plan(plan, 1.0).v == pytest.approx(2.0, abs=0.011)
+
+
+@pytest.mark.parametrize("t_next, speed", [(0.9, 5.0), (1.0, 7.5), (1.1, 10.0), (1.5, 10.0)])
+def test_follow_plan_speed_around_a_speed_step(t_next, speed):
+    """5 m/s until t = 1 s, then 10 m/s: the speed is the displacement over half a pose spacing either side."""
+    t = 0.1 * np.arange(31)
+    x = np.where(t <= 1.0, 5.0 * t, 5.0 + 10.0 * (t - 1.0))
+    plan = Trajectory(t=t, x=x, y=np.zeros_like(t), yaw=np.zeros_like(t))
+    assert follow_plan(plan, t_next).v == pytest.approx(speed, rel=1e-9)
 
 
 def test_follow_plan_interpolates_yaw_across_the_wrap():

@@ -18,6 +18,9 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker
 
 
+STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes following the plan
+
+
 @dataclass(frozen=True)
 class RolloutConfig:
     ego_length: float = 4.6  # m
@@ -32,7 +35,7 @@ class RolloutResult:
     inconclusive: str | None = None  # why the rollout has no verdict (planner failed), else None
     tracks: list[dict[str, np.ndarray]] | None = None  # per frame, when recorded
     plans: list[Trajectory] | None = None  # per frame, when recorded
-    planning_time: float = field(default=0.0, repr=False)  # s spent inside planner.plan
+    stage_times: dict[str, float] = field(default_factory=dict, repr=False)  # s per stage, for benchmarks
 
     @property
     def num_frames(self) -> int:
@@ -64,8 +67,12 @@ def rollout(
     config: RolloutConfig = RolloutConfig(),
     record: bool = False,
 ) -> RolloutResult:
+    clock = time.perf_counter
+    stage_times = dict.fromkeys(STAGES, 0.0)
+    started = clock()
     agents = scenario.agents
     perceived = inject(agents, errors)
+    stage_times["injector"] += clock() - started
     times = scenario.times
     num_frames = scenario.num_frames
     tracker.reset()
@@ -76,16 +83,19 @@ def rollout(
     tracks_log: list[dict[str, np.ndarray]] = []
     plans_log: list[Trajectory] = []
     inconclusive = None
-    planning_time = 0.0
     last = num_frames - 1
     for k in range(num_frames):
         ego_states[k] = (ego.x, ego.y, ego.yaw, ego.v)
+        started = clock()
         distances[k] = collision_distances(ego, config.ego_length, config.ego_width, agents, k)
+        stage_times["rule"] += clock() - started
         if config.stop_at_collision and distances[k].min(initial=np.inf) < 0.0:
             last = k
             break
+        started = clock()
         tracks = tracker.step(float(times[k]), perceived.frame(k))
-        started = time.perf_counter()
+        stage_times["tracker"] += clock() - started
+        started = clock()
         try:
             plan = planner.plan(float(times[k]), ego, tracks)
             if k + 1 < num_frames:
@@ -94,7 +104,7 @@ def rollout(
             inconclusive, last = f"frame {k}: {exc}", k
         except Exception as exc:  # a plug-in planner that crashes gives no verdict, not a pass
             inconclusive, last = f"frame {k}: planner raised {type(exc).__name__}: {exc}", k
-        planning_time += time.perf_counter() - started
+        stage_times["planner"] += clock() - started
         if record:
             tracks_log.append(tracks)
             if inconclusive is None:
@@ -107,5 +117,5 @@ def rollout(
         inconclusive=inconclusive,
         tracks=tracks_log if record else None,
         plans=plans_log if record else None,
-        planning_time=planning_time,
+        stage_times=stage_times,
     )

@@ -57,27 +57,29 @@ def _prediction_order(scores: np.ndarray, valid: np.ndarray) -> np.ndarray:
     return np.lexsort((-slots, -key), axis=-1)
 
 
-def greedy_match(dist: np.ndarray, order: np.ndarray, pred_ok: np.ndarray, gt_ok: np.ndarray, th: float) -> Matching:
-    """The devkit's greedy matching, one confidence rank at a time over all frames.
+def greedy_match(
+    dist: np.ndarray, order: np.ndarray, pred_ok: np.ndarray, gt_ok: np.ndarray, thresholds: tuple[float, ...]
+) -> dict[float, Matching]:
+    """The devkit's greedy matching for every threshold at once, one confidence rank at a time.
 
     dist (F, P, G) centre distances; each prediction takes the nearest untaken gt (first index on
-    ties, as the devkit's strict <) and is a match if that distance is below th.
+    ties, as the devkit's strict <) and is a match if that distance is below the threshold.
     """
-    num_frames, num_pred, _ = dist.shape
+    num_frames, num_pred, num_gt = dist.shape
+    ths = np.asarray(thresholds)[:, None]  # (H, 1)
     frames = np.arange(num_frames)
-    taken = ~gt_ok.copy()
-    pred_gt = np.full((num_frames, num_pred), -1)
-    if dist.shape[2] == 0:
-        return Matching(pred_gt=pred_gt)
-    for rank in range(num_pred):
+    taken = np.broadcast_to(~gt_ok, (len(thresholds), num_frames, num_gt)).copy()
+    pred_gt = np.full((len(thresholds), num_frames, num_pred), -1)
+    for rank in range(num_pred if num_gt else 0):
         p = order[:, rank]
         active = pred_ok[frames, p]
-        d = np.where(taken, np.inf, dist[frames, p, :])
-        g = np.argmin(d, axis=1)
-        hit = active & (d[frames, g] < th)
-        pred_gt[frames[hit], p[hit]] = g[hit]
-        taken[frames[hit], g[hit]] = True
-    return Matching(pred_gt=pred_gt)
+        d = np.where(taken, np.inf, dist[frames, p, :])  # (H, F, G)
+        g = np.argmin(d, axis=2)  # (H, F)
+        hit = active & (np.take_along_axis(d, g[:, :, None], axis=2)[:, :, 0] < ths)
+        h_idx, f_idx = np.nonzero(hit)
+        pred_gt[h_idx, f_idx, p[f_idx]] = g[h_idx, f_idx]
+        taken[h_idx, f_idx, g[h_idx, f_idx]] = True
+    return {th: Matching(pred_gt=pred_gt[i]) for i, th in enumerate(thresholds)}
 
 
 def _angle_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -93,12 +95,6 @@ def _scale_error(gt: BoxSequence, pred: BoxSequence, f: np.ndarray, g: np.ndarra
     return 1.0 - inter / union
 
 
-def _cummean(x: np.ndarray) -> np.ndarray:
-    sums = np.nancumsum(x.astype(float))
-    counts = np.cumsum(~np.isnan(x))
-    return np.divide(sums, counts, out=np.zeros_like(sums), where=counts != 0)
-
-
 def nds(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> NDSResult:
     """NDS of predictions against ground truth over a sequence; ego_xy (F, 2) sets the range."""
     gt_ok = in_range(gt, ego_xy)
@@ -106,7 +102,7 @@ def nds(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> NDSResult:
     npos = int(gt_ok.sum())
     dist = np.hypot(pred.x[:, :, None] - gt.x[:, None, :], pred.y[:, :, None] - gt.y[:, None, :])
     order = _prediction_order(pred.score, pred_ok)
-    matchings = {th: greedy_match(dist, order, pred_ok, gt_ok, th) for th in DIST_THRESHOLDS}
+    matchings = greedy_match(dist, order, pred_ok, gt_ok, DIST_THRESHOLDS)
 
     # global order of the devkit: descending score, ties by descending position in the flat list
     pf, pp = np.nonzero(pred_ok)
@@ -133,19 +129,22 @@ def nds(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> NDSResult:
         if th != TP_THRESHOLD:
             continue
         f, p, g = pf[is_tp], pp[is_tp], matched_gt[is_tp]
-        errors = {
-            "trans_err": np.hypot(pred.x[f, p] - gt.x[f, g], pred.y[f, p] - gt.y[f, g]),
-            "vel_err": np.hypot(pred.vx[f, p] - gt.vx[f, g], pred.vy[f, p] - gt.vy[f, g]),
-            "scale_err": _scale_error(gt, pred, f, g, p),
-            "orient_err": _angle_diff(gt.yaw[f, g], pred.yaw[f, p]),
-            "attr_err": np.zeros(f.size),
-        }
-        match_conf = conf[is_tp]
+        errors = np.stack([
+            np.hypot(pred.x[f, p] - gt.x[f, g], pred.y[f, p] - gt.y[f, g]),
+            _scale_error(gt, pred, f, g, p),
+            _angle_diff(gt.yaw[f, g], pred.yaw[f, p]),
+            np.hypot(pred.vx[f, p] - gt.vx[f, g], pred.vy[f, p] - gt.vy[f, g]),
+        ])  # in TP_METRICS order; attributes always agree, so attr_err is 0 wherever it is defined
+        # the devkit's cummean (nancumsum / count); inputs are validated finite, so no NaN to skip
+        running_mean = np.cumsum(errors, axis=1) / np.arange(1, f.size + 1)
+        match_conf = conf[is_tp][::-1]
         nonzero = np.nonzero(conf_interp)[0]
         last = int(nonzero[-1]) if nonzero.size else 0
-        for name, values in errors.items():
-            curve = np.interp(conf_interp[::-1], match_conf[::-1], _cummean(values)[::-1])[::-1]
-            tp_errors[name] = 1.0 if last < FIRST_USEFUL else float(np.mean(curve[FIRST_USEFUL : last + 1]))
+        if last >= FIRST_USEFUL:
+            for name, curve_at_matches in zip(TP_METRICS, running_mean):
+                curve = np.interp(conf_interp[::-1], match_conf, curve_at_matches[::-1])[::-1]
+                tp_errors[name] = float(np.mean(curve[FIRST_USEFUL : last + 1]))
+            tp_errors["attr_err"] = 0.0
 
     mean_ap = float(np.mean([ap[th] for th in DIST_THRESHOLDS]))
     tp_score = sum(max(0.0, 1.0 - tp_errors[name]) for name in TP_METRICS)

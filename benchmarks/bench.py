@@ -1,0 +1,147 @@
+"""Speed of the pipeline, measured side by side in one run (the machine is shared: compare ratios).
+
+    python benchmarks/bench.py            # everything
+    python benchmarks/bench.py --quick    # fewer repetitions, one search objective
+
+1. Rollout: full rollout time against the planner alone (the floor), and the time per stage.
+2. NDS: evaluations per second of ours against nuscenes-devkit 1.2.0 on the same 200-frame,
+   5-car input. The devkit pins numpy<2 and runs from its own venv (created on first use at
+   .venv-devkit, or pass --devkit-python); both NDS values are printed to show they agree.
+3. A whole paper-sized search (heuristic + 40 random steps) per scenario and objective: wall time
+   and the metric reached.
+"""
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from advperc_ros.attack import Stack, run_attack
+from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.metrics.nds import nds
+from advperc_ros.core.rollout import STAGES
+from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
+from advperc_ros.params import load_params
+from advperc_ros.ros.bag import read_scenario
+
+REPO = Path(__file__).resolve().parent.parent
+SCENARIOS = ("idm_lane_following", "idm_overtake_follow")
+DEVKIT_VENV = REPO / ".venv-devkit"
+
+
+def bench_rollouts(repeats: int) -> None:
+    print("== 1. Rollout time vs planner-only time (ground-truth rollouts, median of", repeats, ") ==")
+    print(f"{'scenario':24s} {'frames':>6s} {'rollout ms':>10s} {'planner ms':>10s} {'ratio':>6s}  per stage (ms)")
+    for name in SCENARIOS:
+        scenario = read_scenario(REPO / "bags" / name)
+        stack = Stack(scenario, load_params(REPO / "config" / f"{name}.yaml"))
+        errors = PerceptionErrors.none(*scenario.agents.shape)
+        totals, stages = [], {stage: [] for stage in STAGES}
+        for _ in range(repeats):
+            started = time.perf_counter()
+            result = stack.rollout(errors)
+            totals.append(time.perf_counter() - started)
+            for stage in STAGES:
+                stages[stage].append(result.stage_times[stage])
+        total = statistics.median(totals) * 1e3
+        planner = statistics.median(stages["planner"]) * 1e3
+        per_stage = "  ".join(f"{s} {statistics.median(v) * 1e3:.1f}" for s, v in stages.items())
+        print(f"{name:24s} {result.num_frames:6d} {total:10.1f} {planner:10.1f} {total / planner:6.2f}  {per_stage}")
+
+
+def nds_case() -> dict:
+    """200 frames, 5 cars of idm_lane_following with typical errors, in the devkit case format."""
+    scenario = read_scenario(REPO / "bags" / "idm_lane_following")
+    stack = Stack(scenario, load_params(REPO / "config" / "idm_lane_following.yaml"))
+    truth = scenario.agents.frames(200)
+    errors = sample_typical_errors(scenario.agents.shape, np.random.default_rng(7), TypicalErrorConfig(position_std=0.5))
+    ego = stack.rollout(PerceptionErrors.none(*scenario.agents.shape)).ego_xy[:200]
+    perceived = inject(scenario.agents, errors).frames(200)
+    columns = ("ids", "x", "y", "yaw", "length", "width", "height", "vx", "vy")
+    frames = []
+    for k in range(200):
+        gt, pred = truth.frame(k), perceived.frame(k)
+        frames.append({
+            "ego": ego[k].tolist(),
+            "gt": np.stack([gt[c] for c in columns], axis=1).tolist(),
+            "pred": np.stack([pred[c] for c in (*columns, "score")], axis=1).tolist(),
+        })
+    return {"name": "bench_200x5", "frames": frames, "truth": truth, "perceived": perceived, "ego": ego}
+
+
+def devkit_python(given: str | None) -> Path | None:
+    if given:
+        return Path(given)
+    python = DEVKIT_VENV / "bin" / "python"
+    if not python.exists():
+        print(f"(creating {DEVKIT_VENV} with nuscenes-devkit 1.2.0; once)", flush=True)
+        subprocess.run([sys.executable, "-m", "venv", str(DEVKIT_VENV)], check=True)
+        installed = subprocess.run(
+            [str(python), "-m", "pip", "install", "-q", "nuscenes-devkit==1.2.0", "numpy<2"], check=False
+        )
+        if installed.returncode != 0:
+            return None
+    return python
+
+
+def bench_nds(min_seconds: float, devkit: str | None) -> None:
+    print("\n== 2. NDS evaluations per second, ours vs nuscenes-devkit, same 200-frame 5-car input ==")
+    case = nds_case()
+    truth, perceived, ego = case.pop("truth"), case.pop("perceived"), case.pop("ego")
+    count, started = 0, time.perf_counter()
+    while time.perf_counter() - started < min_seconds or count < 3:
+        ours = nds(truth, perceived, ego).nds
+        count += 1
+    ours_rate = count / (time.perf_counter() - started)
+    python = devkit_python(devkit)
+    if python is None:
+        print(f"ours: {ours_rate:10.1f} evals/s  NDS {ours:.12f}   devkit: unavailable (venv install failed)")
+        return
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "case.json"
+        path.write_text(json.dumps(case))
+        out = subprocess.run(
+            [str(python), str(REPO / "benchmarks" / "devkit_nds_rate.py"), str(path)],
+            check=True, capture_output=True, text=True,
+        )
+    ref = json.loads(out.stdout.strip().splitlines()[-1])
+    print(f"ours:   {ours_rate:10.1f} evals/s   NDS {ours:.12f}")
+    print(f"devkit: {ref['evals_per_s']:10.1f} evals/s   NDS {ref['nds']:.12f}")
+    print(f"speed-up: {ours_rate / ref['evals_per_s']:.0f}x   |NDS difference|: {abs(ours - ref['nds']):.2e}")
+
+
+def bench_searches(objectives: tuple[str, ...]) -> None:
+    print("\n== 3. Whole search per scenario (heuristic + 40 random steps, seed 0) ==")
+    print(f"{'scenario':24s} {'objective':9s} {'rollouts':>8s} {'wall s':>7s} {'s/rollout':>9s} "
+          f"{'heuristic':>9s} {'final':>7s} {'NDS':>6s} {'NDS-t':>6s} {'FN/TP':>8s}")
+    for name in SCENARIOS:
+        scenario = read_scenario(REPO / "bags" / name)
+        base = load_params(REPO / "config" / f"{name}.yaml")
+        for objective in objectives:
+            params = base.with_values(objective=objective)
+            outcome = run_attack(scenario, params, progress=False)
+            best, heur = outcome.best, outcome.heuristic_best
+            rollouts = len(outcome.log)
+            print(f"{name:24s} {objective:9s} {rollouts:8d} {outcome.wall_time_s:7.1f} "
+                  f"{outcome.wall_time_s / rollouts:9.3f} {heur.metric:9.4f} {best.metric:7.4f} "
+                  f"{best.scores.nds:6.4f} {best.scores.nds_t:6.4f} {best.scores.fn:>4d}/{best.scores.tp:<4d}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--devkit-python", help="python of a venv with nuscenes-devkit 1.2.0")
+    args = parser.parse_args()
+    bench_rollouts(repeats=5 if args.quick else 20)
+    bench_nds(min_seconds=1.0 if args.quick else 3.0, devkit=args.devkit_python)
+    bench_searches(("nds_t",) if args.quick else ("nds", "nds_t"))
+
+
+if __name__ == "__main__":
+    main()

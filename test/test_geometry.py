@@ -259,20 +259,11 @@ def _deep_pairs(count=12, seed=5):
     return pairs
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="SAT depth uses the interval overlap min(max)-max(min) per axis, which underestimates the "
-    "translation needed when one box's projection contains the other's (needs min(amax-bmin, bmax-amin))",
-)
 def test_deep_penetration_depth_is_the_minimum_translation():
     for a, b in _deep_pairs():
         _check_depth_is_minimum_translation(a, b)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="SAT containment bug: a 1x1 box centred inside a 4x2 box needs 1.5 m to get out, depth returned is 1.0",
-)
 def test_depth_of_box_inside_box():
     big = box_corners(0.0, 0.0, 0.0, 4.0, 2.0)
     small = box_corners(0.0, 0.0, 0.0, 1.0, 1.0)

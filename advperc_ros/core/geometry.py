@@ -96,8 +96,10 @@ def _penetration_depth(a: FloatArray, b: FloatArray) -> FloatArray:
     normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
     pa = np.einsum("...ck,...nk->...nc", a, normals)
     pb = np.einsum("...ck,...nk->...nc", b, normals)
-    overlap = np.minimum(pa.max(-1), pb.max(-1)) - np.maximum(pa.min(-1), pb.min(-1))
-    return overlap.min(axis=-1)
+    # the shortest push along an axis that separates the intervals, which exceeds their overlap
+    # when one interval contains the other
+    push = np.minimum(pa.max(-1) - pb.min(-1), pb.max(-1) - pa.min(-1))
+    return push.min(axis=-1)
 
 
 def signed_box_distance(corners_a: FloatArray, corners_b: FloatArray) -> FloatArray:

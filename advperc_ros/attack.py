@@ -15,6 +15,7 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.heuristic import heuristic_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow
 from advperc_ros.core.search.random_search import RandomSearchConfig, random_search
+from advperc_ros.core.search.refine import refine_drops
 from advperc_ros.core.tracker import Tracker, TrackerConfig
 from advperc_ros.params import AttackParams, ParamsError
 
@@ -69,13 +70,13 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True) 
     stack = Stack(scenario, params)
     num_agents = scenario.agents.shape[1]
     iterations = params["search.heuristic.iterations"]
-    budget = 1 + num_agents * (1 + 2 * iterations) + params["search.random.steps"]
+    budget = 1 + num_agents * (1 + 2 * iterations) + params["search.random.steps"] + 2 * params["search.refine.iterations"]
     bar = tqdm(
         total=budget, desc=scenario.name, unit="rollout", disable=not progress, file=sys.stderr, mininterval=1.0
     )
 
     def on_rollout(row: LogRow) -> None:
-        phase = "random search" if row.phase == "random" else "heuristic"
+        phase = {"random": "random search", "refine": "refine"}.get(row.phase, "heuristic")
         bar.set_description(f"{scenario.name} ({phase})", refresh=False)
         bar.set_postfix(best=f"{row.best_metric:.4f}", refresh=False)
         bar.update()
@@ -92,6 +93,8 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True) 
                 yaw_std=params["search.random.yaw_std"],
             )
             random_search(problem, heuristic_best, np.random.default_rng(params["seed"]), cfg)
+            if params["search.refine.iterations"] > 0:
+                refine_drops(problem, problem.best, params["search.refine.iterations"])
     finally:
         bar.close()
     best = problem.best

@@ -45,6 +45,8 @@ SCHEMA: dict[str, Param] = {
     "search.random.proposals": Param(int, 100, "proposals per step N_proposal (paper: 100)"),
     "search.random.max_offset": Param(float, 5.0, "largest position offset of a flipped segment (m)"),
     "search.random.yaw_std": Param(float, 0.1, "yaw noise of flipped detections (rad)"),
+    "search.refine.iterations": Param(int, 4, "beyond the paper: bisection iterations re-detecting the start of "
+                                      "each dropped run of the best attack; 0 keeps the paper's search only"),
 }
 PLANNER_PARAMS = "planner_params"  # free mapping handed to the planner's constructor
 
@@ -130,7 +132,8 @@ def parse_params(document: Any, where: str, source: Path | None = None) -> Attac
             raise ParamsError(f"{where}: parameter '{name}' is required")
         else:
             values[name] = param.default
-    for name in ("search.heuristic.iterations", "search.random.steps", "search.random.proposals"):
+    for name in ("search.heuristic.iterations", "search.random.steps", "search.random.proposals",
+                 "search.refine.iterations"):
         if values[name] < 0:
             raise ParamsError(f"{where}: parameter '{name}' must not be negative")
     for name in ("ego.length", "ego.width", "tracker.gate", "tracker.max_age", "search.random.max_offset"):

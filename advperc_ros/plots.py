@@ -16,17 +16,18 @@ from advperc_ros.core.search.problem import LogRow  # noqa: E402
 
 
 def metric_vs_rollouts(path: Path, log: list[LogRow], objective: str) -> None:
-    """Best adversarial metric after each rollout; heuristic solid, random search dashed."""
+    """Best adversarial metric after each rollout; heuristic solid, random search dashed, refine dotted."""
     index = np.array([row.rollout for row in log])
     best = np.array([row.best_metric for row in log])
-    random_phase = np.array([row.phase == "random" for row in log])
+    phases = np.array([{"random": 1, "refine": 2}.get(row.phase, 0) for row in log])
     fig, ax = plt.subplots(figsize=(6, 4))
-    if (~random_phase).any():
-        ax.step(index[~random_phase], best[~random_phase], where="post", color="tab:orange", label="heuristic")
-    if random_phase.any():
-        first = np.argmax(random_phase)
-        start = max(first - 1, 0)
-        ax.step(index[start:], best[start:], where="post", color="tab:cyan", linestyle="--", label="random search")
+    styles = {0: ("heuristic", "tab:orange", "-"), 1: ("random search", "tab:cyan", "--"), 2: ("refine", "tab:green", ":")}
+    for phase, (label, color, line) in styles.items():
+        rows = np.flatnonzero(phases == phase)
+        if rows.size:
+            start = max(rows[0] - 1, 0)  # join the previous phase's curve
+            ax.step(index[start : rows[-1] + 1], best[start : rows[-1] + 1], where="post", color=color,
+                    linestyle=line, label=label)
     collided = np.array([row.collided for row in log])
     metric = np.array([row.metric for row in log])
     ax.scatter(index[collided], metric[collided], s=10, color="tab:red", label="adversarial rollout", zorder=3)

@@ -8,8 +8,7 @@ from advperc_ros.params import PLANNER_PARAMS, SCHEMA
 def test_every_parameter_is_documented(repo):
     readme = (repo / "README.md").read_text()
     for name in [*SCHEMA, PLANNER_PARAMS]:
-        leaf = name.rsplit(".", 1)[-1]
-        assert re.search(rf"`[^`]*{re.escape(leaf)}[^`]*`", readme), name
+        assert f"`{name}`" in readme, name
 
 
 def test_ci_runs_the_readme_test_command(repo):

@@ -16,23 +16,11 @@ from advperc_ros.core.search.heuristic import heuristic_search
 from advperc_ros.core.search.problem import AttackProblem, GroundTruthFails
 from advperc_ros.core.search.random_search import RandomSearchConfig, propose, random_search
 from advperc_ros.core.tracker import Tracker
+from toy_scenarios import FOLLOW_SPEC
 
 ITERATIONS = 3
 
-BASE_SPEC = {
-    "name": "follow",
-    "dt": 0.1,
-    "duration": 10.0,
-    "lanes": [
-        {"id": "east", "centerline": [[-100.0, -1.75], [500.0, -1.75]], "width": 3.5},
-        {"id": "west", "centerline": [[500.0, 1.75], [-100.0, 1.75]], "width": 3.5},
-    ],
-    "ego": {"route": ["east"], "start_s": 100.0, "speed": 8.0},
-    "agents": [
-        {"id": 1, "lane": "east", "start_s": 120.0, "speed": 8.0, "size": [4.6, 1.9, 1.6]},  # lead
-        {"id": 7, "lane": "west", "start_s": 250.0, "speed": 10.0, "size": [4.4, 1.8, 1.5]},  # oncoming, harmless
-    ],
-}
+BASE_SPEC = FOLLOW_SPEC
 
 
 def spec_with_lead_speed(speed):
@@ -387,3 +375,44 @@ def test_random_search_metric_is_the_objective(random_runs):
         scores = problem.scores(errors, result.num_frames, result.ego_xy)
         assert row.metric == scores.nds_t
         assert row.nds == scores.nds
+
+
+# ----- refine (beyond the paper) ------------------------------------------------------------------
+
+
+def test_dropped_runs_matches_a_naive_scan():
+    from advperc_ros.core.search.refine import dropped_runs
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        fn = rng.random((30, 4)) < 0.4
+        naive = []
+        for j in range(fn.shape[1]):
+            k = 0
+            while k < fn.shape[0]:
+                if fn[k, j]:
+                    end = k
+                    while end + 1 < fn.shape[0] and fn[end + 1, j]:
+                        end += 1
+                    naive.append((j, k, end))
+                    k = end + 1
+                else:
+                    k += 1
+        assert dropped_runs(fn) == naive
+
+
+def test_refine_keeps_only_failing_rollouts_and_restores_perfect_detections():
+    from advperc_ros.core.search.refine import refine_drops
+
+    problem, _, _ = make_problem(BASE_SPEC)
+    best = max(heuristic_search(problem, ITERATIONS), key=lambda m: m.metric)
+    before = len(problem.log)
+    refined = refine_drops(problem, best, iterations=4)
+    rows = problem.log[before:]
+    assert 0 < len(rows) <= 4 and all(row.phase == "refine" for row in rows)
+    assert refined.adversarial and refined.metric >= best.metric
+    changed = refined.errors.fn != best.errors.fn
+    assert not np.any(refined.errors.fn & ~best.errors.fn)  # only ever re-detects
+    assert np.all(refined.errors.dx[changed] == 0.0) and np.all(refined.errors.dyaw[changed] == 0.0)
+    best_so_far = [row.best_metric for row in problem.log if not np.isnan(row.best_metric)]
+    assert best_so_far == sorted(best_so_far)

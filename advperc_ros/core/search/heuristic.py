@@ -5,8 +5,35 @@ that runs to the end, then the earliest end of a drop from that start. Bisection
 only on a definite verdict: an inconclusive rollout ends that bisection where it stands.
 """
 
+from collections.abc import Callable
+
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, GroundTruthFails
+
+
+def bisect(
+    problem: AttackProblem,
+    fails: int,
+    passes: int,
+    errors_at: Callable[[int], PerceptionErrors],
+    phase: str,
+    agent: int,
+    iterations: int,
+    failing: Evaluation,
+) -> tuple[int, Evaluation]:
+    """Move the failing bound towards the passing one; returns it with its evaluation."""
+    for _ in range(iterations):
+        mid = (fails + passes) // 2
+        if mid in (fails, passes):
+            break
+        trial = problem.evaluate(errors_at(mid), phase, agent)
+        if trial.rollout.inconclusive:
+            break
+        if trial.adversarial:
+            fails, failing = mid, trial
+        else:
+            passes = mid
+    return fails, failing
 
 
 def heuristic_search(problem: AttackProblem, iterations: int = 3) -> list[Evaluation]:
@@ -28,32 +55,15 @@ def heuristic_search(problem: AttackProblem, iterations: int = 3) -> list[Evalua
         failing = problem.evaluate(none.with_drop(j, 0, num_frames - 1), "heuristic_drop", agent)
         if not failing.adversarial:
             continue
-        # latest start: dropping [lo, end] fails, dropping from hi on (hi = T: nothing) passes
-        lo, hi = 0, num_frames
-        for _ in range(iterations):
-            mid = (lo + hi) // 2
-            if mid in (lo, hi):
-                break
-            trial = problem.evaluate(none.with_drop(j, mid, num_frames - 1), "heuristic_start", agent)
-            if trial.rollout.inconclusive:
-                break
-            if trial.adversarial:
-                lo, failing = mid, trial
-            else:
-                hi = mid
-        start = lo
-        # earliest end: [start, hi] fails; frames past the collision cannot matter, so hi starts there
-        lo, hi = start - 1, min(num_frames, failing.rollout.num_frames) - 1
-        for _ in range(iterations):
-            mid = (lo + hi) // 2
-            if mid in (lo, hi):
-                break
-            trial = problem.evaluate(none.with_drop(j, start, mid), "heuristic_end", agent)
-            if trial.rollout.inconclusive:
-                break
-            if trial.adversarial:
-                hi, failing = mid, trial
-            else:
-                lo = mid
+        # latest start: dropping [start, end] fails, dropping nothing (start = T) passes
+        start, failing = bisect(
+            problem, 0, num_frames, lambda mid: none.with_drop(j, mid, num_frames - 1), "heuristic_start", agent,
+            iterations, failing,
+        )
+        # earliest end: frames past the collision cannot matter, so the failing end starts there
+        _, failing = bisect(
+            problem, min(num_frames, failing.rollout.num_frames) - 1, start - 1,
+            lambda mid: none.with_drop(j, start, mid), "heuristic_end", agent, iterations, failing,
+        )
         failure_modes.append(failing)
     return failure_modes

@@ -33,7 +33,10 @@ setup(
         "matplotlib>=3.6",
         "tqdm>=4.60",
     ],
-    extras_require={"test": ["pytest>=7"]},
+    extras_require={
+        "commonroad": ["commonroad-io>=2023.1"],
+        "test": ["pytest>=7", "commonroad-io>=2023.1"],
+    },
     zip_safe=True,
     maintainer="advperc_ros developers",
     maintainer_email="dev@advperc.invalid",

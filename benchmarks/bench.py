@@ -9,6 +9,8 @@
    .venv-devkit, or pass --devkit-python); both NDS values are printed to show they agree.
 3. A whole paper-sized search (heuristic + 40 random steps) per scenario and objective: wall time
    and the metric reached.
+4. Recorded traffic (CommonRoad samples in ../shared/data/commonroad, when present): per-frame
+   rollout cost and whole-search wall time against the number of recorded vehicles.
 """
 
 import argparse
@@ -24,6 +26,7 @@ import numpy as np
 
 from advperc_ros.attack import Stack, run_attack
 from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.search.problem import GroundTruthFails
 from advperc_ros.core.metrics.nds import nds
 from advperc_ros.core.rollout import STAGES
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
@@ -33,6 +36,8 @@ from advperc_ros.ros.bag import read_scenario
 REPO = Path(__file__).resolve().parent.parent
 SCENARIOS = ("idm_lane_following", "idm_overtake_follow")
 DEVKIT_VENV = REPO / ".venv-devkit"
+COMMONROAD = REPO.parent / "shared" / "data" / "commonroad"
+RECORDINGS = ("USA_US101-1_1_T-1", "USA_Peach-2_1_T-1", "USA_Lanker-2_1_T-1", "USA_US101-10_1_T-1")
 
 
 def bench_rollouts(repeats: int) -> None:
@@ -133,6 +138,37 @@ def bench_searches(objectives: tuple[str, ...]) -> None:
                   f"{best.scores.nds:6.4f} {best.scores.nds_t:6.4f} {best.scores.fn:>4d}/{best.scores.tp:<4d}")
 
 
+def bench_recordings(repeats: int) -> None:
+    print("\n== 4. Recorded traffic: cost against the number of vehicles (IDM, objective nds_t) ==")
+    if not COMMONROAD.is_dir():
+        print(f"(skipped: no samples at {COMMONROAD})")
+        return
+    from advperc_ros.importers.commonroad import import_commonroad
+    from advperc_ros.params import parse_params
+
+    print(f"{'recording':22s} {'vehicles':>8s} {'frames':>6s} {'ms/frame':>8s} {'tracker':>7s} {'planner':>7s} "
+          f"{'rule':>6s} {'search s':>8s} {'rollouts':>8s}  outcome")
+    for name in RECORDINGS:
+        imported = import_commonroad(COMMONROAD / f"{name}.xml")
+        scenario = imported.scenario
+        document = {"bag": name, "stop_at_collision": False, "planner_params": {"target_speed": imported.target_speed}}
+        params = parse_params({"orchestrator": {"ros__parameters": document}}, name)
+        stack = Stack(scenario, params)
+        errors = PerceptionErrors.none(*scenario.agents.shape)
+        runs = [stack.rollout(errors) for _ in range(repeats)]
+        frames = scenario.num_frames
+        per = {s: statistics.median(r.stage_times[s] for r in runs) / frames * 1e3 for s in STAGES}
+        total = sum(per.values())
+        try:
+            outcome = run_attack(scenario, params.with_values(stop_at_collision=True), progress=False)
+            search = f"{outcome.wall_time_s:8.1f} {len(outcome.log):8d}  "
+            search += "collision found" if outcome.best else "no influential agent"
+        except GroundTruthFails:
+            search = f"{'-':>8s} {'-':>8s}  refused: the IDM collides with perfect perception"
+        print(f"{name:22s} {scenario.agents.shape[1]:8d} {frames:6d} {total:8.2f} {per['tracker']:7.2f} "
+              f"{per['planner']:7.2f} {per['rule']:6.2f} {search}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true")
@@ -141,6 +177,7 @@ def main() -> None:
     bench_rollouts(repeats=5 if args.quick else 20)
     bench_nds(min_seconds=1.0 if args.quick else 3.0, devkit=args.devkit_python)
     bench_searches(("nds_t",) if args.quick else ("nds", "nds_t"))
+    bench_recordings(repeats=3 if args.quick else 5)
 
 
 if __name__ == "__main__":

@@ -1,4 +1,4 @@
-"""The `advperc` command: attack, make-bags, import-commonroad, score.
+"""The `advperc` command: attack, make-bags, import-commonroad, robustness, score.
 
 Bad input (missing or malformed bag, wrong params, NaN in ground truth, unknown planner) ends with
 one line `advperc: error: <file>: <field>: ...` on stderr, exit code 2, and nothing written.
@@ -14,6 +14,7 @@ import numpy as np
 
 from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.planners.base import PlannerError
+from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.search.problem import GroundTruthFails
 from advperc_ros.params import ParamsError, load_params
@@ -114,6 +115,46 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_robustness(args: argparse.Namespace) -> int:
+    import csv
+    from dataclasses import asdict, fields
+
+    from advperc_ros import plots
+    from advperc_ros.attack import Stack
+    from advperc_ros.core.robustness import RobustnessPoint, robustness_curve
+    from advperc_ros.core.search.problem import AttackProblem
+    from advperc_ros.params import NODE, PLANNER_PARAMS, nest, parse_params
+    from advperc_ros.results import ERRORS, REPORT_JSON, load_errors
+    from advperc_ros.ros.bag import read_scenario
+
+    results = Path(args.results)
+    report_path, errors_path = results / REPORT_JSON, results / ERRORS
+    for needed in (report_path, errors_path):
+        if not needed.is_file():
+            raise ParamsError(f"{needed}: missing; robustness needs the results folder of an attack that collided")
+    report = json.loads(report_path.read_text())
+    flat = dict(report["params"])
+    planner_params = flat.pop(PLANNER_PARAMS)
+    params = parse_params({NODE: {"ros__parameters": {**nest(flat), PLANNER_PARAMS: planner_params}}}, str(report_path))
+    scenario = read_scenario(Path(report["bag"]))
+    errors = load_errors(errors_path)
+    if errors.shape != scenario.agents.shape:
+        raise BagError(f"{errors_path}: field 'fn' has shape {errors.shape}, the bag {report['bag']} has {scenario.agents.shape}")
+    strengths = tuple(float(s) for s in args.strengths.split(","))
+    problem = AttackProblem(scenario, Stack(scenario, params).rollout, params["objective"])
+    points = robustness_curve(problem, errors, strengths, args.samples, np.random.default_rng(args.seed))
+    staging = results / ".robustness.partial.csv"
+    with staging.open("w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(RobustnessPoint)])
+        writer.writeheader()
+        writer.writerows(asdict(p) for p in points)
+    plots.robustness(results / "robustness.png", points, params["objective"])
+    staging.rename(results / "robustness.csv")
+    for p in points:
+        print(f"strength {p.strength:5.2f}: {p.adversarial_fraction:5.2f} still collide, mean {params['objective']} {p.mean_metric:.4f}")
+    return 0
+
+
 def cmd_score(args: argparse.Namespace) -> int:
     from advperc_ros.core.metrics.scores import score
     from advperc_ros.ros.bag import GROUND_TRUTH, ODOMETRY, read_objects, read_topics
@@ -167,6 +208,13 @@ def build_parser() -> argparse.ArgumentParser:
     importer.add_argument("--output", help="bag directory to write (default bags/<scenario id>)")
     importer.add_argument("--params", help="params file to write for attacking it (default <output>.yaml)")
     importer.set_defaults(func=cmd_import_commonroad)
+
+    robust = sub.add_parser("robustness", help="perturb a found attack at growing strength (paper figure 5)")
+    robust.add_argument("results", help="results folder of an attack (report.json + attack_errors.npz)")
+    robust.add_argument("--strengths", default=",".join(map(str, DEFAULT_STRENGTHS)), help="comma-separated strengths")
+    robust.add_argument("--samples", type=int, default=10, help="perturbations per strength (paper: 10)")
+    robust.add_argument("--seed", type=int, default=0)
+    robust.set_defaults(func=cmd_robustness)
 
     score_cmd = sub.add_parser("score", help="perception metrics of a perceived bag against ground truth, as JSON")
     score_cmd.add_argument("ground_truth", help="ground-truth bag (topic /ground_truth/objects)")

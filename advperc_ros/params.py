@@ -74,6 +74,18 @@ class AttackParams:
         return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()[:16]
 
 
+def nest(flat: dict[str, Any]) -> dict[str, Any]:
+    """Dotted parameter names back into the nested mapping of a params file."""
+    out: dict[str, Any] = {}
+    for name, value in flat.items():
+        node = out
+        *parents, leaf = name.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = value
+    return out
+
+
 def _flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
     out = {}
     for key, value in mapping.items():

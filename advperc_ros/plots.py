@@ -78,3 +78,22 @@ def birds_eye_view(path: Path, outcome: AttackOutcome, seconds_before: float = 3
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def robustness(path: Path, points, objective: str) -> None:
+    """Fraction still adversarial and mean metric against perturbation strength (paper figure 5)."""
+    strength = np.array([p.strength for p in points])
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.5))
+    left.plot(strength, [p.adversarial_fraction for p in points], marker="o", color="tab:red")
+    left.set_xlabel("perturbation strength")
+    left.set_ylabel("fraction still colliding")
+    left.set_ylim(-0.05, 1.05)
+    right.plot(strength, [p.mean_metric for p in points], marker="o", color="tab:blue")
+    right.set_xlabel("perturbation strength")
+    right.set_ylabel({"nds": "NDS", "nds_t": "NDS-t"}.get(objective, objective))
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    fig.suptitle("Robustness of the attack to random perturbations")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -219,3 +219,21 @@ def test_write_scenario_round_trip_keeps_everything(tmp_path, repo):
     np.testing.assert_allclose(back.agents.yaw[valid], scenario.agents.yaw[valid], atol=1e-12)
     np.testing.assert_allclose(back.agents.vx[valid], scenario.agents.vx[valid], atol=1e-9)
     assert [lane.id for lane in back.lanes] == [lane.id for lane in scenario.lanes]
+
+
+def test_robustness_at_zero_strength_reproduces_the_attack(attack_run, capsys):
+    import csv
+
+    out = attack_run[0]
+    report = json.loads((out / "report.json").read_text())
+    assert main(["robustness", str(out), "--strengths", "0,0.5", "--samples", "2"]) == 0
+    rows = list(csv.DictReader((out / "robustness.csv").open()))
+    assert [float(r["strength"]) for r in rows] == [0.0, 0.5]
+    assert float(rows[0]["adversarial_fraction"]) == 1.0
+    assert float(rows[0]["mean_metric"]) == pytest.approx(report["nds_t"], abs=1e-12)
+    assert (out / "robustness.png").is_file() and not list(out.glob(".robustness*"))
+
+
+def test_robustness_needs_an_attack(tmp_path, capsys):
+    assert main(["robustness", str(tmp_path)]) == 2
+    assert "report.json" in capsys.readouterr().err

@@ -5,8 +5,8 @@ import json
 import pytest
 import yaml
 
-from advperc_ros.nodes.orchestrator import main, nest
-from advperc_ros.params import parse_params
+from advperc_ros.nodes.orchestrator import main
+from advperc_ros.params import nest, parse_params
 
 
 def test_dotted_parameters_nest_back_into_the_params_file_layout(repo):

@@ -10,24 +10,10 @@ process); the graph backend over DDS comes with the node graph.
 
 import sys
 from pathlib import Path
-from typing import Any
-
-from advperc_ros.params import NODE, ParamsError, parse_params
+from advperc_ros.params import NODE, ParamsError, nest, parse_params
 
 OUTPUT = "output"
 ROS_OWN = {"use_sim_time", "start_type_description_service"}
-
-
-def nest(flat: dict[str, Any]) -> dict[str, Any]:
-    """Dotted parameter names back into the nested mapping of a params file."""
-    out: dict[str, Any] = {}
-    for name, value in flat.items():
-        node = out
-        *parents, leaf = name.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = value
-    return out
 
 
 def main(args: list[str] | None = None) -> int:

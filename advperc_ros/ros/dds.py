@@ -1,0 +1,311 @@
+"""A ROS 2 compatible topic transport on Cyclone DDS, without rclpy.
+
+It follows what rmw_cyclonedds puts on the wire, so these processes and real ROS 2 nodes
+(same domain id, discovery able to reach each other) see each other's topics:
+
+- topic `/a/b` is the DDS topic `rt/a/b`; type `pkg/msg/T` is `pkg::msg::dds_::T_` (dds_types);
+- payloads are plain CDR (XCDR1): writers offer and readers accept only that representation,
+  because Cyclone's Python binding would otherwise pick XCDR2 for some types and ROS 2 and
+  rosbags speak XCDR1;
+- QoS is the contract's: reliable, keep-last 1000, volatile; latched topics are transient-local
+  keep-last 1, which is what ROS 2 calls latching.
+
+Messages in and out are rosbags message objects (`advperc_ros.ros.messages`). The payload is
+made by rosbags' generated serialiser and handed to Cyclone as bytes, and received bytes are
+decoded by rosbags, skipping Cyclone's much slower Python (de)serialiser. That uses the two
+functions DataWriter.write and DataReader.take themselves call (`cyclonedds._clayer.ddspy_write`
+and `ddspy_take`); should a cyclonedds release drop them, the public API is used instead
+(through `dds_types.to_idl` / `from_idl`), slower but identical on the wire.
+
+Discovery is loopback-only by default (`LOCALHOST_CONFIG`, like ROS's
+`ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`). Volatile topics only reach readers that are already
+matched: call `Publication.wait_for_subscribers` before the first message that must arrive.
+Builtin-topic readers are never created (they crash cyclonedds 11.0.1); matching is observed
+through the writer's and reader's matched status instead.
+
+A transport is meant for one thread. Callbacks run on the thread calling `spin_once`, never on
+Cyclone's receive thread, so a callback may publish without risking a deadlock on flow control.
+"""
+
+import time
+from collections.abc import Callable
+from types import TracebackType
+from typing import Any
+
+from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.domain import Domain, DomainParticipant
+from cyclonedds.pub import DataWriter
+from cyclonedds.qos import Policy, Qos
+from cyclonedds.sub import DataReader
+from cyclonedds.topic import Topic
+from cyclonedds.util import duration
+
+from advperc_ros.ros import dds_types
+
+try:  # the fast path: rosbags' bytes straight to Cyclone (see the module docstring)
+    from cyclonedds._clayer import ddspy_take as _ddspy_take
+    from cyclonedds._clayer import ddspy_write as _ddspy_write
+except ImportError:  # pragma: no cover - depends on the installed cyclonedds
+    _ddspy_take = None
+    _ddspy_write = None
+
+LOCALHOST_CONFIG = (
+    "<CycloneDDS><Domain><General><Interfaces><NetworkInterface name=\"lo\"/></Interfaces>"
+    "<AllowMulticast>false</AllowMulticast></General><Discovery><ParticipantIndex>auto</ParticipantIndex>"
+    "<MaxAutoParticipantIndex>{max_index}</MaxAutoParticipantIndex>"
+    "<Peers><Peer address=\"127.0.0.1\"/></Peers></Discovery></Domain></CycloneDDS>"
+)
+"""Loopback only, unicast discovery. Each process takes a participant index (a port pair) and
+probes the indices 0..max_index on 127.0.0.1, so at most max_index + 1 processes can join a
+domain on one host; Cyclone's default of 9 is too tight for six nodes, an orchestrator and tools."""
+MAX_PROCESSES = 32
+
+DEPTH = 1000
+LATCHED_DEPTH = 1
+_ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
+_TAKE_BATCH = 256
+_POLL_S = 0.002
+
+_DOMAINS: dict[int, tuple[Domain, bool]] = {}
+"""Cyclone domains configured by this process: one per id, for the process's lifetime."""
+
+
+class DdsError(RuntimeError):
+    """A transport that cannot be set up as asked; the text says what and why."""
+
+
+def dds_topic_name(topic: str) -> str:
+    """ROS topic name -> DDS topic name (`/a/b` -> `rt/a/b`)."""
+    return "rt/" + topic.lstrip("/")
+
+
+def _qos(latched: bool) -> Qos:
+    return Qos(
+        Policy.Reliability.Reliable(max_blocking_time=duration(milliseconds=100)),
+        Policy.Durability.TransientLocal if latched else Policy.Durability.Volatile,
+        Policy.History.KeepLast(LATCHED_DEPTH if latched else DEPTH),
+        Policy.DataRepresentation(use_cdrv0_representation=True),
+    )
+
+
+def _domain(domain_id: int, localhost_only: bool) -> None:
+    """Configure the Cyclone domain once per process; a second, different request is an error."""
+    if domain_id in _DOMAINS:
+        if _DOMAINS[domain_id][1] != localhost_only:
+            raise DdsError(f"domain {domain_id}: already set up with localhost_only={_DOMAINS[domain_id][1]} in this process")
+        return
+    config = LOCALHOST_CONFIG.format(max_index=MAX_PROCESSES - 1) if localhost_only else None
+    # without a config Cyclone reads CYCLONEDDS_URI or its defaults: the user widened discovery
+    _DOMAINS[domain_id] = (Domain(domain_id, config), localhost_only)
+
+
+def _delete(entity: Any) -> None:
+    """Delete a Cyclone entity now (cyclonedds only deletes in __del__, at garbage collection)."""
+    entity.__del__()
+    if isinstance(entity, WaitSet):
+        entity.attached = []  # already detached; a second __del__ must not detach again
+
+
+def _pad(payload: bytes) -> bytes:
+    """Pad a CDR payload to 4 bytes and record the padding in the encapsulation options, as
+    XTypes 7.6.3.1.2 says and rmw_cyclonedds does (readers then know the true length)."""
+    pad = -len(payload) % 4
+    if not pad:
+        return payload
+    return payload[:3] + bytes([payload[3] | pad]) + payload[4:] + b"\0" * pad
+
+
+class Publication:
+    """A writer of one ROS topic; made by `DdsTransport.publisher`."""
+
+    def __init__(self, writer: DataWriter, topic: str, msgtype: str) -> None:
+        self.topic = topic
+        self.msgtype = msgtype
+        self._writer = writer
+
+    def publish(self, msg: object) -> None:
+        """Send a rosbags message of this topic's type."""
+        payload = dds_types.to_cdr(msg, self.msgtype)
+        if _ddspy_write is not None:
+            ret = _ddspy_write(self._writer._ref, _pad(payload))
+            if ret < 0:
+                raise DdsError(f"{self.topic}: write failed with DDS return code {ret}")
+        else:  # pragma: no cover - public API fallback
+            self._writer.write(dds_types.idl_type(self.msgtype).deserialize(payload))
+
+    def matched_count(self) -> int:
+        """Readers currently matched (local and remote)."""
+        return int(self._writer.get_publication_matched_status().current_count)
+
+    def wait_for_subscribers(self, count: int = 1, timeout: float = 5.0) -> bool:
+        """Block until at least `count` readers are matched; False on timeout. Needed before
+        the first message a late-joining reader must get on a volatile topic."""
+        return _poll(lambda: self.matched_count() >= count, timeout)
+
+    def wait_for_acks(self, timeout: float = 5.0) -> bool:
+        """Block until every matched reliable reader acknowledged everything; False on timeout."""
+        return bool(self._writer.wait_for_acks(duration(seconds=timeout)))
+
+
+class Subscription:
+    """A reader of one ROS topic; made by `DdsTransport.subscriber`."""
+
+    def __init__(self, participant: DomainParticipant, reader: DataReader, topic: str, msgtype: str,
+                 callback: Callable[[object], None] | None) -> None:
+        self.topic = topic
+        self.msgtype = msgtype
+        self.callback = callback
+        self._reader = reader
+        self.condition = ReadCondition(reader, _ANY_STATE)
+        self._waitset = WaitSet(participant)
+        self._waitset.attach(self.condition)
+
+    def take(self) -> list[object]:
+        """All messages received so far and not yet taken, oldest first (non-blocking)."""
+        out: list[object] = []
+        while True:
+            if _ddspy_take is not None:
+                samples = _ddspy_take(self._reader._ref, _ANY_STATE, _TAKE_BATCH)
+                if isinstance(samples, int):
+                    raise DdsError(f"{self.topic}: take failed with DDS return code {samples}")
+                # invalid samples only announce a writer's disappearance
+                out.extend(dds_types.from_cdr(data, self.msgtype) for data, info in samples if info.valid_data)
+            else:  # pragma: no cover - public API fallback
+                samples = self._reader.take(_TAKE_BATCH)
+                out.extend(dds_types.from_idl(s, self.msgtype) for s in samples if s.sample_info.valid_data)
+            if len(samples) < _TAKE_BATCH:
+                return out
+
+    def wait(self, timeout: float) -> list[object]:
+        """Like `take`, but first block until something arrives or `timeout` seconds pass
+        (then the list is empty)."""
+        deadline = time.monotonic() + timeout
+        while True:
+            messages = self.take()
+            remaining = deadline - time.monotonic()
+            if messages or remaining <= 0:
+                return messages
+            self._waitset.wait(duration(seconds=remaining))
+
+    def matched_count(self) -> int:
+        """Writers currently matched (local and remote)."""
+        return int(self._reader.get_subscription_matched_status().current_count)
+
+    def wait_for_publishers(self, count: int = 1, timeout: float = 5.0) -> bool:
+        """Block until at least `count` writers are matched; False on timeout."""
+        return _poll(lambda: self.matched_count() >= count, timeout)
+
+
+def _poll(done: Callable[[], bool], timeout: float) -> bool:
+    deadline = time.monotonic() + timeout
+    while not done():
+        if time.monotonic() >= deadline:
+            return False
+        time.sleep(_POLL_S)
+    return True
+
+
+class DdsTransport:
+    """One DDS participant on `domain_id`, with publishers and subscribers of ROS topics.
+
+    `localhost_only` (the default) keeps all DDS traffic on 127.0.0.1 whatever CYCLONEDDS_URI
+    says; with False, Cyclone's own configuration (CYCLONEDDS_URI or its defaults) applies.
+    A process can hold several transports on one domain, all with the same `localhost_only`.
+    """
+
+    def __init__(self, domain_id: int, localhost_only: bool = True) -> None:
+        if not 0 <= domain_id <= 232:
+            raise DdsError(f"domain id {domain_id}: must be within 0..232 (RTPS port mapping)")
+        _domain(domain_id, localhost_only)
+        self.domain_id = domain_id
+        self._participant: DomainParticipant | None = DomainParticipant(domain_id)
+        self._topics: dict[str, tuple[Topic, str]] = {}
+        self._publications: list[Publication] = []
+        self._subscriptions: list[Subscription] = []
+        self._spin_waitset: WaitSet | None = None
+
+    @property
+    def participant(self) -> DomainParticipant:
+        if self._participant is None:
+            raise DdsError("transport is closed")
+        return self._participant
+
+    def _topic(self, topic: str, msgtype: str) -> Topic:
+        if not topic.startswith("/"):
+            raise DdsError(f"topic {topic!r}: must be an absolute ROS name (leading '/')")
+        known = self._topics.get(topic)
+        if known is not None:
+            if known[1] != msgtype:
+                raise DdsError(f"topic {topic}: already used with type {known[1]}, not {msgtype}")
+            return known[0]
+        dds_topic = Topic(self.participant, dds_topic_name(topic), dds_types.idl_type(msgtype))
+        self._topics[topic] = (dds_topic, msgtype)
+        return dds_topic
+
+    def publisher(self, topic: str, msgtype: str, latched: bool = False) -> Publication:
+        """A writer of `topic` (ROS name) carrying `msgtype` (`pkg/msg/Type`)."""
+        writer = DataWriter(self.participant, self._topic(topic, msgtype), _qos(latched))
+        publication = Publication(writer, topic, msgtype)
+        self._publications.append(publication)
+        return publication
+
+    def subscriber(self, topic: str, msgtype: str, latched: bool = False,
+                   callback: Callable[[object], None] | None = None) -> Subscription:
+        """A reader of `topic`. With a callback, messages are delivered by `spin_once`;
+        without, the caller takes them with `take` / `wait`. A latched reader also gets the
+        last message published before it joined."""
+        reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched))
+        subscription = Subscription(self.participant, reader, topic, msgtype, callback)
+        self._subscriptions.append(subscription)
+        if callback is not None:
+            if self._spin_waitset is None:
+                self._spin_waitset = WaitSet(self.participant)
+            self._spin_waitset.attach(subscription.condition)
+        return subscription
+
+    def spin_once(self, timeout: float) -> int:
+        """Wait up to `timeout` seconds for messages on subscriptions with a callback and call
+        the callbacks, in this thread; returns the number of messages delivered."""
+        with_callback = [s for s in self._subscriptions if s.callback is not None]
+        if not with_callback or self._spin_waitset is None:
+            time.sleep(max(timeout, 0.0))
+            return 0
+        delivered = 0
+        deadline = time.monotonic() + timeout
+        while True:
+            for subscription in with_callback:
+                for msg in subscription.take():
+                    subscription.callback(msg)  # type: ignore[misc]
+                    delivered += 1
+            remaining = deadline - time.monotonic()
+            if delivered or remaining <= 0:
+                return delivered
+            self._spin_waitset.wait(duration(seconds=remaining))
+
+    def close(self) -> None:
+        """Delete the participant and everything in it now (idempotent)."""
+        if self._participant is None:
+            return
+        if self._spin_waitset is not None:
+            _delete(self._spin_waitset)
+        for subscription in self._subscriptions:
+            _delete(subscription._waitset)
+            _delete(subscription.condition)
+            _delete(subscription._reader)
+        for publication in self._publications:
+            _delete(publication._writer)
+        for dds_topic, _ in self._topics.values():
+            _delete(dds_topic)
+        _delete(self._participant)
+        self._participant = None
+        self._spin_waitset = None
+        self._subscriptions.clear()
+        self._publications.clear()
+        self._topics.clear()
+
+    def __enter__(self) -> "DdsTransport":
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        self.close()

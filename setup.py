@@ -11,7 +11,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(include=[PACKAGE, f"{PACKAGE}.*"]),
-    package_data={PACKAGE: ["py.typed"]},
+    package_data={PACKAGE: ["py.typed", "data/*.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
@@ -32,6 +32,7 @@ setup(
         "mcap-ros2-support>=0.5",
         "matplotlib>=3.6",
         "tqdm>=4.60",
+        "cyclonedds>=0.10.5",
     ],
     extras_require={
         "commonroad": ["commonroad-io>=2023.1"],

@@ -1,4 +1,4 @@
-"""The `advperc` command: attack, make-bags, import-commonroad, robustness, score.
+"""The `advperc` command: attack, make-bags, import-commonroad, check-typical, robustness, pem fit, score.
 
 Bad input (missing or malformed bag, wrong params, NaN in ground truth, unknown planner) ends with
 one line `advperc: error: <file>: <field>: ...` on stderr, exit code 2, and nothing written.
@@ -115,6 +115,21 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check_typical(args: argparse.Namespace) -> int:
+    from advperc_ros.attack import Stack, resolve_bag
+    from advperc_ros.core.pem import PEM, default_pem
+    from advperc_ros.core.typical import check_typical
+    from advperc_ros.ros.bag import read_scenario
+
+    params = load_params(args.params)
+    pem = PEM.load(Path(args.model)) if args.model else default_pem()
+    scenario = read_scenario(resolve_bag(params))
+    stack = Stack(scenario, params)
+    result = check_typical(scenario, stack.rollout, pem, args.samples, np.random.default_rng(args.seed))
+    print(json.dumps({"scenario": scenario.name, **result.__dict__, "passed": result.passed}))
+    return 0 if result.passed else EXIT_NOTHING_TO_ATTACK
+
+
 def cmd_robustness(args: argparse.Namespace) -> int:
     import csv
     from dataclasses import asdict, fields
@@ -155,34 +170,67 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_score(args: argparse.Namespace) -> int:
-    from advperc_ros.core.metrics.scores import score
+def aligned(ground_truth: Path, perceived: Path, topic: str):
+    """(truth, perceived, ego_xy) on the frames both bags share; the 50 m range uses /ego/odometry
+    of the perceived bag, else of the ground-truth bag (latest pose at or before each frame)."""
     from advperc_ros.ros.bag import GROUND_TRUTH, ODOMETRY, read_objects, read_topics
     from advperc_ros.ros.messages import odometry_to_ego, stamp_ns
 
-    gt_stamps, truth = read_objects(Path(args.ground_truth), GROUND_TRUTH)
-    pred_stamps, perceived = read_objects(Path(args.perceived), args.topic)
+    gt_stamps, truth = read_objects(ground_truth, GROUND_TRUTH)
+    pred_stamps, boxes = read_objects(perceived, topic)
     common = np.intersect1d(gt_stamps, pred_stamps)
     if common.size == 0:
-        raise BagError(f"{args.perceived}: topic '{args.topic}' shares no header.stamp with {args.ground_truth}")
+        raise BagError(f"{perceived}: topic '{topic}' shares no header.stamp with {ground_truth}")
     odometry = []
-    for source in (Path(args.perceived), Path(args.ground_truth)):
+    for source in (perceived, ground_truth):
         odometry = read_topics(source, [ODOMETRY])[0][ODOMETRY]
         if odometry:
             break
     if not odometry:
-        raise BagError(f"{args.perceived}: topic '{ODOMETRY}' is missing in both bags (needed for the 50 m range)")
+        raise BagError(f"{perceived}: topic '{ODOMETRY}' is missing in both bags (needed for the 50 m range)")
     odo_stamps = np.array([stamp_ns(m.header.stamp) for _, m in odometry])
     odo_xy = np.array([[odometry_to_ego(m).x, odometry_to_ego(m).y] for _, m in odometry])
     latest = np.clip(np.searchsorted(odo_stamps, common, side="right") - 1, 0, len(odometry) - 1)
-    gt_rows = np.searchsorted(gt_stamps, common)
-    pred_rows = np.searchsorted(pred_stamps, common)
-    truth_frames = truth.select(gt_rows)
-    perceived_frames = perceived.select(pred_rows)
-    if np.any(np.isnan(perceived_frames.score[perceived_frames.valid])):
-        raise BagError(f"{args.perceived}: topic '{args.topic}': field 'text' (confidence) is empty on some markers")
-    result = score(truth_frames, perceived_frames, odo_xy[latest])
-    print(json.dumps({"frames": int(common.size), **result.as_dict()}, indent=2))
+    boxes = boxes.select(np.searchsorted(pred_stamps, common))
+    if np.any(np.isnan(boxes.score[boxes.valid])):
+        raise BagError(f"{perceived}: topic '{topic}': field 'text' (confidence) is empty on some markers")
+    return truth.select(np.searchsorted(gt_stamps, common)), boxes, odo_xy[latest]
+
+
+def cmd_score(args: argparse.Namespace) -> int:
+    from advperc_ros.core.metrics.scores import score
+
+    truth, perceived, ego_xy = aligned(Path(args.ground_truth), Path(args.perceived), args.topic)
+    result = score(truth, perceived, ego_xy)
+    print(json.dumps({"frames": int(truth.shape[0]), **result.as_dict()}, indent=2))
+    return 0
+
+
+def cmd_pem_fit(args: argparse.Namespace) -> int:
+    from advperc_ros.core.metrics.scores import matched_errors
+    from advperc_ros.core.pem import bearings, features, fit
+
+    phis, detected, rts, yaws = [], [], [], []
+    for bag in map(Path, args.bags):
+        truth, perceived, ego_xy = aligned(Path(args.ground_truth) if args.ground_truth else bag, bag, args.topic)
+        errors, counted, _ = matched_errors(truth, perceived, ego_xy)
+        bearing = bearings(truth, ego_xy)
+        c, s = np.cos(bearing), np.sin(bearing)
+        rt = np.stack([c * errors.dx + s * errors.dy, -s * errors.dx + c * errors.dy], axis=-1)
+        phis.append(features(truth, ego_xy)[counted])
+        detected.append(~errors.fn[counted])
+        rts.append(rt[counted])
+        yaws.append(errors.dyaw[counted])
+    detected_all = np.concatenate(detected)
+    if detected_all.size < 50 or detected_all.sum() < 20:
+        raise BagError(f"{args.bags[0]}: too few object-frames to fit ({detected_all.size}, {detected_all.sum()} detected)")
+    source = f"fitted by advperc pem fit on {', '.join(args.bags)} ({detected_all.size} object-frames)"
+    model = fit(np.concatenate(phis), detected_all, np.concatenate(rts), np.concatenate(yaws), source)
+    output = Path(args.output)
+    staging = output.with_name(f".{output.name}.partial")
+    model.save(staging)
+    staging.rename(output)
+    print(f"{output}: {source}")
     return 0
 
 
@@ -209,12 +257,28 @@ def build_parser() -> argparse.ArgumentParser:
     importer.add_argument("--params", help="params file to write for attacking it (default <output>.yaml)")
     importer.set_defaults(func=cmd_import_commonroad)
 
+    typical = sub.add_parser("check-typical", help="roll out PEM-sampled typical errors; exit 1 on any collision")
+    typical.add_argument("params", help="params YAML, as for attack")
+    typical.add_argument("--samples", type=int, default=100, help="rollouts (paper: 100)")
+    typical.add_argument("--seed", type=int, default=0)
+    typical.add_argument("--model", help="PEM JSON (default: the shipped reference model)")
+    typical.set_defaults(func=cmd_check_typical)
+
     robust = sub.add_parser("robustness", help="perturb a found attack at growing strength (paper figure 5)")
     robust.add_argument("results", help="results folder of an attack (report.json + attack_errors.npz)")
     robust.add_argument("--strengths", default=",".join(map(str, DEFAULT_STRENGTHS)), help="comma-separated strengths")
     robust.add_argument("--samples", type=int, default=10, help="perturbations per strength (paper: 10)")
     robust.add_argument("--seed", type=int, default=0)
     robust.set_defaults(func=cmd_robustness)
+
+    pem = sub.add_parser("pem", help="perception error model tools")
+    pem_sub = pem.add_subparsers(dest="pem_command", required=True)
+    pem_fit = pem_sub.add_parser("fit", help="fit a PEM to detections paired with ground truth")
+    pem_fit.add_argument("bags", nargs="+", help="bags with detections (and ground truth, unless --ground-truth)")
+    pem_fit.add_argument("--ground-truth", help="one ground-truth bag for all the detection bags")
+    pem_fit.add_argument("--topic", default="/perception/objects", help="detections topic")
+    pem_fit.add_argument("--output", required=True, help="model JSON to write")
+    pem_fit.set_defaults(func=cmd_pem_fit)
 
     score_cmd = sub.add_parser("score", help="perception metrics of a perceived bag against ground truth, as JSON")
     score_cmd.add_argument("ground_truth", help="ground-truth bag (topic /ground_truth/objects)")

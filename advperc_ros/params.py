@@ -33,7 +33,7 @@ SCHEMA: dict[str, Param] = {
     "bag": Param(str, None, "ground-truth rosbag2 bag to attack (directory); relative paths are tried "
                  "against the working directory, then the params file's directory, then the package share"),
     "planner": Param(str, "idm", "bundled planner name or a plug-in as module:Class"),
-    "objective": Param(str, "nds_t", "perception metric the search maximises", ("nds", "nds_t")),
+    "objective": Param(str, "nds_t", "perception metric the search maximises", ("nds", "nds_t", "pem_ll")),
     "seed": Param(int, 0, "seed of the random search; same params and seed give the same attack"),
     "stop_at_collision": Param(bool, True, "end a rollout at its first rule violation"),
     "ego.length": Param(float, 4.6, "ego box length (m)"),

@@ -99,8 +99,8 @@ def report_markdown(report: dict) -> str:
     lines = [
         f"# Attack on {report['scenario']} ({report['planner']} planner, objective {report['objective']})",
         "",
-        "| Search | Total FN/TP | MPE (m) | MAOE (rad) | NDS | NDS-t | Rollouts |",
-        "|---|---|---|---|---|---|---|",
+        "| Search | Total FN/TP | MPE (m) | MAOE (rad) | NDS | NDS-t | PEM LL | Rollouts |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     rows = [("heuristic", report.get("heuristic"), "")]
     if report["collision"]:
@@ -110,7 +110,7 @@ def report_markdown(report: dict) -> str:
             continue
         lines.append(
             f"| {name} | {row['fn']}/{row['tp']} | {_fmt(row['mpe'])} | {_fmt(row['maoe'])} | "
-            f"{_fmt(row['nds'], 4)} | {_fmt(row['nds_t'], 4)} | {rollouts} |"
+            f"{_fmt(row['nds'], 4)} | {_fmt(row['nds_t'], 4)} | {_fmt(row['pem_ll'])} | {rollouts} |"
         )
     lines += [
         "",

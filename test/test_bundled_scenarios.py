@@ -61,3 +61,15 @@ def test_typical_errors_have_the_stated_statistics():
     assert errors.dyaw.std() == pytest.approx(0.05, rel=0.05)
     assert not np.any(errors.fn[1:] & errors.fn[:-1])
     assert 0.03 < errors.fn.mean() < 0.05
+
+
+def test_pem_sampled_typical_errors_cause_no_collision(bundled):
+    """The paper's tuning criterion with the shipped PEM: 0 collisions in 100 samples."""
+    from advperc_ros.core.pem import default_pem
+    from advperc_ros.core.typical import check_typical
+
+    _, scenario, params_path = bundled
+    stack = Stack(scenario, load_params(params_path))
+    result = check_typical(scenario, stack.rollout, default_pem(), TYPICAL_SAMPLES, np.random.default_rng(0))
+    assert result.passed, result
+    assert result.min_signed_distance > 0.0

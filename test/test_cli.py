@@ -237,3 +237,19 @@ def test_robustness_at_zero_strength_reproduces_the_attack(attack_run, capsys):
 def test_robustness_needs_an_attack(tmp_path, capsys):
     assert main(["robustness", str(tmp_path)]) == 2
     assert "report.json" in capsys.readouterr().err
+
+
+def test_attack_with_the_pem_objective(tmp_path, repo):
+    params = write_params(tmp_path / "p.yaml", repo, objective="pem_ll")
+    assert main(["attack", str(params), "--output", str(tmp_path / "out"), "--quiet"]) == 0
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert report["collision"] and report["objective"] == "pem_ll"
+    assert report["pem_ll"] >= report["heuristic"]["pem_ll"]
+    assert "PEM LL" in (tmp_path / "out" / "report.md").read_text()
+
+
+def test_check_typical_passes_on_a_bundled_scenario(repo, capsys):
+    capsys.readouterr()
+    assert main(["check-typical", str(repo / "config" / "idm_overtake_follow.yaml"), "--samples", "5"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["passed"] and result["collisions"] == 0 and result["samples"] == 5

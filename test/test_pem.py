@@ -76,3 +76,66 @@ def test_samples_follow_the_model_marginals():
     assert stats.kstest(dyaw, stats.t(df=TRUE.yaw_nu, scale=sy).cdf).pvalue > 0.01
     corr = np.corrcoef(e[np.all(np.abs(e) < 5 * max(s1, s2), axis=1)].T)[0, 1]
     assert corr == pytest.approx(TRUE.position_rho, abs=0.05)
+
+
+def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
+    from advperc_ros.core.errors import PerceptionErrors
+    from advperc_ros.core.metrics.nds import in_range
+    from advperc_ros.core.pem import default_pem, features
+    from advperc_ros.core.scenario_spec import build_scenario
+    from toy_scenarios import FOLLOW_SPEC
+
+    scenario = build_scenario(FOLLOW_SPEC)
+    truth = scenario.agents
+    ego = np.stack([scenario.ego_start.x + 8.0 * scenario.times, np.full(scenario.num_frames, scenario.ego_start.y)], 1)
+    counted = in_range(truth, ego)
+    model = default_pem()
+    phi = features(truth, ego)[counted]
+    s1, s2 = np.exp(phi @ np.array(model.radial_log_scale)), np.exp(phi @ np.array(model.tangential_log_scale))
+    sy = np.exp(phi @ np.array(model.yaw_log_scale))
+    joint = [stats.multivariate_t(loc=[0, 0], shape=np.diag([a * a, b * b]), df=model.position_nu).logpdf([0, 0])
+             for a, b in zip(s1, s2)]  # uncorrelated is not independent for a t: use the joint density
+    expected = np.mean(
+        np.log(model.detection_probability(phi)) + np.array(joint) + stats.t(df=model.yaw_nu, scale=sy).logpdf(0.0)
+    )
+    assert model.position_rho == 0.0 and model.position_loc == (0.0, 0.0)
+    got = model.score(truth, PerceptionErrors.none(*truth.shape), ego, counted)
+    assert got == pytest.approx(expected, rel=1e-12)
+
+
+def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path, repo):
+    """Detections sampled from a known PEM into bags; `advperc pem fit` gets the model back."""
+    from advperc_ros.attack import Stack
+    from advperc_ros.cli import main
+    from advperc_ros.core.errors import PerceptionErrors, inject
+    from advperc_ros.params import load_params
+    from advperc_ros.ros import bag as bags
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.core.scenario import EgoState
+    from advperc_ros.ros.bag import open_bag_for_writing, read_scenario
+
+    rng = np.random.default_rng(11)
+    paths = []
+    for name in ("idm_lane_following", "idm_overtake_follow"):
+        scenario = read_scenario(repo / "bags" / name)
+        ego = Stack(scenario, load_params(repo / "config" / f"{name}.yaml")).rollout(
+            PerceptionErrors.none(*scenario.agents.shape)).ego
+        for copy in range(6):
+            perceived = inject(scenario.agents, TRUE.sample(scenario.agents, ego[:, :2], rng))
+            path = tmp_path / f"{name}_{copy}"
+            with open_bag_for_writing(path) as bag:
+                for k, ns in enumerate(scenario.stamps_ns):
+                    ns = int(ns)
+                    bag.write(bags.GROUND_TRUTH, ns, msgs.objects_to_markers(scenario.agents.frame(k), ns, "ground_truth"))
+                    bag.write(bags.PERCEPTION, ns, msgs.objects_to_markers(perceived.frame(k), ns, "perception"))
+                    bag.write(bags.ODOMETRY, ns, msgs.odometry(EgoState(*ego[k]), ns))
+            paths.append(str(path))
+    output = tmp_path / "fitted.json"
+    assert main(["pem", "fit", *paths, "--output", str(output)]) == 0
+    got = PEM.load(output)
+    assert "fitted by advperc pem fit" in got.source
+    # the bundled scenes span little of the feature space: compare where they are (near range, open view)
+    near = np.array([[1.0, r, r * r, 0.0, 0.87] for r in np.linspace(0.05, 0.6, 12)])
+    assert np.abs(got.detection_probability(near) - TRUE.detection_probability(near)).max() < 0.05
+    ratio = np.exp(near @ (np.array(got.radial_log_scale) - np.array(TRUE.radial_log_scale)))
+    assert np.abs(ratio - 1.0).max() < 0.25

@@ -236,7 +236,9 @@ def test_perfect_perception():
     assert got.longest_drop_fraction == 0.0
     assert (got.tp, got.fn, got.fp) == (gt.valid.sum(), 0, 0)
     assert got.mpe == 0.0 and got.maoe == 0.0
-    assert set(got.as_dict()) == {"nds", "nds_t", "longest_drop_fraction", "mean_ap", "tp", "fn", "fp", "mpe", "maoe"}
+    assert set(got.as_dict()) == {
+        "nds", "nds_t", "longest_drop_fraction", "mean_ap", "tp", "fn", "fp", "mpe", "maoe", "pem_ll"
+    }
 
 
 def test_dropping_an_agent_lowers_nds_t_through_its_run():

@@ -15,7 +15,10 @@ has parameters one can read. The log-likelihood of a sequence is the per object-
 log p(det | x) + [det] (log p(position error | x) + log p(yaw error | x)).
 """
 
+import json
 from dataclasses import asdict, dataclass
+from functools import lru_cache
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -94,11 +97,15 @@ class PEM:
         return out + np.where(detected, position + yaw, 0.0)
 
     # ----- use on scenarios -----
-    def score(self, truth: BoxSequence, errors: PerceptionErrors, ego_xy: np.ndarray, counted: np.ndarray) -> float:
-        """Mean log-likelihood of the errors over the counted object-frames (present and in range)."""
+    def score(
+        self, truth: BoxSequence, errors: PerceptionErrors, ego_xy: np.ndarray, counted: np.ndarray,
+        phi: np.ndarray | None = None,
+    ) -> float:
+        """Mean log-likelihood of the errors over the counted object-frames (present and in range);
+        phi = features(truth, ego_xy) may be passed in when scoring many errors on one rollout."""
         if not counted.any():
             return float("nan")
-        phi = features(truth, ego_xy)
+        phi = features(truth, ego_xy) if phi is None else phi
         bearing = bearings(truth, ego_xy)
         c, s = np.cos(bearing), np.sin(bearing)
         rt = np.stack([c * errors.dx + s * errors.dy, -s * errors.dx + c * errors.dy], axis=-1)
@@ -130,16 +137,22 @@ class PEM:
 
     # ----- persistence -----
     def save(self, path: Path) -> None:
-        import json
-
         Path(path).write_text(json.dumps(asdict(self), indent=2) + "\n")
 
     @classmethod
     def load(cls, path: Path) -> "PEM":
-        import json
+        return cls.from_json(Path(path).read_text())
 
-        data = json.loads(Path(path).read_text())
+    @classmethod
+    def from_json(cls, text: str) -> "PEM":
+        data = json.loads(text)
         return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+
+
+@lru_cache(maxsize=1)
+def default_pem() -> PEM:
+    """The shipped reference model (advperc_ros/data/default_pem.json; its `source` says what it is)."""
+    return PEM.from_json(resources.files("advperc_ros").joinpath("data/default_pem.json").read_text())
 
 
 def fit(phi: np.ndarray, detected: np.ndarray, radial_tangential: np.ndarray, dyaw: np.ndarray, source: str) -> PEM:

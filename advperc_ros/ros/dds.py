@@ -4,9 +4,10 @@ It follows what rmw_cyclonedds puts on the wire, so these processes and real ROS
 (same domain id, discovery able to reach each other) see each other's topics:
 
 - topic `/a/b` is the DDS topic `rt/a/b`; type `pkg/msg/T` is `pkg::msg::dds_::T_` (dds_types);
-- payloads are plain CDR (XCDR1): writers offer and readers accept only that representation,
-  because Cyclone's Python binding would otherwise pick XCDR2 for some types and ROS 2 and
-  rosbags speak XCDR1;
+- payloads are plain CDR (XCDR1), what ROS 2 sends. Writers offer only that (Cyclone's default
+  here too) and readers accept only that: by default they would also accept XCDR2, which rosbags
+  cannot decode, so a writer offering XCDR2 must fail to match visibly rather than deliver
+  undecodable samples;
 - QoS is the contract's: reliable, keep-last 1000, volatile; latched topics are transient-local
   keep-last 1, which is what ROS 2 calls latching.
 
@@ -32,7 +33,7 @@ from collections.abc import Callable
 from types import TracebackType
 from typing import Any
 
-from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState, WaitSet
+from cyclonedds.core import DDSException, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.domain import Domain, DomainParticipant
 from cyclonedds.pub import DataWriter
 from cyclonedds.qos import Policy, Qos
@@ -79,12 +80,15 @@ def dds_topic_name(topic: str) -> str:
     return "rt/" + topic.lstrip("/")
 
 
-def _qos(latched: bool) -> Qos:
+def _qos(latched: bool, msgtype: str) -> Qos:
+    """The contract's QoS, plus the USER_DATA `typehash=RIHS01_...;` that ROS 2 Jazzy endpoints
+    carry (informational: `ros2 topic info -v` shows it; matching does not depend on it)."""
     return Qos(
         Policy.Reliability.Reliable(max_blocking_time=duration(milliseconds=100)),
         Policy.Durability.TransientLocal if latched else Policy.Durability.Volatile,
         Policy.History.KeepLast(LATCHED_DEPTH if latched else DEPTH),
         Policy.DataRepresentation(use_cdrv0_representation=True),
+        Policy.Userdata(data=f"typehash={dds_types.TYPESTORE.hash_rihs01(msgtype)};".encode()),
     )
 
 
@@ -96,7 +100,12 @@ def _domain(domain_id: int, localhost_only: bool) -> None:
         return
     config = LOCALHOST_CONFIG.format(max_index=MAX_PROCESSES - 1) if localhost_only else None
     # without a config Cyclone reads CYCLONEDDS_URI or its defaults: the user widened discovery
-    _DOMAINS[domain_id] = (Domain(domain_id, config), localhost_only)
+    try:
+        domain = Domain(domain_id, config)
+    except DDSException as exc:
+        hint = f" (more than {MAX_PROCESSES} processes on this domain, or its UDP ports taken?)" if localhost_only else ""
+        raise DdsError(f"domain {domain_id}: Cyclone DDS could not start it{hint}: {exc}") from exc
+    _DOMAINS[domain_id] = (domain, localhost_only)
 
 
 def _delete(entity: Any) -> None:
@@ -130,7 +139,7 @@ class Publication:
             ret = _ddspy_write(self._writer._ref, _pad(payload))
             if ret < 0:
                 raise DdsError(f"{self.topic}: write failed with DDS return code {ret}")
-        else:  # pragma: no cover - public API fallback
+        else:  # public API fallback, slower
             self._writer.write(dds_types.idl_type(self.msgtype).deserialize(payload))
 
     def matched_count(self) -> int:
@@ -170,7 +179,7 @@ class Subscription:
                     raise DdsError(f"{self.topic}: take failed with DDS return code {samples}")
                 # invalid samples only announce a writer's disappearance
                 out.extend(dds_types.from_cdr(data, self.msgtype) for data, info in samples if info.valid_data)
-            else:  # pragma: no cover - public API fallback
+            else:  # public API fallback, slower
                 samples = self._reader.take(_TAKE_BATCH)
                 out.extend(dds_types.from_idl(s, self.msgtype) for s in samples if s.sample_info.valid_data)
             if len(samples) < _TAKE_BATCH:
@@ -244,7 +253,7 @@ class DdsTransport:
 
     def publisher(self, topic: str, msgtype: str, latched: bool = False) -> Publication:
         """A writer of `topic` (ROS name) carrying `msgtype` (`pkg/msg/Type`)."""
-        writer = DataWriter(self.participant, self._topic(topic, msgtype), _qos(latched))
+        writer = DataWriter(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype))
         publication = Publication(writer, topic, msgtype)
         self._publications.append(publication)
         return publication
@@ -254,7 +263,7 @@ class DdsTransport:
         """A reader of `topic`. With a callback, messages are delivered by `spin_once`;
         without, the caller takes them with `take` / `wait`. A latched reader also gets the
         last message published before it joined."""
-        reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched))
+        reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype))
         subscription = Subscription(self.participant, reader, topic, msgtype, callback)
         self._subscriptions.append(subscription)
         if callback is not None:
@@ -265,7 +274,8 @@ class DdsTransport:
 
     def spin_once(self, timeout: float) -> int:
         """Wait up to `timeout` seconds for messages on subscriptions with a callback and call
-        the callbacks, in this thread; returns the number of messages delivered."""
+        the callbacks, in this thread; returns the number of messages delivered. A callback's
+        exception propagates (after which the rest of that subscription's batch is dropped)."""
         with_callback = [s for s in self._subscriptions if s.callback is not None]
         if not with_callback or self._spin_waitset is None:
             time.sleep(max(timeout, 0.0))

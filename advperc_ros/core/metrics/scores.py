@@ -13,8 +13,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.geometry import wrap_angle
-from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, nds
+from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, NDSResult, nds
+from advperc_ros.core.pem import PEM, default_pem
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,7 @@ class PerceptionScores:
     fp: int
     mpe: float  # m, mean position error over true positives (nan without any)
     maoe: float  # rad, mean absolute orientation error over true positives (nan without any)
+    pem_ll: float  # mean log-likelihood per counted object-frame under the perception error model
 
     def as_dict(self) -> dict[str, float | int]:
         return asdict(self)
@@ -49,20 +52,40 @@ def longest_drop_fraction(missed: np.ndarray, counted: np.ndarray) -> float:
     return worst
 
 
-def score(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> PerceptionScores:
-    """All perception metrics of `pred` against `gt` (same frames; gt slots are agents)."""
+def matched_errors(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> tuple[PerceptionErrors, np.ndarray, NDSResult]:
+    """The errors a perception output made, read off the devkit's greedy matching at 4 m.
+
+    Returns (errors, counted, nds result): errors[k, j] holds the offset of the detection matched to
+    gt slot j at frame k, fn where none matched; counted marks gt present within 50 m.
+    """
     result = nds(gt, pred, ego_xy)
     pred_gt = result.matchings[max(DIST_THRESHOLDS)].pred_gt
     f, p = np.nonzero(pred_gt >= 0)
     g = pred_gt[f, p]
-    matched = np.zeros(gt.shape, dtype=bool)
-    matched[f, g] = True
-    counted = result.gt_in_range
-    missed = counted & ~matched
+    errors = PerceptionErrors.none(*gt.shape)
+    errors.fn[:] = True
+    errors.fn[f, g] = False
+    errors.dx[f, g], errors.dy[f, g] = pred.x[f, p] - gt.x[f, g], pred.y[f, p] - gt.y[f, g]
+    errors.dyaw[f, g] = wrap_angle(pred.yaw[f, p] - gt.yaw[f, g])
+    return errors, result.gt_in_range, result
+
+
+def score(
+    gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray, pem: PEM | None = None, phi: np.ndarray | None = None
+) -> PerceptionScores:
+    """All perception metrics of `pred` against `gt` (same frames; gt slots are agents).
+
+    PEM LL reads the errors off the same 4 m matching: a matched car is detected with the error
+    of its match, an unmatched one is missed (default model unless `pem` is given; `phi`, the
+    model's features of gt seen from ego_xy, may be passed in to score many outputs on one rollout).
+    """
+    errors, counted, result = matched_errors(gt, pred, ego_xy)
+    matched = counted & ~errors.fn
+    missed = counted & errors.fn
     ldf = longest_drop_fraction(missed, counted)
-    tp = int(f.size)
-    position_error = np.hypot(pred.x[f, p] - gt.x[f, g], pred.y[f, p] - gt.y[f, g])
-    orientation_error = np.abs(wrap_angle(pred.yaw[f, p] - gt.yaw[f, g]))
+    tp = int(matched.sum())
+    position_error = np.hypot(errors.dx[matched], errors.dy[matched])
+    orientation_error = np.abs(errors.dyaw[matched])
     return PerceptionScores(
         nds=result.nds,
         nds_t=(result.nds + (1.0 - ldf)) / 2.0,
@@ -73,4 +96,5 @@ def score(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> PerceptionS
         fp=int(result.pred_in_range.sum()) - tp,
         mpe=float(position_error.mean()) if tp else float("nan"),
         maoe=float(orientation_error.mean()) if tp else float("nan"),
+        pem_ll=(pem or default_pem()).score(gt, errors, ego_xy, counted, phi),
     )

@@ -7,10 +7,11 @@ import numpy as np
 
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.metrics.scores import PerceptionScores, score
+from advperc_ros.core.pem import features
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
 
-OBJECTIVES = ("nds", "nds_t")
+OBJECTIVES = ("nds", "nds_t", "pem_ll")
 
 
 class GroundTruthFails(RuntimeError):
@@ -56,21 +57,27 @@ class AttackProblem:
     on_rollout: Callable[[LogRow], None] | None = None
     log: list[LogRow] = field(default_factory=list)
     best: Evaluation | None = None
+    _reference: RolloutResult | None = field(default=None, repr=False)
+    _reference_phi: np.ndarray | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective '{self.objective}' (known: {', '.join(OBJECTIVES)})")
 
-    def scores(self, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray) -> PerceptionScores:
+    def scores(self, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray, phi=None) -> PerceptionScores:
         """m(I(y, e), y) over the first `frames` frames of a rollout whose ego was at ego_xy."""
         agents = self.scenario.agents
         # inject over the whole scenario first: a detection's confidence depends on its frame and
         # agent only, never on where this rollout stopped
-        return score(agents.frames(frames), inject(agents, errors).frames(frames), ego_xy)
+        return score(agents.frames(frames), inject(agents, errors).frames(frames), ego_xy, phi=phi)
 
     def metric(self, errors: PerceptionErrors, reference: RolloutResult) -> float:
         """The objective of errors judged on a previous rollout's ground truth (Algorithm 2)."""
-        return getattr(self.scores(errors, reference.num_frames, reference.ego_xy), self.objective)
+        if self._reference is not reference:  # proposals of one step share the rollout: and its PEM features
+            self._reference = reference
+            self._reference_phi = features(self.scenario.agents.frames(reference.num_frames), reference.ego_xy)
+        scores = self.scores(errors, reference.num_frames, reference.ego_xy, self._reference_phi)
+        return getattr(scores, self.objective)
 
     def evaluate(self, errors: PerceptionErrors, phase: str, agent: int = -1) -> Evaluation:
         """Roll out errors, score them on that rollout, log the rollout."""

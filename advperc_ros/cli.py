@@ -209,10 +209,15 @@ def cmd_score(args: argparse.Namespace) -> int:
 def cmd_pem_fit(args: argparse.Namespace) -> int:
     from advperc_ros.core.metrics.scores import matched_errors
     from advperc_ros.core.pem import bearings, features, fit
+    from advperc_ros.importers.nuscenes import load_pairs
 
+    if args.nuscenes_gt:
+        sources = [load_pairs(Path(args.nuscenes_gt), Path(results)) for results in args.inputs]
+    else:
+        gt = Path(args.ground_truth) if args.ground_truth else None
+        sources = [aligned(gt or Path(bag), Path(bag), args.topic) for bag in args.inputs]
     phis, detected, rts, yaws = [], [], [], []
-    for bag in map(Path, args.bags):
-        truth, perceived, ego_xy = aligned(Path(args.ground_truth) if args.ground_truth else bag, bag, args.topic)
+    for truth, perceived, ego_xy in sources:
         errors, counted, _ = matched_errors(truth, perceived, ego_xy)
         bearing = bearings(truth, ego_xy)
         c, s = np.cos(bearing), np.sin(bearing)
@@ -223,8 +228,8 @@ def cmd_pem_fit(args: argparse.Namespace) -> int:
         yaws.append(errors.dyaw[counted])
     detected_all = np.concatenate(detected)
     if detected_all.size < 50 or detected_all.sum() < 20:
-        raise BagError(f"{args.bags[0]}: too few object-frames to fit ({detected_all.size}, {detected_all.sum()} detected)")
-    source = f"fitted by advperc pem fit on {', '.join(args.bags)} ({detected_all.size} object-frames)"
+        raise BagError(f"{args.inputs[0]}: too few object-frames to fit ({detected_all.size}, {detected_all.sum()} detected)")
+    source = f"fitted by advperc pem fit on {', '.join(args.inputs)} ({detected_all.size} object-frames)"
     model = fit(np.concatenate(phis), detected_all, np.concatenate(rts), np.concatenate(yaws), source)
     output = Path(args.output)
     staging = output.with_name(f".{output.name}.partial")
@@ -274,8 +279,10 @@ def build_parser() -> argparse.ArgumentParser:
     pem = sub.add_parser("pem", help="perception error model tools")
     pem_sub = pem.add_subparsers(dest="pem_command", required=True)
     pem_fit = pem_sub.add_parser("fit", help="fit a PEM to detections paired with ground truth")
-    pem_fit.add_argument("bags", nargs="+", help="bags with detections (and ground truth, unless --ground-truth)")
+    pem_fit.add_argument("inputs", nargs="+", help="bags with detections (and ground truth, unless --ground-truth), "
+                         "or nuScenes detection-results JSON files with --nuscenes-gt")
     pem_fit.add_argument("--ground-truth", help="one ground-truth bag for all the detection bags")
+    pem_fit.add_argument("--nuscenes-gt", help="nuScenes ground-truth boxes JSON (devkit-serialised, with ego_translation)")
     pem_fit.add_argument("--topic", default="/perception/objects", help="detections topic")
     pem_fit.add_argument("--output", required=True, help="model JSON to write")
     pem_fit.set_defaults(func=cmd_pem_fit)

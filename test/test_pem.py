@@ -139,3 +139,61 @@ def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path,
     assert np.abs(got.detection_probability(near) - TRUE.detection_probability(near)).max() < 0.05
     ratio = np.exp(near @ (np.array(got.radial_log_scale) - np.array(TRUE.radial_log_scale)))
     assert np.abs(ratio - 1.0).max() < 0.25
+
+
+def test_pem_fit_from_nuscenes_detection_results(tmp_path, repo):
+    """Detections of a known PEM written in the devkit's JSON formats; the fit recovers the PEM."""
+    import json
+
+    from advperc_ros.attack import Stack
+    from advperc_ros.cli import main
+    from advperc_ros.core.errors import PerceptionErrors, inject
+    from advperc_ros.params import load_params
+    from advperc_ros.ros.bag import read_scenario
+
+    def box(token, x, y, yaw, length, width, height, ego_xy=None, score=None):
+        out = {"sample_token": token, "translation": [x, y, 0.8], "size": [width, length, height],
+               "rotation": [float(np.cos(yaw / 2)), 0.0, 0.0, float(np.sin(yaw / 2))], "velocity": [0.0, 0.0],
+               "detection_name": "car", "attribute_name": "vehicle.moving"}
+        if ego_xy is not None:
+            out.update(ego_translation=[x - ego_xy[0], y - ego_xy[1], 0.8], num_pts=10, detection_score=-1.0)
+        if score is not None:
+            out["detection_score"] = score
+        return out
+
+    rng = np.random.default_rng(5)
+    gt, results = {}, {}
+    for name in ("idm_lane_following", "idm_overtake_follow"):
+        scenario = read_scenario(repo / "bags" / name)
+        ego = Stack(scenario, load_params(repo / "config" / f"{name}.yaml")).rollout(
+            PerceptionErrors.none(*scenario.agents.shape)).ego_xy
+        for copy in range(6):
+            seen = inject(scenario.agents, TRUE.sample(scenario.agents, ego, rng))
+            for k in range(scenario.num_frames):
+                token = f"{name}-{copy}-{k}"
+                t, p = scenario.agents.frame(k), seen.frame(k)
+                gt[token] = [box(token, *(float(t[f][i]) for f in ("x", "y", "yaw", "length", "width", "height")),
+                                 ego_xy=ego[k]) for i in range(len(t["x"]))]
+                results[token] = [box(token, *(float(p[f][i]) for f in ("x", "y", "yaw", "length", "width", "height")),
+                                      score=float(p["score"][i])) for i in range(len(p["x"]))]
+    (tmp_path / "gt.json").write_text(json.dumps({"results": gt}))
+    (tmp_path / "results.json").write_text(json.dumps({"meta": {"use_lidar": True}, "results": results}))
+    output = tmp_path / "fitted.json"
+    assert main(["pem", "fit", str(tmp_path / "results.json"), "--nuscenes-gt", str(tmp_path / "gt.json"),
+                 "--output", str(output)]) == 0
+    got = PEM.load(output)
+    near = np.array([[1.0, r, r * r, 0.0, 0.87] for r in np.linspace(0.05, 0.6, 12)])
+    assert np.abs(got.detection_probability(near) - TRUE.detection_probability(near)).max() < 0.05
+    ratio = np.exp(near @ (np.array(got.radial_log_scale) - np.array(TRUE.radial_log_scale)))
+    assert np.abs(ratio - 1.0).max() < 0.25
+
+
+def test_malformed_nuscenes_json_names_the_file(tmp_path, capsys):
+    from advperc_ros.cli import main
+
+    (tmp_path / "gt.json").write_text('{"results": {"s0": [{"detection_name": "car", "translation": [1, 2, 0]}]}}')
+    (tmp_path / "r.json").write_text('{"results": {}}')
+    code = main(["pem", "fit", str(tmp_path / "r.json"), "--nuscenes-gt", str(tmp_path / "gt.json"), "--output",
+                 str(tmp_path / "m.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "gt.json" in err and "ego_translation" in err

@@ -24,6 +24,7 @@ setup(
     install_requires=[
         "numpy>=1.26",
         "scipy>=1.11",
+        "casadi>=3.6",
         "pyyaml>=6",
         "filterpy>=1.4.5",
         "shapely>=2.0",

@@ -41,6 +41,20 @@ def _smooth(knots: np.ndarray, x: np.ndarray) -> np.ndarray:
     return knots[i, 1] + (knots[i + 1, 1] - knots[i, 1]) * u
 
 
+def connector(incoming: Polyline, outgoing: Polyline, points: int = 25) -> Polyline:
+    """A junction connector: the cubic Hermite curve from the end of one lane to the start of the
+    next, tangent to both, with tangent lengths equal to the gap (a near-circular quarter turn)."""
+    p0, p1 = incoming.points[-1], outgoing.points[0]
+    h0, h1 = incoming.heading(incoming.length), outgoing.heading(0.0)
+    scale = np.linalg.norm(p1 - p0)
+    m0 = scale * np.array([np.cos(h0), np.sin(h0)])
+    m1 = scale * np.array([np.cos(h1), np.sin(h1)])
+    u = np.linspace(0.0, 1.0, points)[:, None]
+    curve = ((2 * u**3 - 3 * u**2 + 1) * p0 + (u**3 - 2 * u**2 + u) * m0
+             + (-2 * u**3 + 3 * u**2) * p1 + (u**3 - u**2) * m1)
+    return Polyline(curve)
+
+
 def _require(mapping: dict, key: str, source: str, where: str) -> Any:
     if key not in mapping:
         raise ScenarioError(f"{source}: field '{where}{key}' is missing")
@@ -56,14 +70,20 @@ def build_scenario(spec: dict, source: str = "<scenario>") -> Scenario:
     dt_ns = int(round(dt * 1e9))
     stamps_ns = np.arange(num_frames, dtype=np.int64) * dt_ns
 
-    lanes = {}
+    lanes: dict[str, Lane] = {}
     for i, lane in enumerate(_require(spec, "lanes", source, "")):
         lane_id = str(_require(lane, "id", source, f"lanes[{i}]."))
-        lanes[lane_id] = Lane(
-            id=lane_id,
-            centerline=Polyline(np.asarray(_require(lane, "centerline", source, f"lanes[{i}]."), dtype=float)),
-            width=float(lane.get("width", 3.5)),
-        )
+        if "connect" in lane:
+            ends = lane["connect"]
+            if not (isinstance(ends, list) and len(ends) == 2 and all(str(e) in lanes for e in ends)):
+                raise ScenarioError(f"{source}: field 'lanes[{i}].connect' must name two lanes listed before it")
+            start, end = lanes[str(ends[0])], lanes[str(ends[1])]
+            centerline = connector(start.centerline, end.centerline)
+            width = float(lane.get("width", min(start.width, end.width)))
+        else:
+            centerline = Polyline(np.asarray(_require(lane, "centerline", source, f"lanes[{i}]."), dtype=float))
+            width = float(lane.get("width", 3.5))
+        lanes[lane_id] = Lane(id=lane_id, centerline=centerline, width=width)
 
     def lane_of(name: str, field: str) -> Lane:
         if name not in lanes:

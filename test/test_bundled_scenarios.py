@@ -11,7 +11,7 @@ from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
 from advperc_ros.params import load_params
 
 # in-range object-frames of the paper's Table 1 (FN + TP), which the scenarios are sized after
-PAPER_OBJECT_FRAMES = {"idm_lane_following": 465, "idm_overtake_follow": 682}
+PAPER_OBJECT_FRAMES = {"idm_lane_following": 465, "idm_overtake_follow": 682, "obp_overtake": 341}
 TYPICAL_SAMPLES = 100
 
 
@@ -39,9 +39,9 @@ def test_ground_truth_is_collision_free_and_sized_like_the_paper(bundled):
     assert 0.75 * PAPER_OBJECT_FRAMES[name] <= object_frames <= 1.25 * PAPER_OBJECT_FRAMES[name]
 
 
-def test_typical_errors_cause_no_collision(bundled):
+def test_typical_errors_cause_no_collision(idm_bundled):
     """The robustness stand-in: 100 rollouts with 0.2 m / 0.05 rad noise and 5 % single drops."""
-    _, scenario, params_path = bundled
+    _, scenario, params_path = idm_bundled
     stack = Stack(scenario, load_params(params_path))
     rng = np.random.default_rng(12345)
     cfg = TypicalErrorConfig()
@@ -63,12 +63,12 @@ def test_typical_errors_have_the_stated_statistics():
     assert 0.03 < errors.fn.mean() < 0.05
 
 
-def test_pem_sampled_typical_errors_cause_no_collision(bundled):
+def test_pem_sampled_typical_errors_cause_no_collision(idm_bundled):
     """The paper's tuning criterion with the shipped PEM: 0 collisions in 100 samples."""
     from advperc_ros.core.pem import default_pem
     from advperc_ros.core.typical import check_typical
 
-    _, scenario, params_path = bundled
+    _, scenario, params_path = idm_bundled
     stack = Stack(scenario, load_params(params_path))
     result = check_typical(scenario, stack.rollout, default_pem(), TYPICAL_SAMPLES, np.random.default_rng(0))
     assert result.passed, result

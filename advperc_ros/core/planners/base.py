@@ -53,8 +53,9 @@ class Planner(Protocol):
 def load_planner(name: str, context: PlanningContext, params: dict[str, Any]) -> Planner:
     """Build a bundled planner by name, or a plug-in given as `module:Class`."""
     from advperc_ros.core.planners.idm import IDMPlanner
+    from advperc_ros.core.planners.obp import OBPPlanner
 
-    bundled = {"idm": IDMPlanner}
+    bundled = {"idm": IDMPlanner, "obp": OBPPlanner}
     if name in bundled:
         cls = bundled[name]
     elif ":" in name:

@@ -5,7 +5,7 @@ from glob import glob
 from setuptools import find_packages, setup
 
 PACKAGE = "advperc_ros"
-NODES = ("orchestrator",)  # one executable per module in advperc_ros/nodes/, as `ros2 run` names them
+NODES = ("orchestrator", "scenario_player", "error_injector", "tracker", "planner", "rule_monitor")  # one executable per module in advperc_ros/nodes/, as `ros2 run` names them
 
 setup(
     name=PACKAGE,

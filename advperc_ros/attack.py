@@ -1,14 +1,20 @@
-"""An attack end to end, embedded (one process): replay a ground-truth bag, search, return the
-outcome. The orchestrator node and `advperc attack` both call this."""
+"""An attack end to end: replay a ground-truth bag, search, return the outcome. The orchestrator
+node and `advperc attack` both call this. Rollouts run embedded (`Stack`, one process) or through
+the node graph over DDS (`advperc_ros.graph.GraphRollouts`), chosen by `rollout_backend`; the
+search cannot tell them apart."""
 
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Protocol
 
 import numpy as np
 from tqdm import tqdm
 
+from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import PlanningContext, load_planner
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
@@ -33,16 +39,21 @@ class AttackOutcome:
 
 def resolve_bag(params: AttackParams) -> Path:
     """The bag named in the params: as given, next to the params file, or in the package share."""
-    name = Path(params["bag"])
+    return find_bag(params["bag"], params.source)
+
+
+def find_bag(bag: str, source: Path | None) -> Path:
+    """`bag` as given, next to the params file `source`, or in the package share."""
+    name = Path(bag)
     candidates = [name]
     if not name.is_absolute():
-        if params.source is not None:
-            candidates.append(params.source.parent / name)
+        if source is not None:
+            candidates.append(source.parent / name)
         candidates.append(Path(sys.prefix) / "share" / "advperc_ros" / name)
     for candidate in candidates:
         if candidate.exists():
             return candidate
-    where = params.source or "params"
+    where = source or "params"
     raise ParamsError(f"{where}: parameter 'bag' names '{name}', which does not exist")
 
 
@@ -65,9 +76,30 @@ class Stack:
         return rollout(self.scenario, errors, self.tracker, self.planner, self.config, record=record)
 
 
-def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True) -> AttackOutcome:
+class Rollouts(Protocol):
+    """What the search needs of a backend: one rollout of an error tensor."""
+
+    def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult: ...
+
+
+@contextmanager
+def open_rollouts(scenario: Scenario, params: AttackParams, bag_path: Path, transport: Any = None) -> Iterator[Rollouts]:
+    """The backend `rollout_backend` names, ready to use and shut down on exit. `transport`
+    (graph backend, nodes not spawned) lets an rclpy orchestrator reach nodes over its own node."""
+    if params["rollout_backend"] != "graph":
+        yield Stack(scenario, params)
+        return
+    from advperc_ros.graph import GraphRollouts
+
+    with GraphRollouts(scenario, params, bag_path, transport) as graph:
+        yield graph
+
+
+def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
+               rollouts: Rollouts | None = None) -> AttackOutcome:
+    """Both searches over `rollouts` (default: embedded)."""
     started = time.perf_counter()
-    stack = Stack(scenario, params)
+    backend = rollouts if rollouts is not None else Stack(scenario, params)
     num_agents = scenario.agents.shape[1]
     iterations = params["search.heuristic.iterations"]
     budget = 1 + num_agents * (1 + 2 * iterations) + params["search.random.steps"] + 2 * params["search.refine.iterations"]
@@ -81,7 +113,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True) 
         bar.set_postfix(best=f"{row.best_metric:.4f}", refresh=False)
         bar.update()
 
-    problem = AttackProblem(scenario, stack.rollout, params["objective"], on_rollout=on_rollout)
+    problem = AttackProblem(scenario, backend.rollout, params["objective"], on_rollout=on_rollout)
     try:
         modes = heuristic_search(problem, iterations)
         heuristic_best = max(modes, key=lambda m: m.metric) if modes else None
@@ -98,7 +130,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True) 
     finally:
         bar.close()
     best = problem.best
-    recorded = stack.rollout(best.errors, record=True) if best is not None else None
+    recorded = backend.rollout(best.errors, record=True) if best is not None else None
     return AttackOutcome(
         scenario=scenario,
         params=params,

@@ -1,7 +1,8 @@
 """The `advperc` command: attack, make-bags, import-commonroad, check-typical, robustness, pem fit, score.
 
 Bad input (missing or malformed bag, wrong params, NaN in ground truth, unknown planner) ends with
-one line `advperc: error: <file>: <field>: ...` on stderr, exit code 2, and nothing written.
+one line `advperc: error: <file>: <field>: ...` on stderr, exit code 2, and nothing written. A graph
+backend that cannot start (`--backend graph`) ends the same way with exit code 4.
 """
 
 import argparse
@@ -17,6 +18,7 @@ from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.search.problem import GroundTruthFails
+from advperc_ros.graph import GraphError
 from advperc_ros.params import ParamsError, load_params
 from advperc_ros.ros.bag import BagError
 
@@ -24,6 +26,7 @@ INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError)
 EXIT_INPUT = 2
 EXIT_NOTHING_TO_ATTACK = 1
 EXIT_REJECTED = 3
+EXIT_GRAPH = 4
 
 
 def _default_output(params_path: Path, seed: int) -> Path:
@@ -36,19 +39,22 @@ def _default_output(params_path: Path, seed: int) -> Path:
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
-    from advperc_ros.attack import resolve_bag, run_attack
+    from advperc_ros.attack import open_rollouts, resolve_bag, run_attack
     from advperc_ros.results import write_results
     from advperc_ros.ros.bag import read_scenario
 
     params = load_params(args.params)
     if args.seed is not None:
         params = params.with_values(seed=args.seed)
+    if args.backend is not None:
+        params = params.with_values(rollout_backend=args.backend)
     output = Path(args.output) if args.output else _default_output(Path(args.params), params["seed"])
     if output.exists():
         raise ParamsError(f"{output}: output folder exists already; choose another --output")
     bag_path = resolve_bag(params)
     scenario = read_scenario(bag_path)
-    outcome = run_attack(scenario, params, progress=not args.quiet)
+    with open_rollouts(scenario, params, bag_path) as rollouts:
+        outcome = run_attack(scenario, params, progress=not args.quiet, rollouts=rollouts)
     report = write_results(output, outcome, bag_path)
     summary = {k: report.get(k) for k in ("scenario", "objective", "collision", "nds", "nds_t", "fn", "tp", "rollouts")}
     print(json.dumps(summary))
@@ -243,11 +249,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="advperc", description="Adversarial perception error search.")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    attack = sub.add_parser("attack", help="search for an adversarial perception attack (embedded, no ROS needed)")
+    attack = sub.add_parser("attack", help="search for an adversarial perception attack (no ROS needed)")
     attack.add_argument("params", help="params YAML in the ROS layout (orchestrator: ros__parameters: ...)")
     attack.add_argument("--output", help="results folder to create (default results/<params>-seed<N>)")
     attack.add_argument("--seed", type=int, help="override the params file's seed")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
+    attack.add_argument("--backend", choices=("embedded", "graph"),
+                        help="override rollout_backend: embedded (one process) or graph (the nodes over Cyclone DDS)")
     attack.set_defaults(func=cmd_attack)
 
     make_bags = sub.add_parser("make-bags", help="write ground-truth bags from scenario descriptions")
@@ -308,6 +316,9 @@ def main(argv: list[str] | None = None) -> int:
     except ScenarioRejected as exc:
         print(f"advperc: {exc}", file=sys.stderr)
         return EXIT_REJECTED
+    except GraphError as exc:
+        print(f"advperc: error: graph backend: {exc}", file=sys.stderr)
+        return EXIT_GRAPH
 
 
 if __name__ == "__main__":

@@ -47,7 +47,18 @@ SCHEMA: dict[str, Param] = {
     "search.random.yaw_std": Param(float, 0.1, "yaw noise of flipped detections (rad)"),
     "search.refine.iterations": Param(int, 4, "beyond the paper: bisection iterations re-detecting the start of "
                                       "each dropped run of the best attack; 0 keeps the paper's search only"),
+    "rollout_backend": Param(str, "embedded", "how rollouts run: in this process (embedded) or through the node "
+                             "graph over DDS (graph); both give the same results", ("embedded", "graph")),
+    "dds.domain_id": Param(int, 0, "DDS domain id of the graph backend (0..232)"),
+    "dds.localhost_only": Param(bool, True, "graph backend: DDS discovery and traffic on this host's loopback only"),
+    "graph.timeout": Param(float, 10.0, "graph backend: seconds the player waits for a frame's plan and rule "
+                           "value before the rollout is inconclusive"),
+    "graph.spawn_nodes": Param(bool, True, "graph backend: start the five graph nodes as child processes (Cyclone "
+                               "DDS); false uses nodes already running, e.g. from launch/attack.launch.py"),
 }
+EXECUTION = ("rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes")
+"""How rollouts are executed, not what they compute: left out of the report's params and the config
+hash, so the graph and embedded backends give the same report."""
 PLANNER_PARAMS = "planner_params"  # free mapping handed to the planner's constructor
 
 
@@ -68,7 +79,9 @@ class AttackParams:
         return AttackParams({**self.values, **changes}, self.planner_params, self.source)
 
     def canonical(self) -> dict[str, Any]:
-        return {**self.values, PLANNER_PARAMS: self.planner_params}
+        """What determines the results: every value but the EXECUTION ones, and the planner's."""
+        values = {name: value for name, value in self.values.items() if name not in EXECUTION}
+        return {**values, PLANNER_PARAMS: self.planner_params}
 
     def config_hash(self) -> str:
         return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()[:16]
@@ -122,6 +135,45 @@ def _check_planner_params(where: str, raw: Any) -> dict[str, Any]:
     return dict(raw)
 
 
+def _check_ranges(where: str, values: dict[str, Any]) -> None:
+    """Bounds the types cannot express, for the parameters present in `values`."""
+    for name in ("search.heuristic.iterations", "search.random.steps", "search.random.proposals",
+                 "search.refine.iterations"):
+        if name in values and values[name] < 0:
+            raise ParamsError(f"{where}: parameter '{name}' must not be negative")
+    for name in ("ego.length", "ego.width", "tracker.gate", "tracker.max_age", "search.random.max_offset",
+                 "graph.timeout"):
+        if name in values and not values[name] > 0:
+            raise ParamsError(f"{where}: parameter '{name}' must be positive")
+    if "dds.domain_id" in values and not 0 <= values["dds.domain_id"] <= 232:
+        raise ParamsError(f"{where}: parameter 'dds.domain_id' must be within 0..232, got {values['dds.domain_id']}")
+
+
+def node_values(flat: dict[str, Any], names: tuple[str, ...], where: str) -> dict[str, Any]:
+    """The parameters `names` of one graph node, checked as strictly as a params file: used by the
+    rclpy nodes, whose parameters arrive one by one rather than as a file."""
+    values = {}
+    for name in names:
+        param = SCHEMA[name]
+        if flat.get(name) is None:
+            if param.default is None:
+                raise ParamsError(f"{where}: parameter '{name}' is required")
+            values[name] = param.default
+        else:
+            values[name] = _check_type(where, name, flat[name], param)
+    _check_ranges(where, values)
+    return values
+
+
+def parse_planner_params(where: str, text: str) -> dict[str, Any]:
+    """`planner_params` given as one YAML/JSON mapping string (a ROS parameter cannot be a mapping)."""
+    try:
+        raw = yaml.safe_load(text) if text.strip() else {}
+    except yaml.YAMLError as exc:
+        raise ParamsError(f"{where}: parameter '{PLANNER_PARAMS}' is not a YAML mapping: {exc}".replace("\n", " ")) from exc
+    return _check_planner_params(where, raw)
+
+
 def parse_params(document: Any, where: str, source: Path | None = None) -> AttackParams:
     if not isinstance(document, dict) or NODE not in document:
         raise ParamsError(f"{where}: expected a top-level '{NODE}:' mapping with 'ros__parameters:'")
@@ -144,13 +196,7 @@ def parse_params(document: Any, where: str, source: Path | None = None) -> Attac
             raise ParamsError(f"{where}: parameter '{name}' is required")
         else:
             values[name] = param.default
-    for name in ("search.heuristic.iterations", "search.random.steps", "search.random.proposals",
-                 "search.refine.iterations"):
-        if values[name] < 0:
-            raise ParamsError(f"{where}: parameter '{name}' must not be negative")
-    for name in ("ego.length", "ego.width", "tracker.gate", "tracker.max_age", "search.random.max_offset"):
-        if not values[name] > 0:
-            raise ParamsError(f"{where}: parameter '{name}' must be positive")
+    _check_ranges(where, values)
     return AttackParams(values=values, planner_params=planner_params, source=source)
 
 

@@ -31,6 +31,12 @@ METRIC_PLOT = "metric_vs_rollouts.png"
 BEV_PLOT = "bev.png"
 ERRORS = "attack_errors.npz"  # the error tensor e of the best attack, with agent ids and stamps
 WALL_CLOCK_FIELDS = ("wall_time_s",)
+TRAJECTORY_FIELDS = ("min_signed_distance", "pem_ll", "metric")
+"""Report floats that depend continuously on the ego trajectory. The graph backend's trajectory
+differs from the embedded one in the last bits (messages carry yaw as a quaternion and velocity as
+an arrow; docs/graph.md), so these are rounded to REPORT_DIGITS significant digits and both
+backends write the same report. Every other float is the same to the bit in both."""
+REPORT_DIGITS = 7
 LIBRARIES = ("numpy", "scipy", "filterpy", "shapely", "rosbags", "mcap-ros2-support", "matplotlib")
 
 
@@ -38,8 +44,14 @@ def _finite_or_none(value: float) -> float | None:
     return None if value is None or (isinstance(value, float) and math.isnan(value)) else value
 
 
+def _rounded(name: str, value):
+    if name in TRAJECTORY_FIELDS and isinstance(value, float) and math.isfinite(value):
+        return float(f"{value:.{REPORT_DIGITS}g}")
+    return value
+
+
 def _scores(evaluation: Evaluation) -> dict:
-    return {k: _finite_or_none(v) for k, v in evaluation.scores.as_dict().items()}
+    return {k: _rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
 
 
 def versions() -> dict[str, str]:
@@ -71,7 +83,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         frame = int(np.argmin(rollout.rule))
         slot = int(np.argmin(rollout.distances[frame]))
         report.update(
-            min_signed_distance=rollout.min_signed_distance,
+            min_signed_distance=_rounded("min_signed_distance", rollout.min_signed_distance),
             collision_frame=frame,
             collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
             **_scores(best),
@@ -79,7 +91,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     else:
         report["message"] = "no agent whose drop breaks the rule: the heuristic found no failure to refine"
     if outcome.heuristic_best is not None:
-        report["heuristic"] = {"metric": outcome.heuristic_best.metric, **_scores(outcome.heuristic_best)}
+        report["heuristic"] = {"metric": _rounded("metric", outcome.heuristic_best.metric), **_scores(outcome.heuristic_best)}
     report.update(
         rollouts=len(outcome.log),
         inconclusive_rollouts=sum(1 for row in outcome.log if row.inconclusive),

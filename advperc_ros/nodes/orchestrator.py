@@ -4,8 +4,10 @@
 
 Parameters are those of the params file (see advperc_ros.params.SCHEMA), plus `output`, the
 results folder (default results/<scenario>-seed<N>). They are validated by the same code as
-`advperc attack`, so both accept and refuse exactly the same files. Rollouts are embedded (in this
-process); the graph backend over DDS comes with the node graph.
+`advperc attack`, so both accept and refuse exactly the same files. With `rollout_backend: graph`
+every rollout goes through the node graph (advperc_ros.graph): the orchestrator starts the five
+nodes itself (`graph.spawn_nodes: true`, Cyclone DDS child processes) or, with `graph.spawn_nodes:
+false` (launch/attack.launch.py), drives the nodes already running through this rclpy node.
 """
 
 import sys
@@ -25,11 +27,13 @@ def main(args: list[str] | None = None) -> int:
         print("orchestrator: rclpy not found; source ROS 2 Jazzy, or run `advperc attack PARAMS` instead", file=sys.stderr)
         return 2  # the CLI's EXIT_INPUT; importing the CLI first would hide this message behind its imports
 
-    from advperc_ros.attack import resolve_bag, run_attack
-    from advperc_ros.cli import EXIT_INPUT, EXIT_NOTHING_TO_ATTACK, INPUT_ERRORS
+    from advperc_ros.attack import open_rollouts, resolve_bag, run_attack
+    from advperc_ros.cli import EXIT_GRAPH, EXIT_INPUT, EXIT_NOTHING_TO_ATTACK, INPUT_ERRORS
     from advperc_ros.core.search.problem import GroundTruthFails
+    from advperc_ros.graph import GraphError
     from advperc_ros.results import write_results
     from advperc_ros.ros.bag import read_scenario
+    from advperc_ros.ros.transport import RclpyTransport
 
     rclpy.init(args=args)
     node = None
@@ -46,7 +50,9 @@ def main(args: list[str] | None = None) -> int:
             if target.exists():
                 raise ParamsError(f"parameter '{OUTPUT}': {target} exists already")
             node.get_logger().info(f"attacking {scenario.name} ({params['planner']}, objective {params['objective']})")
-            outcome = run_attack(scenario, params, progress=False)
+            transport = None if params["graph.spawn_nodes"] else RclpyTransport(node)
+            with open_rollouts(scenario, params, bag_path, transport) as rollouts:
+                outcome = run_attack(scenario, params, progress=False, rollouts=rollouts)
             report = write_results(target, outcome, bag_path)
             node.get_logger().info(
                 f"collision={report['collision']} nds={report.get('nds')} nds_t={report.get('nds_t')} "
@@ -58,6 +64,9 @@ def main(args: list[str] | None = None) -> int:
         except GroundTruthFails as exc:
             node.get_logger().error(str(exc))
             code = EXIT_NOTHING_TO_ATTACK
+        except GraphError as exc:
+            node.get_logger().error(f"graph backend: {exc}")
+            code = EXIT_GRAPH
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 1
     finally:

@@ -1,0 +1,84 @@
+"""Node `error_injector`: the attack function I(y, e) between ground truth and the tracker.
+
+It holds the error tensor of the current rollout (latched /attack/errors, acknowledged on
+/attack/ready so the player starts frame 0 only once the tensor is here) and turns each
+/ground_truth/objects frame into /perception/objects with the same stamp: offsets added, dropped
+agents removed, confidences from the fixed scheme of `core.errors` (so the values are those of
+`core.errors.inject`, float for float). Stateless between frames: nothing to reset.
+"""
+
+import sys
+from typing import Any
+
+import numpy as np
+
+from advperc_ros.core.errors import confidence_scores
+from advperc_ros.core.geometry import wrap_angle
+from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
+from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.bag import GROUND_TRUTH, PERCEPTION, TOPIC_TYPES
+from advperc_ros.ros.lockstep import (CONTROL_TYPE, ERRORS, READY, RolloutErrors, objects_stamp, parse_errors,
+                                      ready_message)
+from advperc_ros.ros.transport import Transport
+
+
+def perceive(truth: dict[str, np.ndarray], frame: int, slots: np.ndarray, rollout: RolloutErrors,
+             scores: np.ndarray) -> dict[str, np.ndarray]:
+    """I(y, e) for one frame: `truth` as decoded from the message, `slots` the error-tensor column
+    of each of its agents."""
+    e = rollout.errors
+    keep = ~e.fn[frame, slots]
+    kept = slots[keep]
+    out = {name: values[keep] for name, values in truth.items()}
+    out["x"] = out["x"] + e.dx[frame, kept]
+    out["y"] = out["y"] + e.dy[frame, kept]
+    out["yaw"] = wrap_angle(out["yaw"] + e.dyaw[frame, kept])
+    out["score"] = scores[frame, kept]
+    return out
+
+
+class ErrorInjector:
+    def __init__(self, transport: Transport, logger: Logger) -> None:
+        self._log = logger
+        self._rollout: RolloutErrors | None = None
+        self._slots: dict[int, int] = {}
+        self._frames: dict[int, int] = {}
+        self._scores = np.zeros((0, 0))
+        self._perception = transport.publisher(PERCEPTION, TOPIC_TYPES[PERCEPTION])
+        self._ready = transport.publisher(READY, CONTROL_TYPE)
+        transport.subscriber(ERRORS, CONTROL_TYPE, latched=True, callback=self.on_errors)
+        transport.subscriber(GROUND_TRUTH, TOPIC_TYPES[GROUND_TRUTH], callback=self.on_ground_truth)
+
+    def on_errors(self, msg: Any) -> None:
+        rollout = parse_errors(msg)
+        self._rollout = rollout
+        self._slots = {int(agent): j for j, agent in enumerate(rollout.agent_ids)}
+        self._frames = {int(stamp): k for k, stamp in enumerate(rollout.stamps_ns)}
+        self._scores = confidence_scores(*rollout.errors.shape)
+        self._ready.publish(ready_message(rollout.rollout))
+
+    def on_ground_truth(self, msg: Any) -> None:
+        stamp = objects_stamp(msg)
+        if self._rollout is None or stamp not in self._frames:
+            why = "no error tensor yet" if self._rollout is None else f"stamp {stamp} is not a frame of the error tensor"
+            self._log.error(f"{GROUND_TRUTH}: dropped a frame ({why}); that rollout will time out")
+            return
+        truth = msgs.markers_to_objects(msg, GROUND_TRUTH)
+        unknown = [int(i) for i in truth["ids"] if int(i) not in self._slots]
+        if unknown:
+            self._log.error(f"{GROUND_TRUTH}: agents {unknown} at stamp {stamp} are not in the error tensor; frame dropped")
+            return
+        slots = np.array([self._slots[int(i)] for i in truth["ids"]], dtype=np.int64)
+        perceived = perceive(truth, self._frames[stamp], slots, self._rollout, self._scores)
+        self._perception.publish(msgs.objects_to_markers(perceived, stamp, "perception"))
+
+
+SPEC = NodeSpec("error_injector", (), lambda transport, values, planner_params, logger: ErrorInjector(transport, logger))
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(SPEC, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

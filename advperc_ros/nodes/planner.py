@@ -1,0 +1,67 @@
+"""Node `planner`: a bundled or plug-in planner answering every tracks message with a plan.
+
+It pairs /tracking/objects and /ego/odometry by stamp and answers each pair with a nav_msgs/Path
+on /planning/trajectory stamped the same, each pose stamped with its own time. A planner that
+raises is answered with an empty Path (and a log line): the player then marks the rollout
+inconclusive, as the embedded rollout does. The first pair of a rollout (`RolloutClock`) resets the
+planner; inputs left unpaired by the previous rollout are dropped. Road, route and frame period
+come from the bag, as in the embedded stack; an external planner may take them from the latched
+/map/lanes and /ego/route instead (docs/graph.md).
+"""
+
+import sys
+from typing import Any
+
+from advperc_ros.core.planners.base import Planner, PlanningContext, load_planner
+from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, run_node
+from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.bag import ODOMETRY, PLAN, TOPIC_TYPES, TRACKING, read_scenario
+from advperc_ros.ros.transport import Transport
+
+
+class PlannerNode:
+    def __init__(self, transport: Transport, planner: Planner, logger: Logger) -> None:
+        self._planner = planner
+        self._log = logger
+        self._pairs = StampPairs(self._answer)
+        self._plan = transport.publisher(PLAN, TOPIC_TYPES[PLAN])
+        transport.subscriber(TRACKING, TOPIC_TYPES[TRACKING], callback=self.on_tracks)
+        transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry)
+
+    def on_tracks(self, msg: Any) -> None:
+        if not msg.markers:
+            self._log.error(f"{TRACKING}: a MarkerArray without markers has no stamp; dropped")
+            return
+        self._pairs.put(0, msgs.stamp_ns(msg.markers[0].header.stamp), msgs.markers_to_objects(msg, TRACKING))
+
+    def on_odometry(self, msg: Any) -> None:
+        self._pairs.put(1, msgs.stamp_ns(msg.header.stamp), msgs.odometry_to_ego(msg))
+
+    def _answer(self, stamp: int, tracks: dict, ego: Any) -> None:
+        first, t = self._pairs.clock.answer(stamp)
+        if first:
+            self._planner.reset()
+        try:
+            path = msgs.trajectory_to_path(self._planner.plan(t, ego, tracks), stamp)
+        except Exception as exc:  # a plug-in that crashes must still answer: with an empty plan
+            self._log.error(f"planner raised {type(exc).__name__} at t={t:.3f} s: {exc}; answering with an empty plan")
+            path = msgs.path([], [], [], [], stamp)
+        self._plan.publish(path)
+
+
+def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> PlannerNode:
+    scenario = read_scenario(values["bag"])
+    context = PlanningContext(route=scenario.route, lanes=scenario.lanes, dt=scenario.dt,
+                              ego_length=values["ego.length"], ego_width=values["ego.width"])
+    return PlannerNode(transport, load_planner(values["planner"], context, planner_params), logger)
+
+
+SPEC = NodeSpec("planner", ("bag", "planner", "ego.length", "ego.width"), _build, planner_params=True)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(SPEC, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

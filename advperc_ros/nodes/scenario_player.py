@@ -1,0 +1,148 @@
+"""Node `scenario_player`: the graph's only clock; replays a ground-truth bag one frame at a time.
+
+On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lockstep:
+
+1. publish frame k: /clock, /ground_truth/objects (the bag's own message) and /ego/odometry, all
+   stamped t_k (frame 0: the bag's own start odometry, restamped t_0);
+2. wait for the rule value (/rules/diagnostics stamped t_k) and the plan (/planning/trajectory
+   stamped t_k); messages with other stamps are ignored. Waiting for both at every published
+   frame, even when the rollout ends there, leaves no answer in flight when it ends;
+3. exactly as `core.rollout`: stop at a rule violation if `stop_at_collision`; an empty plan (the
+   planner failed) or one that does not cover t_{k+1} makes the rollout inconclusive; else move the
+   ego along the plan (`core.ego_motion.follow_plan`) and publish frame k+1;
+4. publish /attack/done. If the rule value or plan of a frame does not come within `graph.timeout`
+   seconds the rollout is inconclusive (`timeout: true`), never a pass or a failure.
+
+The latched /map/lanes and /ego/route are the bag's own messages, published at start.
+"""
+
+import dataclasses
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
+from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.bag import (CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, PLAN, ROUTE, RULE_DIAGNOSTICS, TOPIC_TYPES,
+                                 read_scenario, read_topics)
+from advperc_ros.ros.lockstep import (CONTROL_TYPE, DONE, INCONCLUSIVE, OK, READY, RolloutDone, done_message, objects_stamp,
+                                      parse_ready, parse_rule_diagnostics, path_to_trajectory)
+from advperc_ros.ros.transport import Transport
+
+
+@dataclass
+class _Run:
+    rollout: int
+    frame: int
+    deadline: float
+    rule: float | None = None
+    plan: Any = None
+
+
+class ScenarioPlayer:
+    def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, logger: Logger) -> None:
+        self.scenario = read_scenario(bag)
+        self._stop_at_collision = stop_at_collision
+        self._timeout = timeout
+        self._log = logger
+        topics, _ = read_topics(bag, [GROUND_TRUTH, ODOMETRY, LANES, ROUTE])
+        by_stamp = {objects_stamp(m): m for _, m in topics[GROUND_TRUTH]}
+        self._ground_truth = [by_stamp[int(stamp)] for stamp in self.scenario.stamps_ns]
+        start = topics[ODOMETRY][0][1]
+        self._start = dataclasses.replace(start, header=msgs.header(int(self.scenario.stamps_ns[0])))
+        self._run: _Run | None = None
+        self._pub = {topic: transport.publisher(topic, TOPIC_TYPES[topic], latched=topic in LATCHED)
+                     for topic in (CLOCK, GROUND_TRUTH, ODOMETRY, LANES, ROUTE)}
+        self._done = transport.publisher(DONE, CONTROL_TYPE)
+        for topic in (LANES, ROUTE):
+            if topics[topic]:
+                self._pub[topic].publish(topics[topic][0][1])
+        transport.subscriber(READY, CONTROL_TYPE, callback=self.on_ready)
+        transport.subscriber(PLAN, TOPIC_TYPES[PLAN], callback=self.on_plan)
+        transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule)
+
+    def _stamp(self, frame: int) -> int:
+        return int(self.scenario.stamps_ns[frame])
+
+    def _publish_frame(self, frame: int, odometry: Any) -> None:
+        stamp = self._stamp(frame)
+        self._pub[CLOCK].publish(msgs.clock(stamp))
+        self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
+        self._pub[ODOMETRY].publish(odometry)
+        self._run.frame = frame
+        self._run.rule = self._run.plan = None
+        self._run.deadline = time.monotonic() + self._timeout
+
+    def on_ready(self, msg: Any) -> None:
+        rollout = parse_ready(msg)
+        if self._run is not None:
+            self._finish(INCONCLUSIVE, f"frame {self._run.frame}: superseded by rollout {rollout}", timeout=True)
+        self._run = _Run(rollout, 0, 0.0)
+        self._publish_frame(0, self._start)
+
+    def on_plan(self, msg: Any) -> None:
+        if self._run is not None and msgs.stamp_ns(msg.header.stamp) == self._stamp(self._run.frame):
+            self._run.plan = msg
+            self._step()
+
+    def on_rule(self, msg: Any) -> None:
+        if self._run is None:
+            return
+        stamp, minimum, _ = parse_rule_diagnostics(msg)
+        if stamp == self._stamp(self._run.frame):
+            self._run.rule = minimum
+            self._step()
+
+    def _step(self) -> None:
+        run = self._run
+        if run.rule is None or run.plan is None:
+            return
+        k = run.frame
+        if self._stop_at_collision and run.rule < 0.0:
+            self._finish(OK)
+        elif not run.plan.poses:
+            self._finish(INCONCLUSIVE, f"frame {k}: the planner answered with an empty plan (it failed; see its log)")
+        elif k + 1 == self.scenario.num_frames:
+            self._finish(OK)
+        else:
+            try:
+                ego = follow_plan(path_to_trajectory(run.plan, self._stamp(0)), float(self.scenario.times[k + 1]))
+            except PlanError as exc:
+                self._finish(INCONCLUSIVE, f"frame {k}: {exc}")
+            else:
+                self._publish_frame(k + 1, msgs.odometry(ego, self._stamp(k + 1)))
+
+    def poll(self) -> None:
+        """Called periodically: a frame unanswered past its deadline ends the rollout."""
+        run = self._run
+        if run is None or time.monotonic() < run.deadline:
+            return
+        missing = " and ".join(what for what, got in (("rule value", run.rule), ("plan", run.plan)) if got is None)
+        self._finish(INCONCLUSIVE, f"frame {run.frame}: no {missing} stamped {self._stamp(run.frame)} within "
+                                   f"{self._timeout:g} s (a node is dead or silent)", timeout=True)
+
+    def _finish(self, status: str, reason: str = "", timeout: bool = False) -> None:
+        run = self._run
+        done = RolloutDone(run.rollout, run.frame + 1, status, reason, timeout)
+        (self._log.info if status == OK else self._log.warning)(
+            f"rollout {run.rollout}: {done.frames} frames, {status}" + (f": {reason}" if reason else ""))
+        self._run = None
+        self._done.publish(done_message(done))
+
+
+def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> ScenarioPlayer:
+    return ScenarioPlayer(transport, values["bag"], values["stop_at_collision"], values["graph.timeout"], logger)
+
+
+SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout"), _build)
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(SPEC, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

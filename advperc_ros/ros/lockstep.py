@@ -1,0 +1,135 @@
+"""Messages of the lockstep protocol beyond the data topics: rollout control and rule values.
+
+Control topics carry std_msgs/String holding JSON (so any ROS 2 tool can read them; floats are
+written with `repr` by the json module and so round-trip exactly):
+
+| topic | QoS | from -> to | JSON |
+|---|---|---|---|
+| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn"} |
+| /attack/ready | volatile | injector -> player | {"rollout"}: the injector holds that rollout's errors |
+| /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout"} |
+| /attack/nodes | latched | every graph node -> orchestrator | {"node", "pid"}: the node is up, its topics created |
+
+`timeout` in /attack/done is true when the rollout is inconclusive because the graph failed to
+answer (a node died or went silent), as opposed to the planner's own failure; the orchestrator
+then restarts the nodes it owns.
+
+/rules/diagnostics carries the rule value of frame k stamped t_k: one DiagnosticStatus named
+`collision` whose KeyValues are `min_signed_distance` and `agent <id>` per agent present, values
+written with `repr` (exact round trip; `inf` where nothing is present).
+"""
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+
+from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.ros import messages as msgs
+
+ERRORS = "/attack/errors"
+READY = "/attack/ready"
+DONE = "/attack/done"
+PRESENCE = "/attack/nodes"
+CONTROL_TYPE = "std_msgs/msg/String"
+RULE_STATUS = "collision"
+MIN_KEY = "min_signed_distance"
+AGENT_KEY = "agent "
+OK = "ok"
+INCONCLUSIVE = "inconclusive"
+
+
+@dataclass(frozen=True)
+class RolloutErrors:
+    """The error tensor of one rollout, with what places it: agent id per slot, stamp per frame."""
+
+    rollout: int
+    errors: PerceptionErrors
+    agent_ids: np.ndarray  # (N,) int64
+    stamps_ns: np.ndarray  # (T,) int64
+
+
+@dataclass(frozen=True)
+class RolloutDone:
+    rollout: int
+    frames: int
+    status: str
+    reason: str
+    timeout: bool
+
+
+def errors_message(item: RolloutErrors):
+    e = item.errors
+    return msgs.string(json.dumps({
+        "rollout": item.rollout,
+        "agent_ids": item.agent_ids.tolist(),
+        "stamps_ns": item.stamps_ns.tolist(),
+        "dx": e.dx.tolist(), "dy": e.dy.tolist(), "dyaw": e.dyaw.tolist(), "fn": e.fn.tolist(),
+    }))
+
+
+def parse_errors(msg) -> RolloutErrors:
+    data = json.loads(msg.data)
+    shape = (len(data["stamps_ns"]), len(data["agent_ids"]))
+    arrays = {name: np.asarray(data[name], dtype=float).reshape(shape) for name in ("dx", "dy", "dyaw")}
+    errors = PerceptionErrors(fn=np.asarray(data["fn"], dtype=bool).reshape(shape), **arrays)
+    return RolloutErrors(int(data["rollout"]), errors, np.asarray(data["agent_ids"], dtype=np.int64),
+                         np.asarray(data["stamps_ns"], dtype=np.int64))
+
+
+def ready_message(rollout: int):
+    return msgs.string(json.dumps({"rollout": rollout}))
+
+
+def parse_ready(msg) -> int:
+    return int(json.loads(msg.data)["rollout"])
+
+
+def presence_message(node: str, pid: int):
+    return msgs.string(json.dumps({"node": node, "pid": pid}))
+
+
+def parse_presence(msg) -> tuple[str, int]:
+    data = json.loads(msg.data)
+    return str(data["node"]), int(data["pid"])
+
+
+def done_message(done: RolloutDone):
+    return msgs.string(json.dumps({"rollout": done.rollout, "frames": done.frames, "status": done.status,
+                                   "reason": done.reason, "timeout": done.timeout}))
+
+
+def parse_done(msg) -> RolloutDone:
+    data = json.loads(msg.data)
+    return RolloutDone(int(data["rollout"]), int(data["frames"]), str(data["status"]), str(data["reason"]),
+                       bool(data["timeout"]))
+
+
+def rule_diagnostics(ns_time: int, agent_ids: np.ndarray, distances: np.ndarray):
+    """The rule value of one frame: minimum and per-agent signed distances (m)."""
+    minimum = float(distances.min(initial=np.inf))
+    values = {MIN_KEY: repr(minimum)}
+    values.update({f"{AGENT_KEY}{int(i)}": repr(float(d)) for i, d in zip(agent_ids, distances)})
+    violated = minimum < 0.0
+    return msgs.diagnostics(ns_time, RULE_STATUS, "violated" if violated else "ok", values, level=2 if violated else 0)
+
+
+def parse_rule_diagnostics(msg) -> tuple[int, float, dict[int, float]]:
+    """(stamp ns, minimum, distance per agent id) of a /rules/diagnostics message."""
+    status = next(s for s in msg.status if s.name == RULE_STATUS)
+    values = {kv.key: float(kv.value) for kv in status.values}
+    per_agent = {int(k[len(AGENT_KEY):]): v for k, v in values.items() if k.startswith(AGENT_KEY)}
+    return msgs.stamp_ns(msg.header.stamp), values[MIN_KEY], per_agent
+
+
+def path_to_trajectory(path, first_stamp_ns: int) -> Trajectory:
+    """A nav_msgs/Path as the plan the embedded rollout follows: pose times in seconds since the
+    scenario's first stamp, computed as `Scenario.times` computes frame times."""
+    poses, stamps = msgs.path_points(path)
+    return Trajectory(t=(stamps - np.int64(first_stamp_ns)) * 1e-9, x=poses[:, 0], y=poses[:, 1], yaw=poses[:, 2])
+
+
+def objects_stamp(msg) -> int | None:
+    """The stamp of an object MarkerArray (its first marker's, the DELETEALL), None if empty."""
+    return msgs.stamp_ns(msg.markers[0].header.stamp) if msg.markers else None

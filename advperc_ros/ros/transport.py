@@ -1,0 +1,101 @@
+"""The one small interface the graph nodes talk through, and its rclpy adapter.
+
+Node logic (advperc_ros.nodes) and the graph backend (advperc_ros.graph) only ever call
+`publisher(topic, msgtype, latched).publish(msg)`, `subscriber(topic, msgtype, latched,
+callback)` and `spin_once(timeout)`, with rosbags message objects in and out. Two transports
+provide that:
+
+- `advperc_ros.ros.dds.DdsTransport`: Cyclone DDS with ROS 2's wire conventions, no ROS needed;
+- `RclpyTransport` below: a real rclpy node. It hands rclpy the CDR bytes rosbags makes
+  (rclpy publishers accept serialised bytes) and subscribes with `raw=True`, decoding the bytes
+  with rosbags, so the node logic sees the same rosbags objects, bit for bit, on both transports.
+
+QoS is the contract's on both: reliable, volatile, keep-last 1000; latched topics are
+transient-local keep-last 1.
+"""
+
+import importlib
+from collections.abc import Callable
+from typing import Any, Protocol
+
+from advperc_ros.ros.dds import DEPTH, LATCHED_DEPTH
+from advperc_ros.ros.messages import TYPESTORE
+
+
+class Publisher(Protocol):
+    def publish(self, msg: object) -> None:
+        """Send a rosbags message of the publisher's type."""
+
+    def matched_count(self) -> int:
+        """Subscribers currently matched (writer-side discovery)."""
+
+
+class Transport(Protocol):
+    def publisher(self, topic: str, msgtype: str, latched: bool = False) -> Publisher:
+        """A publisher of `topic` carrying `msgtype` (`pkg/msg/Type`)."""
+
+    def subscriber(self, topic: str, msgtype: str, latched: bool = False,
+                   callback: Callable[[object], None] | None = None) -> object:
+        """A subscription delivering rosbags messages to `callback` from `spin_once`."""
+
+    def spin_once(self, timeout: float) -> int:
+        """Deliver pending messages to callbacks, waiting up to `timeout` s for the first."""
+
+
+def _message_class(msgtype: str) -> Any:
+    """The rclpy (rosidl) class of `pkg/msg/Type`: module `pkg.msg`, attribute `Type`."""
+    package, kind, name = msgtype.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+
+
+class _RclpyPublication:
+    def __init__(self, publisher: Any, msgtype: str) -> None:
+        self._publisher = publisher
+        self._msgtype = msgtype
+
+    def publish(self, msg: object) -> None:
+        self._publisher.publish(bytes(TYPESTORE.serialize_cdr(msg, self._msgtype)))
+
+    def matched_count(self) -> int:
+        return int(self._publisher.get_subscription_count())
+
+
+def _rclpy_qos(latched: bool) -> Any:
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+
+    return QoSProfile(
+        history=HistoryPolicy.KEEP_LAST,
+        depth=LATCHED_DEPTH if latched else DEPTH,
+        reliability=ReliabilityPolicy.RELIABLE,
+        durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
+    )
+
+
+class RclpyTransport:
+    """The transport interface on an rclpy node (needs ROS 2 sourced; rclpy is imported here)."""
+
+    def __init__(self, node: Any) -> None:
+        import rclpy
+
+        self._rclpy = rclpy
+        self._node = node
+        self._delivered = 0
+
+    def publisher(self, topic: str, msgtype: str, latched: bool = False) -> _RclpyPublication:
+        return _RclpyPublication(self._node.create_publisher(_message_class(msgtype), topic, _rclpy_qos(latched)), msgtype)
+
+    def subscriber(self, topic: str, msgtype: str, latched: bool = False,
+                   callback: Callable[[object], None] | None = None) -> object:
+        if callback is None:
+            raise ValueError(f"{topic}: rclpy subscriptions deliver through a callback; give one")
+
+        def deliver(data: bytes) -> None:
+            self._delivered += 1
+            callback(TYPESTORE.deserialize_cdr(data, msgtype))
+
+        return self._node.create_subscription(_message_class(msgtype), topic, deliver, _rclpy_qos(latched), raw=True)
+
+    def spin_once(self, timeout: float) -> int:
+        before = self._delivered
+        self._rclpy.spin_once(self._node, timeout_sec=timeout)
+        return self._delivered - before

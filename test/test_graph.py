@@ -1,0 +1,342 @@
+"""The node graph: lockstep rollouts through separate OS processes over Cyclone DDS on loopback.
+
+Every DDS test uses a domain id of its own in 100..199, from a block of ten that test_dds.py's
+scheme (100 + (pid % 10) * 10) does not use in the same run, and localhost-only discovery.
+Every wait is bounded (graph.timeout, the backend's startup timeout, thread joins).
+"""
+
+import csv
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; the graph backend needs it")
+
+from advperc_ros.attack import Stack  # noqa: E402
+from advperc_ros.cli import main as advperc  # noqa: E402
+from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
+from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
+from advperc_ros.graph import GraphRollouts  # noqa: E402
+from advperc_ros.nodes.runtime import RolloutClock  # noqa: E402
+from advperc_ros.params import ParamsError, load_params  # noqa: E402
+from advperc_ros.ros import lockstep  # noqa: E402
+from advperc_ros.ros.bag import read_scenario  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+BAG = REPO / "bags" / "idm_lane_following"
+TOLERANCE = 1e-9  # m, m/s, rad: graph against embedded (docs/graph.md)
+ARM = "ADVPERC_TEST_HANG"  # env var naming the file that arms HangingPlanner
+_domain_ids = iter(range(100 + ((os.getpid() % 10 + 5) % 10) * 10, 200))
+
+
+def next_domain_id() -> int:
+    value = next(_domain_ids)
+    assert 100 <= value < 200
+    return value
+
+
+class HangingPlanner(IDMPlanner):
+    """The IDM planner, but once the file named by $ADVPERC_TEST_HANG exists it claims it (deletes
+    it) at t >= 2 s and never answers again: a silent planner, or one to kill mid-rollout."""
+
+    def plan(self, t, ego, tracks):
+        arm = Path(os.environ[ARM])
+        if t >= 2.0 and arm.exists():
+            arm.unlink()
+            while True:
+                time.sleep(1.0)
+        return super().plan(t, ego, tracks)
+
+
+def params_for(tmp: Path, **overrides) -> Path:
+    document = yaml.safe_load((REPO / "config" / "idm_lane_following.yaml").read_text())
+    params = document["orchestrator"]["ros__parameters"]
+    params["bag"] = str(BAG)
+    params["search"]["random"].update(steps=2, proposals=20)
+    params["search"]["refine"]["iterations"] = 1
+    for dotted, value in {"dds.domain_id": next_domain_id(), "graph.timeout": 5.0, **overrides}.items():
+        node = params
+        *parents, leaf = dotted.split(".")
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = value
+    path = tmp / "params.yaml"
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return read_scenario(BAG)
+
+
+def lead_drop(scenario) -> PerceptionErrors:
+    """Errors dropping the lead vehicle (agent slot 0) from frame 20 on, plus small offsets: the
+    IDM ego then collides with it."""
+    errors = PerceptionErrors.none(*scenario.agents.shape).with_drop(0, 20, scenario.num_frames - 1)
+    rng = np.random.default_rng(3)
+    errors.dx[:] = rng.normal(0.0, 0.2, errors.dx.shape)
+    errors.dy[:] = rng.normal(0.0, 0.2, errors.dy.shape)
+    errors.dyaw[:] = rng.normal(0.0, 0.05, errors.dyaw.shape)
+    return errors
+
+
+def assert_same_rollout(graph, embedded) -> None:
+    assert graph.num_frames == embedded.num_frames
+    assert graph.inconclusive == embedded.inconclusive
+    assert graph.collided == embedded.collided
+    np.testing.assert_allclose(graph.ego, embedded.ego, rtol=0, atol=TOLERANCE)
+    assert np.array_equal(np.isinf(graph.distances), np.isinf(embedded.distances))
+    finite = np.isfinite(embedded.distances)
+    np.testing.assert_allclose(graph.distances[finite], embedded.distances[finite], rtol=0, atol=TOLERANCE)
+
+
+# ----- without DDS: the protocol's pieces ---------------------------------------------------------
+
+def test_error_tensor_round_trips_exactly_through_json(scenario):
+    errors = lead_drop(scenario)
+    ids = scenario.agents.ids[0]
+    back = lockstep.parse_errors(lockstep.errors_message(lockstep.RolloutErrors(7, errors, ids, scenario.stamps_ns)))
+    assert back.rollout == 7 and back.errors.equals(errors)
+    assert np.array_equal(back.agent_ids, ids) and np.array_equal(back.stamps_ns, scenario.stamps_ns)
+
+
+def test_rule_diagnostics_carry_every_agent_exactly():
+    distances = np.array([0.1 + 0.2, -1e-300, np.inf])
+    stamp, minimum, per_agent = lockstep.parse_rule_diagnostics(
+        lockstep.rule_diagnostics(123_000_000_007, np.array([4, 9, 11]), distances))
+    assert (stamp, minimum) == (123_000_000_007, -1e-300)
+    assert per_agent == {4: 0.1 + 0.2, 9: -1e-300, 11: np.inf}
+
+
+def test_rollout_clock_resets_on_a_stamp_not_after_the_last_answered():
+    clock = RolloutClock()
+    assert clock.observe(1_000) is False and clock.answer(1_000) == (True, 0.0)
+    assert clock.observe(1_100) is False and clock.answer(1_100) == (False, 100 * 1e-9)
+    assert clock.observe(1_000) is True  # the next rollout starts again at the first stamp
+    assert clock.observe(1_000) is False  # its second input of that stamp is the same rollout
+    assert clock.answer(1_000) == (True, 0.0)
+    assert clock.observe(1_000) is True  # a rollout of one frame, then the next
+
+
+def test_each_node_gets_exactly_its_parameters(tmp_path):
+    from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
+
+    params = load_params(REPO / "config" / "idm_lane_following.yaml")
+    by_node = {spec.name: ros_parameters(spec, params, BAG) for spec in SPECS}
+    assert by_node["error_injector"] == {}
+    assert by_node["tracker"] == {"tracker.gate": 2.0, "tracker.max_age": 1.0}
+    assert by_node["scenario_player"] == {"bag": str(BAG), "stop_at_collision": True, "graph.timeout": 10.0}
+    assert json.loads(by_node["planner"]["planner_params"]) == {"target_speed": 14.0}
+    assert by_node["planner"]["planner"] == "idm" and by_node["rule_monitor"] == {"ego.length": 4.6, "ego.width": 1.9}
+
+
+def test_node_without_ros_refuses_a_bad_params_file(tmp_path, caplog):
+    from advperc_ros.nodes.tracker import main
+
+    assert main(["--params-file", str(params_for(tmp_path, **{"tracker.gate": 2}))]) == 2
+    assert "tracker.gate" in caplog.text
+
+
+def test_graph_parameters_are_validated(tmp_path):
+    with pytest.raises(ParamsError, match="rollout_backend"):
+        load_params(params_for(tmp_path, rollout_backend="dds"))
+    with pytest.raises(ParamsError, match="dds.domain_id"):
+        load_params(params_for(tmp_path, **{"dds.domain_id": 300}))
+    with pytest.raises(ParamsError, match="graph.timeout"):
+        load_params(params_for(tmp_path, **{"graph.timeout": 5}))
+    params = load_params(params_for(tmp_path))
+    assert "rollout_backend" not in params.canonical() and "dds.domain_id" not in params.canonical()
+    assert params.config_hash() == params.with_values(rollout_backend="graph").config_hash()
+
+
+# ----- (a) the nodes as separate processes give the embedded rollout ------------------------------
+
+def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
+    params = load_params(params_for(tmp_path))
+    stack = Stack(scenario, params)
+    with GraphRollouts(scenario, params, BAG) as graph:
+        assert sorted(graph.processes) == sorted(("scenario_player", "error_injector", "tracker", "planner", "rule_monitor"))
+        assert len({p.pid for p in graph.processes.values()} | {os.getpid()}) == 6
+        truth = PerceptionErrors.none(*scenario.agents.shape)
+        result = graph.rollout(truth)
+        assert_same_rollout(result, stack.rollout(truth))
+        assert result.num_frames == scenario.num_frames and not result.collided
+        attack = lead_drop(scenario)
+        result = graph.rollout(attack, record=True)
+        embedded = stack.rollout(attack, record=True)
+        assert_same_rollout(result, embedded)
+        assert result.collided and result.num_frames < scenario.num_frames
+        assert len(result.tracks) == len(embedded.tracks) and len(result.plans) == len(embedded.plans)
+        for got, want in zip(result.tracks, embedded.tracks):
+            assert np.array_equal(got["ids"], want["ids"])
+            np.testing.assert_allclose(got["x"], want["x"], rtol=0, atol=TOLERANCE)
+        for got, want in zip(result.plans, embedded.plans):
+            np.testing.assert_allclose(got.t, want.t, rtol=0, atol=TOLERANCE)
+            np.testing.assert_allclose(np.stack([got.x, got.y]), np.stack([want.x, want.y]), rtol=0, atol=TOLERANCE)
+        processes = list(graph.processes.values())
+    assert all(p.poll() is not None for p in processes)  # shut down on exit
+
+
+# ----- (b) a search in graph mode writes the embedded report -----------------------------------------
+
+def test_graph_search_writes_the_embedded_report(tmp_path, capsys):
+    params = params_for(tmp_path)
+    outputs = {backend: tmp_path / backend for backend in ("embedded", "graph")}
+    for backend, output in outputs.items():
+        assert advperc(["attack", str(params), "--output", str(output), "--quiet", "--backend", backend]) == 0
+    reports = [json.loads((out / "report.json").read_text()) for out in outputs.values()]
+    for report in reports:
+        report.pop("wall_time_s")
+    assert reports[0] == reports[1]
+    assert reports[0]["collision"] is True and reports[0]["inconclusive_rollouts"] == 0
+    logs = [list(csv.DictReader((out / "search_log.csv").open())) for out in outputs.values()]
+    assert len(logs[0]) == len(logs[1]) == reports[0]["rollouts"]
+    for embedded, graph in zip(*logs):  # the log writes distances to 10 digits: the last may differ
+        assert float(embedded.pop("min_signed_distance")) == pytest.approx(float(graph.pop("min_signed_distance")), abs=TOLERANCE)
+        assert embedded == graph
+
+
+# ----- (c) a dead or silent planner: that rollout is inconclusive, the next one proceeds ----------
+
+def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenario, monkeypatch, caplog):
+    arm = tmp_path / "hang"
+    monkeypatch.setenv(ARM, str(arm))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
+    params = load_params(params_for(tmp_path, planner="test_graph:HangingPlanner", **{"graph.timeout": 2.0}))
+    truth = PerceptionErrors.none(*scenario.agents.shape)
+    expected = Stack(scenario, params.with_values(planner="idm")).rollout(truth)
+    caplog.set_level("ERROR", logger="advperc_ros.graph")
+    with GraphRollouts(scenario, params, BAG) as graph:
+        # killed mid-rollout: once the planner hangs at t >= 2 s, kill its process
+        arm.touch()
+        planner = graph.processes["planner"]
+        outcome = {}
+        worker = threading.Thread(target=lambda: outcome.setdefault("result", graph.rollout(truth)))
+        worker.start()
+        try:
+            deadline = time.monotonic() + 30.0
+            while arm.exists() and time.monotonic() < deadline:
+                time.sleep(0.01)
+            assert not arm.exists(), "the planner never reached t = 2 s"
+            os.kill(planner.pid, signal.SIGKILL)
+        finally:
+            worker.join(60.0)  # the rollout ends either way: dead planner, or the player's timeout
+        assert not worker.is_alive()
+        killed = outcome["result"]
+        assert "planner process exited with code -9" in killed.inconclusive
+        assert 0 < killed.num_frames < scenario.num_frames and not killed.collided
+        assert graph.processes["planner"].pid != planner.pid  # restarted
+        assert_same_rollout(graph.rollout(truth), expected)
+        # silent: the planner stops answering; the player times out after graph.timeout
+        arm.touch()
+        started = time.monotonic()
+        silent = graph.rollout(truth)
+        assert time.monotonic() - started < 2.0 + 30.0
+        assert "no plan stamped" in silent.inconclusive and "within 2 s" in silent.inconclusive
+        assert_same_rollout(graph.rollout(truth), expected)
+    lines = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
+    assert len(lines) == 2 and all("inconclusive" in line and "restarting" in line for line in lines)
+    assert "planner process exited" in lines[0] and "no plan stamped" in lines[1]
+
+
+# ----- (e) the rclpy path, where ROS 2 Jazzy is sourced -----------------------------------------------
+
+def test_rclpy_transport_passes_rosbags_messages_through():
+    rclpy = pytest.importorskip("rclpy", reason="ROS 2 Jazzy is not sourced (rclpy missing): rclpy path untested here")
+    from rclpy.node import Node
+
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros.transport import RclpyTransport
+
+    rclpy.init()
+    try:
+        sender, receiver = Node("advperc_test_sender"), Node("advperc_test_receiver")
+        got = []
+        RclpyTransport(receiver).subscriber("/advperc_test/done", lockstep.CONTROL_TYPE, callback=got.append)
+        publication = RclpyTransport(sender).publisher("/advperc_test/done", lockstep.CONTROL_TYPE)
+        transport = RclpyTransport(receiver)
+        deadline = time.monotonic() + 10.0
+        while publication.matched_count() < 1 and time.monotonic() < deadline:
+            transport.spin_once(0.05)
+        publication.publish(msgs.string("ünïcode"))
+        while not got and time.monotonic() < deadline:
+            transport.spin_once(0.05)
+        assert [m.data for m in got] == ["ünïcode"]
+    finally:
+        rclpy.try_shutdown()
+
+
+def test_rclpy_node_main_refuses_bad_parameters():
+    pytest.importorskip("rclpy", reason="ROS 2 Jazzy is not sourced (rclpy missing): rclpy path untested here")
+    from advperc_ros.nodes.tracker import main
+
+    assert main(["--ros-args", "-p", "tracker.gate:=-1.0"]) == 2
+
+
+def test_example_external_planner_answers_every_tracks_message():
+    pytest.importorskip("rclpy", reason="ROS 2 Jazzy is not sourced (rclpy missing): rclpy path untested here")
+    import importlib.util
+
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
+
+    from advperc_ros.core.scenario import EgoState
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros.bag import ODOMETRY, PLAN, ROUTE, TOPIC_TYPES, TRACKING, read_topics
+    from advperc_ros.ros.transport import RclpyTransport
+
+    spec = importlib.util.spec_from_file_location("external_planner", REPO / "examples" / "external_planner.py")
+    example = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(example)
+    rclpy.init()
+    try:
+        planner, tester = example.ExternalPlanner(), Node("advperc_test_graph")
+        transport = RclpyTransport(tester)
+        plans = []
+        transport.subscriber(PLAN, TOPIC_TYPES[PLAN], callback=plans.append)
+        publishers = {topic: transport.publisher(topic, TOPIC_TYPES[topic], latched=topic == ROUTE)
+                      for topic in (ROUTE, TRACKING, ODOMETRY)}
+        publishers[ROUTE].publish(read_topics(BAG, [ROUTE])[0][ROUTE][0][1])
+        executor = SingleThreadedExecutor()
+        executor.add_node(planner)
+        executor.add_node(tester)
+        deadline = time.monotonic() + 10.0
+        while min(p.matched_count() for p in publishers.values()) < 1 and time.monotonic() < deadline:
+            executor.spin_once(0.05)
+        stamps = [1_000_000_000, 1_100_000_000, 1_000_000_000]  # the third starts a new rollout
+        tracks = read_scenario(BAG).agents.frame(0)
+        for count, stamp in enumerate(stamps, start=1):  # in lockstep, as the player drives it
+            publishers[TRACKING].publish(msgs.objects_to_markers(tracks, stamp, "tracking"))
+            publishers[ODOMETRY].publish(msgs.odometry(EgoState(0.0, -1.75, 0.0, 8.0), stamp))
+            while len(plans) < count and time.monotonic() < deadline:
+                executor.spin_once(0.05)
+        assert [msgs.stamp_ns(p.header.stamp) for p in plans] == stamps
+        _, pose_stamps = msgs.path_points(plans[0])
+        assert pose_stamps[0] == stamps[0] and np.all(np.diff(pose_stamps) > 0)
+    finally:
+        rclpy.try_shutdown()
+
+
+def test_launch_file_builds_the_graph():
+    pytest.importorskip("launch_ros", reason="ROS 2 Jazzy is not sourced (launch_ros missing): launch file untested here")
+    import importlib.util
+
+    from launch import LaunchContext
+
+    spec = importlib.util.spec_from_file_location("attack_launch", REPO / "launch" / "attack.launch.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    context = LaunchContext()
+    for planner, nodes in (("ours", 6), ("external", 5)):
+        context.launch_configurations.update(params=str(REPO / "config" / "idm_lane_following.yaml"), planner=planner, output="")
+        actions = module._graph(context)
+        assert len([a for a in actions if type(a).__name__ == "Node"]) == nodes

@@ -305,20 +305,18 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    outcomes = (  # expected failures: one line on stderr and an exit code of their own
+        (INPUT_ERRORS, "error: ", EXIT_INPUT),
+        ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),
+        ((ScenarioRejected,), "", EXIT_REJECTED),
+        ((GraphError,), "error: graph backend: ", EXIT_GRAPH),
+    )
     try:
         return args.func(args)
-    except INPUT_ERRORS as exc:
-        print(f"advperc: error: {exc}", file=sys.stderr)
-        return EXIT_INPUT
-    except GroundTruthFails as exc:
-        print(f"advperc: {exc}", file=sys.stderr)
-        return EXIT_NOTHING_TO_ATTACK
-    except ScenarioRejected as exc:
-        print(f"advperc: {exc}", file=sys.stderr)
-        return EXIT_REJECTED
-    except GraphError as exc:
-        print(f"advperc: error: graph backend: {exc}", file=sys.stderr)
-        return EXIT_GRAPH
+    except tuple(kind for kinds, _, _ in outcomes for kind in kinds) as exc:
+        prefix, code = next((prefix, code) for kinds, prefix, code in outcomes if isinstance(exc, kinds))
+        print(f"advperc: {prefix}{exc}", file=sys.stderr)
+        return code
 
 
 if __name__ == "__main__":

@@ -61,6 +61,7 @@ CROSS_BUFFER = 1.0  # m kept from the blocked stations of a yielded-to or gone-b
 MAX_CLASSES = 16  # per lateral path
 GRID_STEP = 0.5  # m, station grid of stage 1's blocked-station maps
 W1_ACCEL, W1_JERK, W1_LATERAL = 0.05, 0.05, 0.2  # stage 1 cost beyond lost progress (m)
+W1_HEADWAY = 10.0  # stage 1 cost per metre of headway shortfall per second: far above lost progress
 W_SPEED, W_LATERAL, W_HEADING = 1.0, 1.0, 2.0  # stage 2 tracking weights
 W_ACCEL, W_STEER, W_JERK, W_STEER_RATE = 0.2, 2.0, 0.05, 20.0  # stage 2 comfort weights
 IPOPT_OPTIONS = {"print_level": 0, "sb": "yes", "tol": 1e-4, "acceptable_tol": 1e-3, "acceptable_iter": 5,
@@ -375,11 +376,12 @@ class OBPPlanner:
 
     def _build_lp(self) -> None:
         """Stage 1's speed LP, built once (HiGHS through CasADi's conic interface); each class
-        only changes bounds. Variables: s, v (N+1 each); a, |a|, |jerk| (N each)."""
+        only changes bounds. Variables: s, v (N+1 each); a, |a|, |jerk| (N each); headway slack (N+1)."""
         N, h = self.N, self.h
         iS, iV, iA = 0, N + 1, 2 * (N + 1)
         iC, iJ = iA + N, iA + 2 * N
-        nvar = iA + 3 * N
+        iH = iA + 3 * N
+        nvar = iH + N + 1
         rows = []
         for k in range(N):  # dynamics, = 0
             r = np.zeros(nvar)
@@ -399,9 +401,9 @@ class OBPPlanner:
                     r[iA + k], r[iA + k - 1], r[iJ + k] = sign, -sign, -1.0
                     rows.append(r)
         n_abs = len(rows) - n_eq
-        for k in range(N + 1):  # following: s_k + HEADWAY v_k <= s_lead_k
+        for k in range(N + 1):  # following: s_k + HEADWAY v_k - slack_k <= s_lead_k
             r = np.zeros(nvar)
-            r[iS + k], r[iV + k] = 1.0, HEADWAY
+            r[iS + k], r[iV + k], r[iH + k] = 1.0, HEADWAY, -1.0
             rows.append(r)
         A = ca.DM(csc_matrix(np.array(rows)))
         self._lp_A = A
@@ -411,15 +413,17 @@ class OBPPlanner:
         c[iV + 1:iV + N + 1] = -h  # maximise progress
         c[iC:iC + N] = W1_ACCEL * h
         c[iJ:iJ + N] = W1_JERK
+        c[iH:iH + N + 1] = W1_HEADWAY * h
         self._lp_cost = c
-        self._lp_layout = (iS, iV, iA, iC, iJ, nvar, n_eq, n_abs)
+        self._lp_layout = (iS, iV, iA, iC, iJ, iH, nvar, n_eq, n_abs)
 
     def _speed_lp(self, s0: float, v0: float, lower: np.ndarray, upper: np.ndarray, s_lead: np.ndarray):
         """Speed profile along the class path: maximise progress, penalise |accel| and |jerk|, with
         the class's bounds on the station per stage time and s_k + HEADWAY v_k <= s_lead_k behind
-        cars ahead in the lane. Returns (s, v, a, cost) or None if infeasible."""
+        cars ahead in the lane, softened by a penalised slack so that a headway already short now (a
+        cut-in, a merge) is restored rather than infeasible. Returns (s, v, a, cost) or None."""
         cfg, N, h = self.config, self.N, self.h
-        iS, iV, iA, iC, iJ, nvar, n_eq, n_abs = self._lp_layout
+        iS, iV, iA, iC, iJ, iH, nvar, n_eq, n_abs = self._lp_layout
         if not (lower[0] <= s0 <= upper[0]):
             return None
         v_cap = max(cfg.target_speed, v0)
@@ -431,6 +435,7 @@ class OBPPlanner:
         lbx[iA:iA + N], ubx[iA:iA + N] = -cfg.max_decel, cfg.max_accel
         lbx[iC:iC + N] = 0.0
         lbx[iJ:iJ + N], ubx[iJ:iJ + N] = 0.0, cfg.max_jerk * h
+        lbx[iH:iH + N + 1] = 0.0
         lba = np.concatenate([np.zeros(n_eq), np.full(n_abs, -np.inf), np.full(N + 1, -np.inf)])
         uba = np.concatenate([np.zeros(n_eq), np.zeros(n_abs), s_lead])
         sol = self._lp(g=self._lp_cost, a=self._lp_A, lba=lba, uba=uba, lbx=lbx, ubx=ubx)
@@ -438,7 +443,7 @@ class OBPPlanner:
             return None
         x = np.asarray(sol["x"]).ravel()
         cost = float(np.sum(v_cap - x[iV + 1:iV + N + 1]) * h + W1_ACCEL * h * np.sum(x[iC:iC + N])
-                     + W1_JERK * np.sum(x[iJ:iJ + N]))
+                     + W1_JERK * np.sum(x[iJ:iJ + N]) + W1_HEADWAY * h * np.sum(x[iH:iH + N + 1]))
         return x[iS:iS + N + 1], x[iV:iV + N + 1], x[iA:iA + N], cost
 
     def _stage1(self, s0: float, d0: float, v0: float, obstacles: list[_Obstacle]) -> _Reference | None:
@@ -477,8 +482,9 @@ class OBPPlanner:
                 options = []  # (label, upper bound on s, lower bound on s, bound on s + HEADWAY v)
                 in_lane_ahead = abs(ob.d[0]) < lane_half and ob.s[0] > s0
                 if in_lane_ahead and ob.speed_along >= STATIC_SPEED:
-                    s_lead = np.where(blocked, lo - STANDSTILL_GAP, np.inf)  # follow a car in the lane
-                    options.append(("follow", s_lead, None, s_lead))
+                    # follow a car in the lane: never into its ellipse (hard), keep the headway (soft)
+                    options.append(("follow", np.where(blocked, lo, np.inf), None,
+                                    np.where(blocked, lo - STANDSTILL_GAP, np.inf)))
                 else:
                     gap = CROSS_BUFFER + (STANDSTILL_GAP if abs(ob.speed_along) < STATIC_SPEED else 0.0)
                     if s0 <= lo[k1] - gap:

@@ -9,7 +9,7 @@ from advperc_ros.ros.bag import read_scenario
 REPO = Path(__file__).resolve().parent.parent
 IDM_SCENARIOS = ("idm_lane_following", "idm_overtake_follow")
 # ObP rollouts take seconds each: their 100-sample checks run through `advperc check-typical`
-ALL_SCENARIOS = (*IDM_SCENARIOS, "obp_overtake", "obp_left_turn")
+ALL_SCENARIOS = (*IDM_SCENARIOS, "obp_overtake", "obp_left_turn", "obp_right_turn")
 
 
 def _bundled(name: str):

@@ -165,6 +165,18 @@ def test_iteration_limit_counts_as_a_failure(scenario):
     assert follow_plan(plan, 0.1).v < scenario.ego_start.v
 
 
+def test_failures_of_a_rollout_reach_the_search_log(scenario, params):
+    """Each rollout's failed solves are in its search-log row, and the search goes on."""
+    from advperc_ros.core.search.problem import AttackProblem
+
+    starved = Stack(scenario, replace(params, planner_params={**params.planner_params, "max_iterations": 1}))
+    problem = AttackProblem(scenario, starved.rollout, "nds_t")
+    evaluation = problem.evaluate(PerceptionErrors.none(*scenario.agents.shape), "ground_truth")
+    row = problem.log[-1]
+    assert row.planner_failures == evaluation.rollout.planner_failures == starved.planner.failures > 0
+    assert sum(starved.planner.fallbacks.values()) == row.planner_failures
+
+
 def test_failed_solve_uses_previous_plan_shifted_when_it_is_still_safe(scenario):
     planner = OBPPlanner(_context(scenario))
     ego = scenario.ego_start

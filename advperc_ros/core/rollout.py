@@ -36,6 +36,9 @@ class RolloutResult:
     tracks: list[dict[str, np.ndarray]] | None = None  # per frame, when recorded
     plans: list[Trajectory] | None = None  # per frame, when recorded
     stage_times: dict[str, float] = field(default_factory=dict, repr=False)  # s per stage, for benchmarks
+    # failed solves the planner answered with its fallback (a planner's `failures` counter, reset per
+    # rollout); None when not known, as for a planner in another process
+    planner_failures: int | None = None
 
     @property
     def num_frames(self) -> int:
@@ -118,4 +121,5 @@ def rollout(
         tracks=tracks_log if record else None,
         plans=plans_log if record else None,
         stage_times=stage_times,
+        planner_failures=getattr(planner, "failures", None),
     )

@@ -43,6 +43,7 @@ class LogRow:
     min_signed_distance: float
     collided: bool
     inconclusive: str
+    planner_failures: int | None  # planner solves that failed and fell back (None: not reported)
     accepted: bool  # the search adopted this rollout (both algorithms adopt exactly the failing ones)
     best_metric: float  # best metric of an adversarial rollout so far (nan before the first)
 
@@ -96,6 +97,7 @@ class AttackProblem:
             min_signed_distance=result.min_signed_distance,
             collided=result.collided,
             inconclusive=result.inconclusive or "",
+            planner_failures=result.planner_failures,
             accepted=evaluation.adversarial and phase != "ground_truth",
             best_metric=self.best.metric if self.best is not None else float("nan"),
         )

@@ -33,7 +33,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -45,12 +44,12 @@ from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, nest
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import ODOMETRY, PLAN, RULE_DIAGNOSTICS, TOPIC_TYPES, TRACKING
 from advperc_ros.ros.transport import Transport
 from advperc_ros.ros.lockstep import (CONTROL_TYPE, DONE, ERRORS, INCONCLUSIVE, PRESENCE, RolloutDone, RolloutErrors,
-                                      errors_message, objects_stamp, parse_done, parse_presence, parse_rule_diagnostics,
-                                      path_to_trajectory)
+                                      errors_message, parse_done, parse_presence, parse_rule_diagnostics, plan_from_cdr)
 
 NODES = ("scenario_player", "error_injector", "tracker", "planner", "rule_monitor")
 RECORDED = (TRACKING, PLAN)  # topics only recorded rollouts need
@@ -163,8 +162,23 @@ class GraphRollouts:
         self._present[name] = pid
 
     def _subscribe(self, topic: str) -> None:
-        self._received[topic] = {}
-        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=self._keeper(topic))
+        """Keep what `topic` delivers by stamp; recorded tracks and plans come raw and are kept
+        decoded (objects, Trajectory), the rest as rosbags messages."""
+        received: dict[int, Any] = {}
+        self._received[topic] = received
+
+        def keep(msg: Any) -> None:
+            stamp, value = self._decode(topic, msg)
+            received[stamp] = value
+
+        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=topic in RECORDED)
+
+    def _decode(self, topic: str, msg: Any) -> tuple[int | None, Any]:
+        if topic == TRACKING:
+            return cdr.decode_objects(msg, TRACKING)
+        if topic == PLAN:
+            return plan_from_cdr(msg, self._stamps[0], PLAN)
+        return msgs.stamp_ns(msg.header.stamp), msg
 
     def _start_recording(self) -> None:
         """Subscribe to tracks and plans, which only recorded rollouts need (decoding them every
@@ -173,15 +187,6 @@ class GraphRollouts:
         for topic in RECORDED:
             self._subscribe(topic)
         self._warm_up(time.monotonic() + STARTUP_TIMEOUT)
-
-    def _keeper(self, topic: str) -> Callable[[Any], None]:
-        received = self._received[topic]
-        stamp_of = objects_stamp if topic == TRACKING else (lambda msg: msgs.stamp_ns(msg.header.stamp))
-
-        def keep(msg: Any) -> None:
-            received[stamp_of(msg)] = msg
-
-        return keep
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
@@ -335,8 +340,7 @@ class GraphRollouts:
                 distances[k, self._slots[agent]] = distance
         result = RolloutResult(ego=ego, distances=distances, inconclusive=inconclusive)
         if record and done is not None:
-            result.tracks = [msgs.markers_to_objects(self._received[TRACKING][s], TRACKING)
-                             for s in stamps[: self._tracked_frames(done)]]
-            result.plans = [path_to_trajectory(self._received[PLAN][s], self._stamps[0]) for s in stamps[: self._planned_frames(done)]]
+            result.tracks = [self._received[TRACKING][s] for s in stamps[: self._tracked_frames(done)]]
+            result.plans = [self._received[PLAN][s] for s in stamps[: self._planned_frames(done)]]
         return result
 

@@ -21,6 +21,7 @@ from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.ros import bag as bags
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 
 REPORT_JSON = "report.json"
@@ -155,7 +156,7 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
         for k in range(rollout.num_frames):
             ns = int(scenario.stamps_ns[k])
             bag.write(bags.CLOCK, ns, msgs.clock(ns))
-            bag.write(bags.GROUND_TRUTH, ns, msgs.objects_to_markers(scenario.agents.frame(k), ns, "ground_truth"))
+            bag.write(bags.GROUND_TRUTH, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "ground_truth"))
             bag.write(bags.ODOMETRY, ns, msgs.odometry(_ego(rollout.ego[k]), ns))
             distance = float(rollout.rule[k])
             bag.write(bags.RULE, ns, msgs.float64(distance))
@@ -163,11 +164,11 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
                 ns, "collision", "violated" if distance < 0 else "ok", {"min_signed_distance": repr(distance)},
                 level=2 if distance < 0 else 0,
             ))
-            bag.write(bags.PERCEPTION, ns, msgs.objects_to_markers(perceived.frame(k), ns, "perception"))
+            bag.write(bags.PERCEPTION, ns, cdr.encode_objects(perceived.frame(k), ns, "perception"))
             if k < len(rollout.tracks):
-                bag.write(bags.TRACKING, ns, msgs.objects_to_markers(rollout.tracks[k], ns, "tracking"))
+                bag.write(bags.TRACKING, ns, cdr.encode_objects(rollout.tracks[k], ns, "tracking"))
             if k < len(rollout.plans):
-                bag.write(bags.PLAN, ns, msgs.trajectory_to_path(rollout.plans[k], ns))
+                bag.write(bags.PLAN, ns, msgs.trajectory_cdr(rollout.plans[k], ns))
         bag.write(bags.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
 
 

@@ -15,10 +15,9 @@ import numpy as np
 from advperc_ros.core.errors import confidence_scores
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
-from advperc_ros.ros import messages as msgs
+from advperc_ros.ros import cdr
 from advperc_ros.ros.bag import GROUND_TRUTH, PERCEPTION, TOPIC_TYPES
-from advperc_ros.ros.lockstep import (CONTROL_TYPE, ERRORS, READY, RolloutErrors, objects_stamp, parse_errors,
-                                      ready_message)
+from advperc_ros.ros.lockstep import CONTROL_TYPE, ERRORS, READY, RolloutErrors, parse_errors, ready_message
 from advperc_ros.ros.transport import Transport
 
 
@@ -47,7 +46,7 @@ class ErrorInjector:
         self._perception = transport.publisher(PERCEPTION, TOPIC_TYPES[PERCEPTION])
         self._ready = transport.publisher(READY, CONTROL_TYPE)
         transport.subscriber(ERRORS, CONTROL_TYPE, latched=True, callback=self.on_errors)
-        transport.subscriber(GROUND_TRUTH, TOPIC_TYPES[GROUND_TRUTH], callback=self.on_ground_truth)
+        transport.subscriber(GROUND_TRUTH, TOPIC_TYPES[GROUND_TRUTH], callback=self.on_ground_truth, raw=True)
 
     def on_errors(self, msg: Any) -> None:
         rollout = parse_errors(msg)
@@ -57,20 +56,19 @@ class ErrorInjector:
         self._scores = confidence_scores(*rollout.errors.shape)
         self._ready.publish(ready_message(rollout.rollout))
 
-    def on_ground_truth(self, msg: Any) -> None:
-        stamp = objects_stamp(msg)
+    def on_ground_truth(self, data: bytes) -> None:
+        stamp, truth = cdr.decode_objects(data, GROUND_TRUTH)
         if self._rollout is None or stamp not in self._frames:
             why = "no error tensor yet" if self._rollout is None else f"stamp {stamp} is not a frame of the error tensor"
             self._log.error(f"{GROUND_TRUTH}: dropped a frame ({why}); that rollout will time out")
             return
-        truth = msgs.markers_to_objects(msg, GROUND_TRUTH)
         unknown = [int(i) for i in truth["ids"] if int(i) not in self._slots]
         if unknown:
             self._log.error(f"{GROUND_TRUTH}: agents {unknown} at stamp {stamp} are not in the error tensor; frame dropped")
             return
         slots = np.array([self._slots[int(i)] for i in truth["ids"]], dtype=np.int64)
         perceived = perceive(truth, self._frames[stamp], slots, self._rollout, self._scores)
-        self._perception.publish(msgs.objects_to_markers(perceived, stamp, "perception"))
+        self._perception.publish(cdr.encode_objects(perceived, stamp, "perception"))
 
 
 SPEC = NodeSpec("error_injector", (), lambda transport, values, planner_params, logger: ErrorInjector(transport, logger))

@@ -14,6 +14,7 @@ from typing import Any
 
 from advperc_ros.core.planners.base import Planner, PlanningContext, load_planner
 from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, run_node
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import ODOMETRY, PLAN, TOPIC_TYPES, TRACKING, read_scenario
 from advperc_ros.ros.transport import Transport
@@ -25,14 +26,15 @@ class PlannerNode:
         self._log = logger
         self._pairs = StampPairs(self._answer)
         self._plan = transport.publisher(PLAN, TOPIC_TYPES[PLAN])
-        transport.subscriber(TRACKING, TOPIC_TYPES[TRACKING], callback=self.on_tracks)
+        transport.subscriber(TRACKING, TOPIC_TYPES[TRACKING], callback=self.on_tracks, raw=True)
         transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry)
 
-    def on_tracks(self, msg: Any) -> None:
-        if not msg.markers:
+    def on_tracks(self, data: bytes) -> None:
+        stamp, tracks = cdr.decode_objects(data, TRACKING)
+        if stamp is None:
             self._log.error(f"{TRACKING}: a MarkerArray without markers has no stamp; dropped")
             return
-        self._pairs.put(0, msgs.stamp_ns(msg.markers[0].header.stamp), msgs.markers_to_objects(msg, TRACKING))
+        self._pairs.put(0, stamp, tracks)
 
     def on_odometry(self, msg: Any) -> None:
         self._pairs.put(1, msgs.stamp_ns(msg.header.stamp), msgs.odometry_to_ego(msg))
@@ -42,10 +44,10 @@ class PlannerNode:
         if first:
             self._planner.reset()
         try:
-            path = msgs.trajectory_to_path(self._planner.plan(t, ego, tracks), stamp)
+            path = msgs.trajectory_cdr(self._planner.plan(t, ego, tracks), stamp)
         except Exception as exc:  # a plug-in that crashes must still answer: with an empty plan
             self._log.error(f"planner raised {type(exc).__name__} at t={t:.3f} s: {exc}; answering with an empty plan")
-            path = msgs.path([], [], [], [], stamp)
+            path = cdr.encode_path([], [], [], [], stamp)
         self._plan.publish(path)
 
 

@@ -12,6 +12,7 @@ from typing import Any
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.rules import collision_distances
 from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, run_node
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import GROUND_TRUTH, ODOMETRY, RULE, RULE_DIAGNOSTICS, TOPIC_TYPES
 from advperc_ros.ros.lockstep import rule_diagnostics
@@ -26,14 +27,15 @@ class RuleMonitor:
         self._pairs = StampPairs(self._answer)
         self._rule = transport.publisher(RULE, TOPIC_TYPES[RULE])
         self._diagnostics = transport.publisher(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS])
-        transport.subscriber(GROUND_TRUTH, TOPIC_TYPES[GROUND_TRUTH], callback=self.on_ground_truth)
+        transport.subscriber(GROUND_TRUTH, TOPIC_TYPES[GROUND_TRUTH], callback=self.on_ground_truth, raw=True)
         transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry)
 
-    def on_ground_truth(self, msg: Any) -> None:
-        if not msg.markers:
+    def on_ground_truth(self, data: bytes) -> None:
+        stamp, truth = cdr.decode_objects(data, GROUND_TRUTH)
+        if stamp is None:
             self._log.error(f"{GROUND_TRUTH}: a MarkerArray without markers has no stamp; dropped")
             return
-        self._pairs.put(0, msgs.stamp_ns(msg.markers[0].header.stamp), msgs.markers_to_objects(msg, GROUND_TRUTH))
+        self._pairs.put(0, stamp, truth)
 
     def on_odometry(self, msg: Any) -> None:
         self._pairs.put(1, msgs.stamp_ns(msg.header.stamp), msgs.odometry_to_ego(msg))

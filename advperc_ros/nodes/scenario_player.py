@@ -24,12 +24,14 @@ from pathlib import Path
 from typing import Any
 
 from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import (CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, PLAN, ROUTE, RULE_DIAGNOSTICS, TOPIC_TYPES,
                                  read_scenario, read_topics)
-from advperc_ros.ros.lockstep import (CONTROL_TYPE, DONE, INCONCLUSIVE, OK, READY, RolloutDone, done_message, objects_stamp,
-                                      parse_ready, parse_rule_diagnostics, path_to_trajectory)
+from advperc_ros.ros.lockstep import (CONTROL_TYPE, DONE, INCONCLUSIVE, OK, READY, RolloutDone, done_message, parse_ready,
+                                      parse_rule_diagnostics, plan_from_cdr)
 from advperc_ros.ros.transport import Transport
 
 
@@ -39,7 +41,7 @@ class _Run:
     frame: int
     deadline: float
     rule: float | None = None
-    plan: Any = None
+    plan: Trajectory | None = None
 
 
 class ScenarioPlayer:
@@ -48,10 +50,11 @@ class ScenarioPlayer:
         self._stop_at_collision = stop_at_collision
         self._timeout = timeout
         self._log = logger
-        topics, _ = read_topics(bag, [GROUND_TRUTH, ODOMETRY, LANES, ROUTE])
-        by_stamp = {objects_stamp(m): m for _, m in topics[GROUND_TRUTH]}
+        # the bag's own messages as stored (CDR): the same bytes go out in every rollout
+        topics, _ = read_topics(bag, [GROUND_TRUTH, ODOMETRY, LANES, ROUTE], raw=True)
+        by_stamp = {cdr.decode_objects(data, GROUND_TRUTH)[0]: data for _, data in topics[GROUND_TRUTH]}
         self._ground_truth = [by_stamp[int(stamp)] for stamp in self.scenario.stamps_ns]
-        start = topics[ODOMETRY][0][1]
+        start = msgs.TYPESTORE.deserialize_cdr(topics[ODOMETRY][0][1], TOPIC_TYPES[ODOMETRY])
         self._start = dataclasses.replace(start, header=msgs.header(int(self.scenario.stamps_ns[0])))
         self._run: _Run | None = None
         self._pub = {topic: transport.publisher(topic, TOPIC_TYPES[topic], latched=topic in LATCHED)
@@ -61,7 +64,7 @@ class ScenarioPlayer:
             if topics[topic]:
                 self._pub[topic].publish(topics[topic][0][1])
         transport.subscriber(READY, CONTROL_TYPE, callback=self.on_ready)
-        transport.subscriber(PLAN, TOPIC_TYPES[PLAN], callback=self.on_plan)
+        transport.subscriber(PLAN, TOPIC_TYPES[PLAN], callback=self.on_plan, raw=True)
         transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule)
 
     def _stamp(self, frame: int) -> int:
@@ -83,9 +86,12 @@ class ScenarioPlayer:
         self._run = _Run(rollout, 0, 0.0)
         self._publish_frame(0, self._start)
 
-    def on_plan(self, msg: Any) -> None:
-        if self._run is not None and msgs.stamp_ns(msg.header.stamp) == self._stamp(self._run.frame):
-            self._run.plan = msg
+    def on_plan(self, data: bytes) -> None:
+        if self._run is None:
+            return
+        stamp, plan = plan_from_cdr(data, self._stamp(0), PLAN)
+        if stamp == self._stamp(self._run.frame):
+            self._run.plan = plan
             self._step()
 
     def on_rule(self, msg: Any) -> None:
@@ -103,13 +109,13 @@ class ScenarioPlayer:
         k = run.frame
         if self._stop_at_collision and run.rule < 0.0:
             self._finish(OK)
-        elif not run.plan.poses:
+        elif not len(run.plan.t):
             self._finish(INCONCLUSIVE, f"frame {k}: the planner answered with an empty plan (it failed; see its log)")
         elif k + 1 == self.scenario.num_frames:
             self._finish(OK)
         else:
             try:
-                ego = follow_plan(path_to_trajectory(run.plan, self._stamp(0)), float(self.scenario.times[k + 1]))
+                ego = follow_plan(run.plan, float(self.scenario.times[k + 1]))
             except PlanError as exc:
                 self._finish(INCONCLUSIVE, f"frame {k}: {exc}")
             else:

@@ -11,7 +11,7 @@ from typing import Any
 
 from advperc_ros.core.tracker import Tracker, TrackerConfig
 from advperc_ros.nodes.runtime import Logger, NodeSpec, RolloutClock, run_node
-from advperc_ros.ros import messages as msgs
+from advperc_ros.ros import cdr
 from advperc_ros.ros.bag import PERCEPTION, TOPIC_TYPES, TRACKING
 from advperc_ros.ros.transport import Transport
 
@@ -22,19 +22,18 @@ class TrackerNode:
         self._log = logger
         self._clock = RolloutClock()
         self._tracks = transport.publisher(TRACKING, TOPIC_TYPES[TRACKING])
-        transport.subscriber(PERCEPTION, TOPIC_TYPES[PERCEPTION], callback=self.on_detections)
+        transport.subscriber(PERCEPTION, TOPIC_TYPES[PERCEPTION], callback=self.on_detections, raw=True)
 
-    def on_detections(self, msg: Any) -> None:
-        if not msg.markers:
+    def on_detections(self, data: bytes) -> None:
+        stamp, detections = cdr.decode_objects(data, PERCEPTION)
+        if stamp is None:
             self._log.error(f"{PERCEPTION}: a MarkerArray without markers has no stamp (the first must be DELETEALL); dropped")
             return
-        stamp = msgs.stamp_ns(msg.markers[0].header.stamp)
         self._clock.observe(stamp)
         first, t = self._clock.answer(stamp)
         if first:
             self._tracker.reset()
-        tracks = self._tracker.step(t, msgs.markers_to_objects(msg, PERCEPTION))
-        self._tracks.publish(msgs.objects_to_markers(tracks, stamp, "tracking"))
+        self._tracks.publish(cdr.encode_objects(self._tracker.step(t, detections), stamp, "tracking"))
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> TrackerNode:

@@ -9,6 +9,7 @@ import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import yaml
@@ -18,6 +19,7 @@ from rosbags.rosbag2.metadata import Qos, QosDurability, QosHistory, QosLiveline
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import Lane, Scenario, ScenarioError
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 
 CLOCK = "/clock"
@@ -76,12 +78,12 @@ class BagWriter:
         self._connections: dict[str, object] = {}
 
     def write(self, topic: str, ns_time: int, message) -> None:
+        """Write a rosbags message, or its CDR payload (bytes, as `cdr` encodes it)."""
         if topic not in self._connections:
             self._connections[topic] = self._writer.add_connection(
                 topic, TOPIC_TYPES[topic], typestore=msgs.TYPESTORE, offered_qos_profiles=[_qos(topic in LATCHED)]
             )
-        data = msgs.TYPESTORE.serialize_cdr(message, TOPIC_TYPES[topic])
-        self._writer.write(self._connections[topic], int(ns_time), data)
+        self._writer.write(self._connections[topic], int(ns_time), cdr.payload(message, TOPIC_TYPES[topic]))
 
     def set_custom_data(self, key: str, value: str) -> None:
         self._writer.set_custom_data(key, value)
@@ -120,7 +122,7 @@ def write_scenario_static(bag: BagWriter, scenario: Scenario) -> None:
     bag.write(LANES, t0, msgs.lanes_to_markers(scenario.lanes, t0))
     route = scenario.route
     headings = route.heading(route.stations)
-    bag.write(ROUTE, t0, msgs.path(route.points[:, 0], route.points[:, 1], headings, [t0] * len(route.points), t0))
+    bag.write(ROUTE, t0, cdr.encode_path(route.points[:, 0], route.points[:, 1], headings, [t0] * len(route.points), t0))
 
 
 def write_scenario(bag: BagWriter, scenario: Scenario) -> None:
@@ -130,7 +132,7 @@ def write_scenario(bag: BagWriter, scenario: Scenario) -> None:
     bag.write(ODOMETRY, t0, msgs.odometry(scenario.ego_start, t0))
     for k, ns_time in enumerate(scenario.stamps_ns):
         bag.write(CLOCK, int(ns_time), msgs.clock(int(ns_time)))
-        bag.write(GROUND_TRUTH, int(ns_time), msgs.objects_to_markers(scenario.agents.frame(k), int(ns_time), "ground_truth"))
+        bag.write(GROUND_TRUTH, int(ns_time), cdr.encode_objects(scenario.agents.frame(k), int(ns_time), "ground_truth"))
 
 
 def write_ground_truth_bag(path: Path, scenario: Scenario) -> None:
@@ -138,14 +140,15 @@ def write_ground_truth_bag(path: Path, scenario: Scenario) -> None:
         write_scenario(bag, scenario)
 
 
-def read_topics(path: Path, topics: Iterable[str]) -> tuple[dict[str, list[tuple[int, object]]], dict[str, str]]:
-    """Deserialised messages of the given topics in log-time order, as (log time, message), and
-    the bag's custom metadata."""
+def read_topics(path: Path, topics: Iterable[str], raw: bool = False
+                ) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, str]]:
+    """Messages of the given topics in log-time order, as (log time, message), and the bag's
+    custom metadata. Messages are deserialised, or with `raw` their CDR bytes as stored."""
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     wanted = set(topics)
-    out: dict[str, list[tuple[int, object]]] = {topic: [] for topic in wanted}
+    out: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in wanted}
     try:
         with Reader(path) as reader:
             connections = [c for c in reader.connections if c.topic in wanted]
@@ -154,8 +157,9 @@ def read_topics(path: Path, topics: Iterable[str]) -> tuple[dict[str, list[tuple
                 if expected is not None and connection.msgtype != expected:
                     raise BagError(f"{path}: topic '{connection.topic}' has type {connection.msgtype}, expected {expected}")
             # an empty connection list means "all connections" to rosbags
-            for connection, log_time, raw in reader.messages(connections=connections) if connections else ():
-                out[connection.topic].append((log_time, msgs.TYPESTORE.deserialize_cdr(raw, connection.msgtype)))
+            for connection, log_time, data in reader.messages(connections=connections) if connections else ():
+                message = bytes(data) if raw else msgs.TYPESTORE.deserialize_cdr(data, connection.msgtype)
+                out[connection.topic].append((log_time, message))
     except BagError:
         raise
     except Exception as exc:  # rosbags raises several types for unreadable bags
@@ -191,11 +195,17 @@ def objects_sequence(frames: list[tuple[int, dict[str, np.ndarray]]]) -> tuple[n
 
 def read_objects(path: Path, topic: str) -> tuple[np.ndarray, BoxSequence]:
     """One object topic of a bag: (header stamps, boxes with one slot per object id)."""
-    messages = read_topics(path, [topic])[0][topic]
+    messages = read_topics(path, [topic], raw=True)[0][topic]
     if not messages:
         raise BagError(f"{path}: topic '{topic}' is missing or empty")
     where = f"{path}: topic '{topic}'"
-    frames = [(msgs.stamp_ns(m.markers[0].header.stamp) if m.markers else t, msgs.markers_to_objects(m, where)) for t, m in messages]
+    frames = []
+    for log_time, data in messages:
+        try:
+            stamp, objects = cdr.decode_objects(data, where)
+        except cdr.MessageError as exc:
+            raise BagError(str(exc)) from None
+        frames.append((log_time if stamp is None else stamp, objects))
     stamps, boxes = objects_sequence(frames)
     if np.any(np.diff(stamps) <= 0):
         raise BagError(f"{where}: field 'header.stamp' repeats or goes back in time")

@@ -11,12 +11,14 @@ It follows what rmw_cyclonedds puts on the wire, so these processes and real ROS
 - QoS is the contract's: reliable, keep-last 1000, volatile; latched topics are transient-local
   keep-last 1, which is what ROS 2 calls latching.
 
-Messages in and out are rosbags message objects (`advperc_ros.ros.messages`). The payload is
-made by rosbags' generated serialiser and handed to Cyclone as bytes, and received bytes are
-decoded by rosbags, skipping Cyclone's much slower Python (de)serialiser. That uses the two
-functions DataWriter.write and DataReader.take themselves call (`cyclonedds._clayer.ddspy_write`
-and `ddspy_take`); should a cyclonedds release drop them, the public API is used instead
-(through `dds_types.to_idl` / `from_idl`), slower but identical on the wire.
+Messages go in as rosbags message objects (`advperc_ros.ros.messages`) or as their CDR payload
+(bytes, `advperc_ros.ros.cdr`), and come out as rosbags objects or, from a `raw` subscription, as
+the CDR payload. The payload is handed to Cyclone as bytes, and received bytes are decoded by
+rosbags (or not at all when raw), skipping Cyclone's much slower Python (de)serialiser. That uses
+the two functions DataWriter.write and DataReader.take themselves call
+(`cyclonedds._clayer.ddspy_write` and `ddspy_take`); should a cyclonedds release drop them, the
+public API is used instead (through `dds_types.to_idl` / `idl_to_cdr`), slower but identical
+on the wire.
 
 Discovery is loopback-only by default (`LOCALHOST_CONFIG`, like ROS's
 `ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`). Volatile topics only reach readers that are already
@@ -42,8 +44,9 @@ from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
 from advperc_ros.ros import dds_types
+from advperc_ros.ros.cdr import payload
 
-try:  # the fast path: rosbags' bytes straight to Cyclone (see the module docstring)
+try:  # the fast path: CDR bytes straight to Cyclone (see the module docstring)
     from cyclonedds._clayer import ddspy_take as _ddspy_take
     from cyclonedds._clayer import ddspy_write as _ddspy_write
 except ImportError:  # pragma: no cover - depends on the installed cyclonedds
@@ -133,14 +136,14 @@ class Publication:
         self._writer = writer
 
     def publish(self, msg: object) -> None:
-        """Send a rosbags message of this topic's type."""
-        payload = dds_types.to_cdr(msg, self.msgtype)
+        """Send a rosbags message of this topic's type, or its CDR payload (bytes) as it is."""
+        data = payload(msg, self.msgtype)
         if _ddspy_write is not None:
-            ret = _ddspy_write(self._writer._ref, _pad(payload))
+            ret = _ddspy_write(self._writer._ref, _pad(data))
             if ret < 0:
                 raise DdsError(f"{self.topic}: write failed with DDS return code {ret}")
         else:  # public API fallback, slower
-            self._writer.write(dds_types.idl_type(self.msgtype).deserialize(payload))
+            self._writer.write(dds_types.to_idl(data, self.msgtype))
 
     def matched_count(self) -> int:
         """Readers currently matched (local and remote)."""
@@ -160,32 +163,34 @@ class Subscription:
     """A reader of one ROS topic; made by `DdsTransport.subscriber`."""
 
     def __init__(self, participant: DomainParticipant, reader: DataReader, topic: str, msgtype: str,
-                 callback: Callable[[object], None] | None) -> None:
+                 callback: Callable[[Any], None] | None, raw: bool) -> None:
         self.topic = topic
         self.msgtype = msgtype
         self.callback = callback
+        self.raw = raw
         self._reader = reader
         self.condition = ReadCondition(reader, _ANY_STATE)
         self._waitset = WaitSet(participant)
         self._waitset.attach(self.condition)
 
-    def take(self) -> list[object]:
-        """All messages received so far and not yet taken, oldest first (non-blocking)."""
-        out: list[object] = []
+    def take(self) -> list[Any]:
+        """All messages received so far and not yet taken, oldest first (non-blocking): rosbags
+        messages, or CDR payloads (bytes, maybe padded to 4 bytes) if the subscription is raw."""
+        out: list[bytes] = []
         while True:
             if _ddspy_take is not None:
                 samples = _ddspy_take(self._reader._ref, _ANY_STATE, _TAKE_BATCH)
                 if isinstance(samples, int):
                     raise DdsError(f"{self.topic}: take failed with DDS return code {samples}")
                 # invalid samples only announce a writer's disappearance
-                out.extend(dds_types.from_cdr(data, self.msgtype) for data, info in samples if info.valid_data)
+                out.extend(data for data, info in samples if info.valid_data)
             else:  # public API fallback, slower
                 samples = self._reader.take(_TAKE_BATCH)
-                out.extend(dds_types.from_idl(s, self.msgtype) for s in samples if s.sample_info.valid_data)
+                out.extend(dds_types.idl_to_cdr(s) for s in samples if s.sample_info.valid_data)
             if len(samples) < _TAKE_BATCH:
-                return out
+                return out if self.raw else [dds_types.from_cdr(data, self.msgtype) for data in out]
 
-    def wait(self, timeout: float) -> list[object]:
+    def wait(self, timeout: float) -> list[Any]:
         """Like `take`, but first block until something arrives or `timeout` seconds pass
         (then the list is empty)."""
         deadline = time.monotonic() + timeout
@@ -259,12 +264,12 @@ class DdsTransport:
         return publication
 
     def subscriber(self, topic: str, msgtype: str, latched: bool = False,
-                   callback: Callable[[object], None] | None = None) -> Subscription:
+                   callback: Callable[[Any], None] | None = None, raw: bool = False) -> Subscription:
         """A reader of `topic`. With a callback, messages are delivered by `spin_once`;
         without, the caller takes them with `take` / `wait`. A latched reader also gets the
-        last message published before it joined."""
+        last message published before it joined. `raw`: deliver CDR payloads, not messages."""
         reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype))
-        subscription = Subscription(self.participant, reader, topic, msgtype, callback)
+        subscription = Subscription(self.participant, reader, topic, msgtype, callback, raw)
         self._subscriptions.append(subscription)
         if callback is not None:
             if self._spin_waitset is None:

@@ -16,8 +16,8 @@ with the IDL type and `from_idl` deserialises the IDL type's CDR with rosbags. T
 models differ in representation (numpy arrays vs lists/bytes, rosbags' frozen dataclasses), and
 the wire format is the one thing both must agree on anyway; test_dds proves byte equality for
 every contract type, so the same proof covers the conversion. The transport (dds.py) goes further
-and puts rosbags' bytes on the wire directly, which is about five times faster than Cyclone's
-Python serialiser for a MarkerArray.
+and puts the bytes on the wire directly, which is about five times faster than Cyclone's
+Python serialiser for a MarkerArray even when rosbags makes them.
 
 No `from __future__ import annotations` here: cyclonedds reads the field annotations of
 IdlStruct classes as real objects, not strings.
@@ -29,7 +29,7 @@ from cyclonedds.idl import IdlStruct, make_idl_struct
 from cyclonedds.idl import types as idl
 
 from advperc_ros.ros.bag import TOPIC_TYPES
-from advperc_ros.ros.messages import TYPESTORE
+from advperc_ros.ros.cdr import TYPESTORE, payload
 
 # rosbags Nodetype values (rosbags.interfaces.Nodetype): BASE, NAME, ARRAY, SEQUENCE
 _BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4
@@ -96,11 +96,6 @@ def idl_type(msgtype: str) -> type[IdlStruct]:
     return cls
 
 
-def to_cdr(msg: object, msgtype: str) -> bytes:
-    """A rosbags message as plain CDR with its 4-byte encapsulation header (the DDS payload)."""
-    return bytes(TYPESTORE.serialize_cdr(msg, msgtype))
-
-
 def from_cdr(data: bytes, msgtype: str) -> object:
     """A DDS payload (encapsulation header, CDR, up to 3 bytes padding) as a rosbags message."""
     return TYPESTORE.deserialize_cdr(data, msgtype)
@@ -112,8 +107,8 @@ def idl_to_cdr(sample: IdlStruct) -> bytes:
 
 
 def to_idl(msg: object, msgtype: str) -> IdlStruct:
-    """rosbags message -> IDL sample, through the shared wire format."""
-    return idl_type(msgtype).deserialize(to_cdr(msg, msgtype))
+    """rosbags message (or its CDR payload) -> IDL sample, through the shared wire format."""
+    return idl_type(msgtype).deserialize(payload(msg, msgtype))
 
 
 def from_idl(sample: IdlStruct, msgtype: str) -> object:

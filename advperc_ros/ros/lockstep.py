@@ -26,6 +26,7 @@ import numpy as np
 
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 
 ERRORS = "/attack/errors"
@@ -123,13 +124,9 @@ def parse_rule_diagnostics(msg) -> tuple[int, float, dict[int, float]]:
     return msgs.stamp_ns(msg.header.stamp), values[MIN_KEY], per_agent
 
 
-def path_to_trajectory(path, first_stamp_ns: int) -> Trajectory:
-    """A nav_msgs/Path as the plan the embedded rollout follows: pose times in seconds since the
-    scenario's first stamp, computed as `Scenario.times` computes frame times."""
-    poses, stamps = msgs.path_points(path)
-    return Trajectory(t=(stamps - np.int64(first_stamp_ns)) * 1e-9, x=poses[:, 0], y=poses[:, 1], yaw=poses[:, 2])
+def plan_from_cdr(data: bytes, first_stamp_ns: int, where: str) -> tuple[int, Trajectory]:
+    """A nav_msgs/Path's CDR as (its stamp, the plan the embedded rollout follows: pose times in
+    seconds since the scenario's first stamp, computed as `Scenario.times` computes frame times)."""
+    stamp, poses, stamps = cdr.decode_path(data, where)
+    return stamp, Trajectory(t=(stamps - np.int64(first_stamp_ns)) * 1e-9, x=poses[:, 0], y=poses[:, 1], yaw=poses[:, 2])
 
-
-def objects_stamp(msg) -> int | None:
-    """The stamp of an object MarkerArray (its first marker's, the DELETEALL), None if empty."""
-    return msgs.stamp_ns(msg.markers[0].header.stamp) if msg.markers else None

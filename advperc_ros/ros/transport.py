@@ -2,13 +2,17 @@
 
 Node logic (advperc_ros.nodes) and the graph backend (advperc_ros.graph) only ever call
 `publisher(topic, msgtype, latched).publish(msg)`, `subscriber(topic, msgtype, latched,
-callback)` and `spin_once(timeout)`, with rosbags message objects in and out. Two transports
-provide that:
+callback, raw)` and `spin_once(timeout)`. Messages go in as rosbags message objects or as their
+CDR payload (bytes, encapsulation header first, as `advperc_ros.ros.cdr` packs them), and come
+out as rosbags objects, or with `raw=True` as the CDR payload, which the nodes read with `cdr`'s
+decoders: the per-frame messages then never become rosbags objects (docs/graph.md,
+"Performance"). Two transports provide that:
 
 - `advperc_ros.ros.dds.DdsTransport`: Cyclone DDS with ROS 2's wire conventions, no ROS needed;
-- `RclpyTransport` below: a real rclpy node. It hands rclpy the CDR bytes rosbags makes
-  (rclpy publishers accept serialised bytes) and subscribes with `raw=True`, decoding the bytes
-  with rosbags, so the node logic sees the same rosbags objects, bit for bit, on both transports.
+- `RclpyTransport` below: a real rclpy node. It hands rclpy CDR bytes (rclpy publishers accept
+  serialised bytes) and subscribes with rclpy's own `raw=True`, decoding the bytes with rosbags
+  unless asked for them raw, so the node logic sees the same messages, bit for bit, on both
+  transports.
 
 QoS is the contract's on both: reliable, volatile, keep-last 1000; latched topics are
 transient-local keep-last 1.
@@ -18,13 +22,13 @@ import importlib
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from advperc_ros.ros.cdr import TYPESTORE, payload
 from advperc_ros.ros.dds import DEPTH, LATCHED_DEPTH
-from advperc_ros.ros.messages import TYPESTORE
 
 
 class Publisher(Protocol):
     def publish(self, msg: object) -> None:
-        """Send a rosbags message of the publisher's type."""
+        """Send a rosbags message of the publisher's type, or its CDR payload (bytes) as it is."""
 
     def matched_count(self) -> int:
         """Subscribers currently matched (writer-side discovery)."""
@@ -35,8 +39,9 @@ class Transport(Protocol):
         """A publisher of `topic` carrying `msgtype` (`pkg/msg/Type`)."""
 
     def subscriber(self, topic: str, msgtype: str, latched: bool = False,
-                   callback: Callable[[object], None] | None = None) -> object:
-        """A subscription delivering rosbags messages to `callback` from `spin_once`."""
+                   callback: Callable[[Any], None] | None = None, raw: bool = False) -> object:
+        """A subscription delivering rosbags messages to `callback` from `spin_once`; with `raw`,
+        their CDR payloads (bytes) instead."""
 
     def spin_once(self, timeout: float) -> int:
         """Deliver pending messages to callbacks, waiting up to `timeout` s for the first."""
@@ -54,7 +59,7 @@ class _RclpyPublication:
         self._msgtype = msgtype
 
     def publish(self, msg: object) -> None:
-        self._publisher.publish(bytes(TYPESTORE.serialize_cdr(msg, self._msgtype)))
+        self._publisher.publish(payload(msg, self._msgtype))
 
     def matched_count(self) -> int:
         return int(self._publisher.get_subscription_count())
@@ -85,13 +90,13 @@ class RclpyTransport:
         return _RclpyPublication(self._node.create_publisher(_message_class(msgtype), topic, _rclpy_qos(latched)), msgtype)
 
     def subscriber(self, topic: str, msgtype: str, latched: bool = False,
-                   callback: Callable[[object], None] | None = None) -> object:
+                   callback: Callable[[Any], None] | None = None, raw: bool = False) -> object:
         if callback is None:
             raise ValueError(f"{topic}: rclpy subscriptions deliver through a callback; give one")
 
         def deliver(data: bytes) -> None:
             self._delivered += 1
-            callback(TYPESTORE.deserialize_cdr(data, msgtype))
+            callback(data if raw else TYPESTORE.deserialize_cdr(data, msgtype))
 
         return self._node.create_subscription(_message_class(msgtype), topic, deliver, _rclpy_qos(latched), raw=True)
 

@@ -1,0 +1,331 @@
+"""The per-frame messages of the topic contract as CDR bytes, packed from and read into numpy.
+
+Every frame the graph nodes exchange object MarkerArrays and a plan (a nav_msgs/Path of some 80
+poses). Going through rosbags message objects costs 0.2 to 0.9 ms per message (thousands of small
+Python objects built, serialised, decoded and read), more than a whole embedded IDM frame; packing
+the bytes straight from the arrays, or reading the arrays straight out of the bytes, costs a tenth
+of that. The bytes are exactly rosbags' (and so ROS 2's): plain CDR, little endian (encapsulation
+00 01 00 00), zero padding, alignment counted from the end of the encapsulation header. The
+rosbags-object factories in `messages` are built on these codecs, so the convention below is
+written once; test_cdr holds the bytes to rosbags', test_dds to Cyclone's.
+
+Object convention (one MarkerArray per frame, frame `map`): the first marker is DELETEALL and
+carries the stamp; then per object a CUBE in namespace `objects` (id = agent or track id, pose =
+centre and yaw, scale = length, width, height, text = detection confidence as a decimal string,
+empty for ground truth and tracks) and an ARROW with the same id in namespace `velocity` whose
+points are [centre, centre + velocity x 1 s]. A dropped object is simply absent.
+
+Encoders write that convention; decoders read any valid message of the type (other strings,
+colours, textures, meshes, or big endian through rosbags), since external nodes publish too.
+"""
+
+import math
+import struct
+
+import numpy as np
+from rosbags.serde import SerdeError
+from rosbags.typesys import Stores, get_typestore
+
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
+PATH = "nav_msgs/msg/Path"
+FRAME_ID = "map"
+OBJECTS_NS = "objects"
+VELOCITY_NS = "velocity"
+ARROW_SCALE = (0.2, 0.4, 0.4)
+COLORS = {
+    "ground_truth": (1.0, 1.0, 1.0, 0.8),
+    "perception": (0.1, 0.8, 0.2, 0.8),
+    "tracking": (0.2, 0.4, 1.0, 0.8),
+    "lanes": (0.3, 0.3, 0.3, 0.5),
+}
+_MARKER = TYPESTORE.types["visualization_msgs/msg/Marker"]
+ARROW, CUBE, ADD, DELETEALL = _MARKER.ARROW, _MARKER.CUBE, _MARKER.ADD, _MARKER.DELETEALL
+
+ENCAPSULATION = b"\x00\x01\x00\x00"  # plain CDR, little endian
+_U32 = struct.Struct("<I")
+_HEADER = struct.Struct("<iII")  # stamp sec, nanosec, then the frame_id string's length
+_MARKER_KIND = struct.Struct("<iii")  # id, type, action
+# From an 8-aligned pose to the points: pose (7), scale (3), color, lifetime, frame_locked,
+# padding to 4, the number of points; the points then start 8-aligned again.
+_MARKER_BODY = struct.Struct("<10d4fiI?3xI")
+_POINT_PAIR = struct.Struct("<6d")
+_POINT_SIZE = 24
+_POSE_SIZE = 56
+_IDENTITY = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
+_NO_ARROW = (0.0,) * 6  # velocity read as zero
+_BOX_FIELDS = ("x", "y", "yaw", "vx", "vy", "length", "width", "height", "score")
+_ZEROS = bytes(8)
+
+
+class MessageError(ValueError):
+    """A message that does not follow the topic contract; the text names the field."""
+
+
+def yaw_quaternion(yaw: np.ndarray | float) -> tuple[np.ndarray | float, np.ndarray | float]:
+    """(z, w) of the quaternion of a rotation by `yaw` about z (x = y = 0)."""
+    return np.sin(yaw / 2.0), np.cos(yaw / 2.0)
+
+
+def quaternion_yaw(x: np.ndarray | float, y: np.ndarray | float, z: np.ndarray | float,
+                   w: np.ndarray | float) -> np.ndarray | float:
+    """The yaw (rotation about z) of a quaternion."""
+    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+def _string(text: str) -> bytes:
+    """A CDR string: length with the terminating NUL, the UTF-8 bytes, the NUL."""
+    data = text.encode()
+    return _U32.pack(len(data) + 1) + data + b"\0"
+
+
+def _run(*fields: bytes) -> bytes:
+    """4-aligned fields back to back, each padded for the next: valid wherever it starts 4-aligned."""
+    return b"".join(field + bytes(-len(field) % 4) for field in fields)
+
+
+_EMPTY_STRING = _string("")
+_NONE = _U32.pack(0)  # an empty sequence
+# Marker fields after `points` up to `text`: colors, texture_resource, texture (header, format,
+# data) and uv_coordinates, all empty; then after `text`: mesh_resource, mesh_file and
+# mesh_use_embedded_materials (False).
+_BEFORE_TEXT = _run(_NONE, _EMPTY_STRING, bytes(8), _EMPTY_STRING, _EMPTY_STRING, _NONE, _NONE)
+_AFTER_TEXT = _run(_EMPTY_STRING, _EMPTY_STRING, _NONE) + b"\0"
+_OBJECTS_NAME = OBJECTS_NS.encode()
+_VELOCITY_NAME = VELOCITY_NS.encode()
+
+
+def _header(ns_time: int) -> bytes:
+    """std_msgs/Header stamped `ns_time` in FRAME_ID."""
+    sec, nanosec = divmod(int(ns_time), 1_000_000_000)
+    return struct.pack("<iI", sec, nanosec) + _string(FRAME_ID)
+
+
+def _put_marker(buf: bytearray, head: bytes, kind: tuple[int, int, int], pose_scale: tuple[float, ...],
+                color: tuple[float, ...], points: bytes = b"", text: bytes = b"") -> None:
+    """Append one visualization_msgs/Marker: `head` its header and namespace (`_run`), `kind`
+    (id, type, action), `points` packed Points. Offsets count from the end of the encapsulation
+    header, so the padding to 8 is computed with 4 added."""
+    buf += _ZEROS[: -len(buf) & 3]
+    buf += head
+    buf += _MARKER_KIND.pack(*kind)
+    buf += _ZEROS[: (4 - len(buf)) & 7]
+    buf += _MARKER_BODY.pack(*pose_scale, *color, 0, 0, False, len(points) // _POINT_SIZE)
+    buf += points
+    buf += _BEFORE_TEXT
+    buf += _U32.pack(len(text) + 1) + text + b"\0"
+    buf += _ZEROS[: -len(buf) & 3]
+    buf += _AFTER_TEXT
+
+
+def encode_objects(objects: dict[str, np.ndarray], ns_time: int, kind: str) -> bytes:
+    """A frame of boxes (dict of 1-D arrays: ids and core.boxes.BOX_FIELDS) as the CDR of a
+    MarkerArray; `kind` picks the colour (COLORS)."""
+    header = _header(ns_time)
+    delete_all, cube, arrow = (_run(header, _string(ns)) for ns in ("", OBJECTS_NS, VELOCITY_NS))
+    color = COLORS[kind]
+    buf = bytearray(ENCAPSULATION)
+    buf += _U32.pack(1 + 2 * len(objects["ids"]))
+    _put_marker(buf, delete_all, (0, CUBE, DELETEALL), _IDENTITY + (0.0, 0.0, 0.0), color)
+    x, y, height = objects["x"], objects["y"], objects["height"]
+    z, zero = height / 2.0, np.zeros_like(x)
+    cubes = np.column_stack([x, y, z, zero, zero, *yaw_quaternion(objects["yaw"]), objects["length"], objects["width"], height])
+    arrows = np.column_stack([x, y, z, x + objects["vx"], y + objects["vy"], z])
+    rows = zip(objects["ids"].tolist(), cubes.tolist(), arrows.tolist(), objects["score"].tolist())
+    for marker_id, box, tip, score in rows:
+        text = repr(score).encode() if math.isfinite(score) else b""
+        _put_marker(buf, cube, (marker_id, CUBE, ADD), box, color, text=text)
+        _put_marker(buf, arrow, (marker_id, ARROW, ADD), _IDENTITY + ARROW_SCALE, color, _POINT_PAIR.pack(*tip))
+    return bytes(buf)
+
+
+def _pose_stamped(start: int) -> np.dtype:
+    """The CDR layout of a geometry_msgs/PoseStamped in FRAME_ID that starts at body offset
+    `start` (4-aligned): stamp, frame_id, padding to 8, pose."""
+    frame_id = _string(FRAME_ID)
+    pose = ((start + 8 + len(frame_id) + 7) & -8) - start
+    return np.dtype({"names": ["sec", "nanosec", "frame_id", "pose"],
+                     "formats": ["<i4", "<u4", f"V{len(frame_id)}", ("<f8", 7)],
+                     "offsets": [0, 4, 8, pose], "itemsize": pose + _POSE_SIZE})
+
+
+_PATH_HEAD = _run(_header(0)) + _NONE  # the layout of a Path's header and pose count
+_FIRST_POSE = _pose_stamped(len(_PATH_HEAD))
+_NEXT_POSE = _pose_stamped(0)  # a pose ends 8-aligned, so every later one starts so
+
+
+def _fill_poses(poses: np.ndarray, xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: np.ndarray) -> None:
+    poses["sec"], poses["nanosec"] = np.divmod(stamps, 1_000_000_000)
+    poses["frame_id"] = np.void(_string(FRAME_ID))
+    pose = poses["pose"]
+    pose[:, 0], pose[:, 1] = xs, ys
+    pose[:, 5], pose[:, 6] = yaw_quaternion(yaws)
+
+
+def encode_path(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: np.ndarray, ns_time: int) -> bytes:
+    """A nav_msgs/Path's CDR: stamped `ns_time`, pose i at (xs[i], ys[i], 0) with yaw yaws[i],
+    stamped stamps[i] (ns), all in FRAME_ID."""
+    stamps = np.asarray(stamps, dtype=np.int64)
+    buf = bytearray(ENCAPSULATION)
+    buf += _run(_header(ns_time))
+    buf += _U32.pack(len(stamps))
+    if len(stamps):
+        first, rest = np.zeros(1, _FIRST_POSE), np.zeros(len(stamps) - 1, _NEXT_POSE)
+        for poses, part in ((first, slice(0, 1)), (rest, slice(1, None))):
+            _fill_poses(poses, np.asarray(xs)[part], np.asarray(ys)[part], np.asarray(yaws)[part], stamps[part])
+        buf += first.tobytes() + rest.tobytes()
+    return bytes(buf)
+
+
+def payload(msg: object, msgtype: str) -> bytes:
+    """What a publisher sends: `msg` itself if it is a CDR payload already (bytes, as the
+    encoders here make), else rosbags' CDR of the message object."""
+    return msg if isinstance(msg, bytes) else bytes(TYPESTORE.serialize_cdr(msg, msgtype))
+
+
+# -- decoding ----------------------------------------------------------------------------------
+
+
+def _body(data: bytes, msgtype: str, where: str) -> bytes:
+    """The CDR after the encapsulation header, little endian (big endian is re-encoded by rosbags)."""
+    if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
+        raise MessageError(f"{where}: not a plain CDR payload (encapsulation {bytes(data[:4]).hex()})")
+    if data[1] == 0:
+        try:
+            data = TYPESTORE.serialize_cdr(TYPESTORE.deserialize_cdr(data, msgtype), msgtype, little_endian=True)
+        except SerdeError as exc:
+            raise MessageError(f"{where}: {exc}") from None
+    return bytes(data[4:])
+
+
+def _skip_string(body: bytes, pos: int) -> int:
+    pos = (pos + 3) & -4
+    return pos + 4 + _U32.unpack_from(body, pos)[0]
+
+
+def _skip_sequence(body: bytes, pos: int, item_size: int, item_align: int) -> int:
+    pos = (pos + 3) & -4
+    count = _U32.unpack_from(body, pos)[0]
+    pos += 4
+    return ((pos + item_align - 1) & -item_align) + count * item_size if count else pos
+
+
+def _skip_media(body: bytes, pos: int) -> int:
+    """Past a Marker's colors, texture_resource, texture and uv_coordinates, whatever they hold."""
+    if body.startswith(_BEFORE_TEXT, pos):  # all empty, as the encoders write them
+        return pos + len(_BEFORE_TEXT)
+    pos = _skip_sequence(body, pos, 16, 4)  # colors
+    pos = _skip_string(body, pos)  # texture_resource
+    pos = _skip_string(body, ((pos + 3) & -4) + 8)  # texture: header stamp, frame_id
+    pos = _skip_string(body, pos)  # texture.format
+    pos = _skip_sequence(body, pos, 1, 1)  # texture.data
+    return _skip_sequence(body, pos, 8, 4)  # uv_coordinates
+
+
+def _skip_mesh(body: bytes, pos: int) -> int:
+    """Past a Marker's mesh_resource, mesh_file and mesh_use_embedded_materials."""
+    if body.startswith(_AFTER_TEXT, pos):  # as the encoders write them
+        return pos + len(_AFTER_TEXT)
+    pos = _skip_string(body, _skip_string(body, pos))  # mesh_resource, mesh_file.filename
+    return _skip_sequence(body, pos, 1, 1) + 1
+
+
+def _read_marker(body: bytes, pos: int) -> tuple[tuple, int]:
+    """One Marker at body offset `pos`: ((stamp ns, ns, id, action, pose and scale, first two
+    points or None, text), end). Alignment is spelled out ((pos + 3) & -4 is the next multiple
+    of 4): this runs for every marker of every frame."""
+    pos = (pos + 3) & -4
+    sec, nanosec, length = _HEADER.unpack_from(body, pos)
+    pos = (pos + 15 + length) & -4
+    length = _U32.unpack_from(body, pos)[0]
+    ns = body[pos + 4: pos + 3 + length]
+    pos = (pos + 7 + length) & -4
+    marker_id, _, action = _MARKER_KIND.unpack_from(body, pos)
+    pos = (pos + 19) & -8
+    fixed = _MARKER_BODY.unpack_from(body, pos)
+    count = fixed[-1]
+    pos += _MARKER_BODY.size
+    points = _POINT_PAIR.unpack_from(body, pos) if count == 2 else None
+    pos = _skip_media(body, pos + count * _POINT_SIZE)
+    length = _U32.unpack_from(body, pos)[0]
+    text = body[pos + 4: pos + 3 + length]
+    pos = _skip_mesh(body, (pos + 7 + length) & -4)
+    return (sec * 1_000_000_000 + nanosec, ns, marker_id, action, fixed[:10], points, text), pos
+
+
+def _read_markers(data: bytes, where: str) -> list[tuple]:
+    body = _body(data, MARKER_ARRAY, where)
+    try:
+        pos, markers = 4, []
+        for _ in range(_U32.unpack_from(body, 0)[0]):
+            marker, pos = _read_marker(body, pos)
+            markers.append(marker)
+    except struct.error as exc:
+        raise MessageError(f"{where}: a MarkerArray cut short or malformed ({exc})") from None
+    if pos > len(body):
+        raise MessageError(f"{where}: a MarkerArray cut short")
+    return markers
+
+
+def _score(text: bytes, marker_id: int, where: str) -> float:
+    try:
+        return float(text.decode()) if text else math.nan
+    except ValueError:
+        raise MessageError(f"{where}: field 'text' of marker {marker_id} is not a confidence: "
+                           f"{text.decode(errors='replace')!r}") from None
+
+
+def decode_objects(data: bytes, where: str) -> tuple[int | None, dict[str, np.ndarray]]:
+    """The CDR of an object MarkerArray as (its stamp: the first marker's, None if it has no
+    marker; the boxes as a dict of 1-D arrays, sorted by id); `where` prefixes any error."""
+    markers = _read_markers(data, where)
+    cubes: dict[int, tuple] = {}
+    arrows: dict[int, tuple] = {}
+    for _, ns, marker_id, action, pose_scale, points, text in markers:
+        if action == DELETEALL:
+            continue
+        if ns == _OBJECTS_NAME:
+            cubes[marker_id] = (pose_scale, text)
+        elif ns == _VELOCITY_NAME:
+            arrows[marker_id] = points
+    ids = sorted(cubes)
+    fixed = np.array([cubes[i][0] for i in ids], dtype=float).reshape(-1, 10)
+    tips = np.array([arrows.get(i) or _NO_ARROW for i in ids], dtype=float).reshape(-1, 6)
+    objects = {
+        "x": fixed[:, 0], "y": fixed[:, 1], "yaw": quaternion_yaw(*fixed[:, 3:7].T),
+        "vx": tips[:, 3] - tips[:, 0], "vy": tips[:, 4] - tips[:, 1],
+        "length": fixed[:, 7], "width": fixed[:, 8], "height": fixed[:, 9],
+        "score": np.array([_score(cubes[i][1], i, where) for i in ids], dtype=float),
+    }
+    result = {name: np.ascontiguousarray(objects[name]) for name in _BOX_FIELDS}
+    result["ids"] = np.asarray(ids, dtype=np.int64)
+    return (markers[0][0] if markers else None), result
+
+
+def decode_path(data: bytes, where: str) -> tuple[int, np.ndarray, np.ndarray]:
+    """The CDR of a nav_msgs/Path as (header stamp ns; poses (P, 3) as x, y, yaw; pose stamps
+    (P,) ns); `where` prefixes any error."""
+    body = _body(data, PATH, where)
+    try:
+        sec, nanosec, length = _HEADER.unpack_from(body, 0)
+        pos = (15 + length) & -4
+        count = _U32.unpack_from(body, pos)[0]
+        pos += 4
+        starts, offsets = [], []
+        for _ in range(count):  # each pose: stamp, frame_id, padding to 8, pose
+            start = (pos + 3) & -4
+            pos = (start + 19 + _U32.unpack_from(body, start + 8)[0]) & -8
+            starts.append(start)
+            offsets.append(pos)
+            pos += _POSE_SIZE
+    except struct.error as exc:
+        raise MessageError(f"{where}: a Path cut short or malformed ({exc})") from None
+    if pos > len(body):
+        raise MessageError(f"{where}: a Path cut short")
+    words = np.frombuffer(body, "<u4", count=len(body) // 4)
+    first = np.array(starts, dtype=np.int64) // 4
+    stamps = words[first].view("<i4").astype(np.int64) * 1_000_000_000 + words[first + 1]
+    doubles = np.frombuffer(body, "<f8", count=len(body) // 8)
+    pose = doubles[np.array(offsets, dtype=np.int64)[:, None] // 8 + np.arange(7)].reshape(-1, 7)
+    poses = np.column_stack([pose[:, 0], pose[:, 1], quaternion_yaw(*pose[:, 3:7].T)])
+    return sec * 1_000_000_000 + nanosec, poses, stamps

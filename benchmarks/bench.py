@@ -1,14 +1,16 @@
 """Speed of the pipeline, measured side by side in one run (the machine is shared: compare ratios).
 
     python benchmarks/bench.py            # everything
-    python benchmarks/bench.py --quick    # fewer repetitions, one search objective
+    python benchmarks/bench.py --quick    # fewer repetitions; IDM searches with one objective
+    python benchmarks/bench.py --sections 3 --scenarios obp_right_turn   # one scenario's searches
 
-1. Rollout: full rollout time against the planner alone (the floor), and the time per stage.
+1. Rollout: full rollout time against the planner alone (the floor), the time per stage, and the
+   median and 95th percentile of one planning call.
 2. NDS: evaluations per second of ours against nuscenes-devkit 1.2.0 on the same 200-frame,
    5-car input. The devkit pins numpy<2 and runs from its own venv (created on first use at
    .venv-devkit, or pass --devkit-python); both NDS values are printed to show they agree.
-3. A whole paper-sized search (heuristic + 40 random steps) per scenario and objective: wall time
-   and the metric reached.
+3. A whole paper-sized search (heuristic + 40 random steps) per scenario and objective: wall time,
+   the metric reached and the perception scores of the best attack (paper Table 1's columns).
 4. Recorded traffic (CommonRoad samples in ../shared/data/commonroad, when present): per-frame
    rollout cost and whole-search wall time against the number of recorded vehicles.
 """
@@ -34,21 +36,41 @@ from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario
 
 REPO = Path(__file__).resolve().parent.parent
-SCENARIOS = ("idm_lane_following", "idm_overtake_follow")
+IDM_SCENARIOS = ("idm_lane_following", "idm_overtake_follow")
+OBP_SCENARIOS = ("obp_overtake", "obp_left_turn", "obp_right_turn")
+SCENARIOS = IDM_SCENARIOS + OBP_SCENARIOS
 DEVKIT_VENV = REPO / ".venv-devkit"
 COMMONROAD = REPO.parent / "shared" / "data" / "commonroad"
 RECORDINGS = ("USA_US101-1_1_T-1", "USA_Peach-2_1_T-1", "USA_Lanker-2_1_T-1", "USA_US101-10_1_T-1")
 
 
-def bench_rollouts(repeats: int) -> None:
-    print("== 1. Rollout time vs planner-only time (ground-truth rollouts, median of", repeats, ") ==")
-    print(f"{'scenario':24s} {'frames':>6s} {'rollout ms':>10s} {'planner ms':>10s} {'ratio':>6s}  per stage (ms)")
+class TimedPlanner:
+    """Any planner, with the wall time of each planning call recorded."""
+
+    def __init__(self, planner) -> None:
+        self.planner, self.call_times = planner, []
+
+    def reset(self) -> None:
+        self.planner.reset()
+
+    def plan(self, t, ego, tracks):
+        started = time.perf_counter()
+        plan = self.planner.plan(t, ego, tracks)
+        self.call_times.append(time.perf_counter() - started)
+        return plan
+
+
+def bench_rollouts(repeats: int, obp_repeats: int) -> None:
+    print(f"== 1. Rollout time vs planner-only time (ground-truth rollouts, median of {repeats}, ObP {obp_repeats}) ==")
+    print(f"{'scenario':24s} {'frames':>6s} {'rollout ms':>10s} {'planner ms':>10s} {'ratio':>6s} "
+          f"{'step p50':>8s} {'step p95':>8s}  per stage (ms)")
     for name in SCENARIOS:
         scenario = read_scenario(REPO / "bags" / name)
         stack = Stack(scenario, load_params(REPO / "config" / f"{name}.yaml"))
+        stack.planner = timed = TimedPlanner(stack.planner)
         errors = PerceptionErrors.none(*scenario.agents.shape)
         totals, stages = [], {stage: [] for stage in STAGES}
-        for _ in range(repeats):
+        for _ in range(obp_repeats if name in OBP_SCENARIOS else repeats):
             started = time.perf_counter()
             result = stack.rollout(errors)
             totals.append(time.perf_counter() - started)
@@ -56,8 +78,10 @@ def bench_rollouts(repeats: int) -> None:
                 stages[stage].append(result.stage_times[stage])
         total = statistics.median(totals) * 1e3
         planner = statistics.median(stages["planner"]) * 1e3
+        p50, p95 = np.percentile(timed.call_times, [50, 95]) * 1e3
         per_stage = "  ".join(f"{s} {statistics.median(v) * 1e3:.1f}" for s, v in stages.items())
-        print(f"{name:24s} {result.num_frames:6d} {total:10.1f} {planner:10.1f} {total / planner:6.2f}  {per_stage}")
+        print(f"{name:24s} {result.num_frames:6d} {total:10.1f} {planner:10.1f} {total / planner:6.2f} "
+              f"{p50:8.2f} {p95:8.2f}  {per_stage}")
 
 
 def nds_case() -> dict:
@@ -121,11 +145,12 @@ def bench_nds(min_seconds: float, devkit: str | None) -> None:
     print(f"speed-up: {ours_rate / ref['evals_per_s']:.0f}x   |NDS difference|: {abs(ours - ref['nds']):.2e}")
 
 
-def bench_searches(objectives: tuple[str, ...]) -> None:
+def bench_searches(scenarios: tuple[str, ...], objectives: tuple[str, ...]) -> None:
     print("\n== 3. Whole search per scenario (heuristic + 40 random steps, seed 0) ==")
     print(f"{'scenario':24s} {'objective':9s} {'rollouts':>8s} {'wall s':>7s} {'s/rollout':>9s} "
-          f"{'heuristic':>9s} {'final':>7s} {'NDS':>6s} {'NDS-t':>6s} {'FN/TP':>8s}")
-    for name in SCENARIOS:
+          f"{'heuristic':>9s} {'final':>7s} {'NDS':>6s} {'NDS-t':>6s} {'FN/TP':>8s} {'MPE':>5s} {'MAOE':>5s} "
+          f"{'PEM LL':>6s} {'failures':>8s}")
+    for name in scenarios:
         scenario = read_scenario(REPO / "bags" / name)
         base = load_params(REPO / "config" / f"{name}.yaml")
         for objective in objectives:
@@ -135,7 +160,9 @@ def bench_searches(objectives: tuple[str, ...]) -> None:
             rollouts = len(outcome.log)
             print(f"{name:24s} {objective:9s} {rollouts:8d} {outcome.wall_time_s:7.1f} "
                   f"{outcome.wall_time_s / rollouts:9.3f} {heur.metric:9.4f} {best.metric:7.4f} "
-                  f"{best.scores.nds:6.4f} {best.scores.nds_t:6.4f} {best.scores.fn:>4d}/{best.scores.tp:<4d}")
+                  f"{best.scores.nds:6.4f} {best.scores.nds_t:6.4f} {best.scores.fn:>4d}/{best.scores.tp:<4d} "
+                  f"{best.scores.mpe:5.2f} {best.scores.maoe:5.2f} {best.scores.pem_ll:6.3f} "
+                  f"{sum(row.planner_failures or 0 for row in outcome.log):8d}")
 
 
 def bench_recordings(repeats: int) -> None:
@@ -173,11 +200,19 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--devkit-python", help="python of a venv with nuscenes-devkit 1.2.0")
+    parser.add_argument("--sections", type=int, nargs="+", choices=(1, 2, 3, 4), default=(1, 2, 3, 4),
+                        help="which sections to run (default: all)")
+    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, help="section 3's scenarios")
     args = parser.parse_args()
-    bench_rollouts(repeats=5 if args.quick else 20)
-    bench_nds(min_seconds=1.0 if args.quick else 3.0, devkit=args.devkit_python)
-    bench_searches(("nds_t",) if args.quick else ("nds", "nds_t"))
-    bench_recordings(repeats=3 if args.quick else 5)
+    if 1 in args.sections:
+        bench_rollouts(repeats=5 if args.quick else 20, obp_repeats=1 if args.quick else 3)
+    if 2 in args.sections:
+        bench_nds(min_seconds=1.0 if args.quick else 3.0, devkit=args.devkit_python)
+    if 3 in args.sections:
+        scenarios = tuple(args.scenarios or (IDM_SCENARIOS if args.quick else SCENARIOS))
+        bench_searches(scenarios, ("nds_t",) if args.quick else ("nds", "nds_t", "pem_ll"))
+    if 4 in args.sections:
+        bench_recordings(repeats=3 if args.quick else 5)
 
 
 if __name__ == "__main__":

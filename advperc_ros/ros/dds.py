@@ -237,6 +237,7 @@ class DdsTransport:
         self._publications: list[Publication] = []
         self._subscriptions: list[Subscription] = []
         self._spin_waitset: WaitSet | None = None
+        self._spinning: list[Subscription] = []  # the subscriptions with a callback
 
     @property
     def participant(self) -> DomainParticipant:
@@ -275,27 +276,30 @@ class DdsTransport:
             if self._spin_waitset is None:
                 self._spin_waitset = WaitSet(self.participant)
             self._spin_waitset.attach(subscription.condition)
+            self._spinning.append(subscription)
         return subscription
 
     def spin_once(self, timeout: float) -> int:
         """Wait up to `timeout` seconds for messages on subscriptions with a callback and call
         the callbacks, in this thread; returns the number of messages delivered. A callback's
-        exception propagates (after which the rest of that subscription's batch is dropped)."""
-        with_callback = [s for s in self._subscriptions if s.callback is not None]
-        if not with_callback or self._spin_waitset is None:
+        exception propagates (after which the rest of that subscription's batch is dropped).
+        The waitset stays triggered while a reader holds samples, so it is waited on first and
+        each reader taken from once per wake-up (every take is a call into Cyclone)."""
+        if not self._spinning or self._spin_waitset is None:
             time.sleep(max(timeout, 0.0))
             return 0
-        delivered = 0
         deadline = time.monotonic() + timeout
         while True:
-            for subscription in with_callback:
+            remaining = max(deadline - time.monotonic(), 0.0)
+            if not self._spin_waitset.wait(duration(seconds=remaining)):
+                return 0
+            delivered = 0
+            for subscription in self._spinning:
                 for msg in subscription.take():
                     subscription.callback(msg)  # type: ignore[misc]
                     delivered += 1
-            remaining = deadline - time.monotonic()
-            if delivered or remaining <= 0:
+            if delivered or not remaining:  # else only writer-gone notices were taken
                 return delivered
-            self._spin_waitset.wait(duration(seconds=remaining))
 
     def close(self) -> None:
         """Delete the participant and everything in it now (idempotent)."""
@@ -314,6 +318,7 @@ class DdsTransport:
         _delete(self._participant)
         self._participant = None
         self._spin_waitset = None
+        self._spinning.clear()
         self._subscriptions.clear()
         self._publications.clear()
         self._topics.clear()

@@ -57,7 +57,8 @@ STARTUP_TIMEOUT = 60.0  # s for the children to start, discover each other and p
 WARMUP_STALL = 0.5  # s without progress after which a warm-up rollout is first re-sent
 GRACE = 5.0  # s beyond graph.timeout before a silent graph is declared dead
 STOP_TIMEOUT = 5.0  # s between SIGTERM and SIGKILL on shutdown
-SPIN = 0.05  # s per transport spin while waiting
+SPIN = 0.05  # s per transport spin while waiting; per-frame topics are taken at least this often
+SETTLE = 0.001  # s per spin once /attack/done is in but per-frame messages are still due
 LOG_TAIL = 5  # lines of a dead child's log quoted in the error
 
 log = logging.getLogger("advperc_ros.graph")
@@ -163,7 +164,9 @@ class GraphRollouts:
 
     def _subscribe(self, topic: str) -> None:
         """Keep what `topic` delivers by stamp; recorded tracks and plans come raw and are kept
-        decoded (objects, Trajectory), the rest as rosbags messages."""
+        decoded (objects, Trajectory), the rest as rosbags messages. Per-frame messages are only
+        read once the rollout is done, so they do not wake the spin (a wake-up per message would
+        compete for the CPU with the nodes in every frame)."""
         received: dict[int, Any] = {}
         self._received[topic] = received
 
@@ -171,7 +174,7 @@ class GraphRollouts:
             stamp, value = self._decode(topic, msg)
             received[stamp] = value
 
-        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=topic in RECORDED)
+        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=topic in RECORDED, wake=False)
 
     def _decode(self, topic: str, msg: Any) -> tuple[int | None, Any]:
         if topic == TRACKING:
@@ -266,8 +269,9 @@ class GraphRollouts:
     def _collect(self, rollout: int, stall: float, record: bool) -> RolloutDone:
         """Spin until the player's /attack/done for `rollout` and every message it implies are in."""
         idle_since = time.monotonic()
+        done = None
         while True:
-            if self._transport.spin_once(SPIN):
+            if self._transport.spin_once(SPIN if done is None else SETTLE):
                 idle_since = time.monotonic()
             dead = self._dead_child()
             if dead is not None:

@@ -265,17 +265,21 @@ class DdsTransport:
         return publication
 
     def subscriber(self, topic: str, msgtype: str, latched: bool = False,
-                   callback: Callable[[Any], None] | None = None, raw: bool = False) -> Subscription:
+                   callback: Callable[[Any], None] | None = None, raw: bool = False,
+                   wake: bool = True) -> Subscription:
         """A reader of `topic`. With a callback, messages are delivered by `spin_once`;
         without, the caller takes them with `take` / `wait`. A latched reader also gets the
-        last message published before it joined. `raw`: deliver CDR payloads, not messages."""
+        last message published before it joined. `raw`: deliver CDR payloads, not messages.
+        `wake=False`: a message does not end `spin_once`'s wait; it is delivered with the next
+        one that ends (another subscription's message, or the timeout)."""
         reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype))
         subscription = Subscription(self.participant, reader, topic, msgtype, callback, raw)
         self._subscriptions.append(subscription)
         if callback is not None:
             if self._spin_waitset is None:
                 self._spin_waitset = WaitSet(self.participant)
-            self._spin_waitset.attach(subscription.condition)
+            if wake:
+                self._spin_waitset.attach(subscription.condition)
             self._spinning.append(subscription)
         return subscription
 
@@ -284,21 +288,21 @@ class DdsTransport:
         the callbacks, in this thread; returns the number of messages delivered. A callback's
         exception propagates (after which the rest of that subscription's batch is dropped).
         The waitset stays triggered while a reader holds samples, so it is waited on first and
-        each reader taken from once per wake-up (every take is a call into Cyclone)."""
+        each reader taken from once per wake-up (every take is a call into Cyclone); readers
+        that do not wake it are taken from too, also on a timeout."""
         if not self._spinning or self._spin_waitset is None:
             time.sleep(max(timeout, 0.0))
             return 0
         deadline = time.monotonic() + timeout
         while True:
             remaining = max(deadline - time.monotonic(), 0.0)
-            if not self._spin_waitset.wait(duration(seconds=remaining)):
-                return 0
+            woke = self._spin_waitset.wait(duration(seconds=remaining))
             delivered = 0
             for subscription in self._spinning:
                 for msg in subscription.take():
                     subscription.callback(msg)  # type: ignore[misc]
                     delivered += 1
-            if delivered or not remaining:  # else only writer-gone notices were taken
+            if delivered or not woke or not remaining:  # else only writer-gone notices were taken
                 return delivered
 
     def close(self) -> None:

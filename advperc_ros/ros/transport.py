@@ -39,9 +39,11 @@ class Transport(Protocol):
         """A publisher of `topic` carrying `msgtype` (`pkg/msg/Type`)."""
 
     def subscriber(self, topic: str, msgtype: str, latched: bool = False,
-                   callback: Callable[[Any], None] | None = None, raw: bool = False) -> object:
+                   callback: Callable[[Any], None] | None = None, raw: bool = False, wake: bool = True) -> object:
         """A subscription delivering rosbags messages to `callback` from `spin_once`; with `raw`,
-        their CDR payloads (bytes) instead."""
+        their CDR payloads (bytes) instead. `wake=False` is a hint that its messages need not end
+        `spin_once`'s wait (they may wait for another message or the timeout): data read in bulk
+        later need not cost a wake-up per message."""
 
     def spin_once(self, timeout: float) -> int:
         """Deliver pending messages to callbacks, waiting up to `timeout` s for the first."""
@@ -90,7 +92,8 @@ class RclpyTransport:
         return _RclpyPublication(self._node.create_publisher(_message_class(msgtype), topic, _rclpy_qos(latched)), msgtype)
 
     def subscriber(self, topic: str, msgtype: str, latched: bool = False,
-                   callback: Callable[[Any], None] | None = None, raw: bool = False) -> object:
+                   callback: Callable[[Any], None] | None = None, raw: bool = False, wake: bool = True) -> object:
+        """As the protocol says; `wake` is not used (an rclpy executor wakes for every message)."""
         if callback is None:
             raise ValueError(f"{topic}: rclpy subscriptions deliver through a callback; give one")
 

@@ -17,7 +17,7 @@ from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
-from advperc_ros.core.search.problem import GroundTruthFails
+from advperc_ros.core.search.problem import OBJECTIVES, GroundTruthFails
 from advperc_ros.graph import GraphError
 from advperc_ros.params import ParamsError, load_params
 from advperc_ros.ros.bag import BagError
@@ -48,6 +48,8 @@ def cmd_attack(args: argparse.Namespace) -> int:
         params = params.with_values(seed=args.seed)
     if args.backend is not None:
         params = params.with_values(rollout_backend=args.backend)
+    if args.objective is not None:
+        params = params.with_values(objective=args.objective)
     output = Path(args.output) if args.output else _default_output(Path(args.params), params["seed"])
     if output.exists():
         raise ParamsError(f"{output}: output folder exists already; choose another --output")
@@ -253,6 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     attack.add_argument("params", help="params YAML in the ROS layout (orchestrator: ros__parameters: ...)")
     attack.add_argument("--output", help="results folder to create (default results/<params>-seed<N>)")
     attack.add_argument("--seed", type=int, help="override the params file's seed")
+    attack.add_argument("--objective", choices=OBJECTIVES, help="override the params file's objective")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
     attack.add_argument("--backend", choices=("embedded", "graph"),
                         help="override rollout_backend: embedded (one process) or graph (the nodes over Cyclone DDS)")

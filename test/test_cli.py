@@ -239,9 +239,9 @@ def test_robustness_needs_an_attack(tmp_path, capsys):
     assert "report.json" in capsys.readouterr().err
 
 
-def test_attack_with_the_pem_objective(tmp_path, repo):
-    params = write_params(tmp_path / "p.yaml", repo, objective="pem_ll")
-    assert main(["attack", str(params), "--output", str(tmp_path / "out"), "--quiet"]) == 0
+def test_attack_with_the_pem_objective_given_on_the_command_line(tmp_path, repo):
+    params = write_params(tmp_path / "p.yaml", repo)  # objective: nds_t in the file
+    assert main(["attack", str(params), "--output", str(tmp_path / "out"), "--quiet", "--objective", "pem_ll"]) == 0
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["collision"] and report["objective"] == "pem_ll"
     assert report["pem_ll"] >= report["heuristic"]["pem_ll"]

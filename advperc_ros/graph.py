@@ -163,10 +163,10 @@ class GraphRollouts:
         self._present[name] = pid
 
     def _subscribe(self, topic: str) -> None:
-        """Keep what `topic` delivers by stamp; recorded tracks and plans come raw and are kept
-        decoded (objects, Trajectory), the rest as rosbags messages. Per-frame messages are only
-        read once the rollout is done, so they do not wake the spin (a wake-up per message would
-        compete for the CPU with the nodes in every frame)."""
+        """Keep what `topic` delivers by stamp; odometry, tracks and plans come raw and are kept
+        decoded (EgoState, objects, Trajectory), diagnostics as rosbags messages. Per-frame
+        messages are only read once the rollout is done, so they do not wake the spin (a wake-up
+        per message would compete for the CPU with the nodes in every frame)."""
         received: dict[int, Any] = {}
         self._received[topic] = received
 
@@ -174,9 +174,11 @@ class GraphRollouts:
             stamp, value = self._decode(topic, msg)
             received[stamp] = value
 
-        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=topic in RECORDED, wake=False)
+        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=topic != RULE_DIAGNOSTICS, wake=False)
 
     def _decode(self, topic: str, msg: Any) -> tuple[int | None, Any]:
+        if topic == ODOMETRY:
+            return msgs.ego_from_cdr(msg, ODOMETRY)
         if topic == TRACKING:
             return cdr.decode_objects(msg, TRACKING)
         if topic == PLAN:
@@ -337,7 +339,7 @@ class GraphRollouts:
         ego = np.zeros((frames, 4))
         distances = np.full((frames, len(self._agent_ids)), np.inf)
         for k, stamp in enumerate(stamps):
-            state = msgs.odometry_to_ego(self._received[ODOMETRY][stamp])
+            state = self._received[ODOMETRY][stamp]
             ego[k] = (state.x, state.y, state.yaw, state.v)
             _, _, per_agent = parse_rule_diagnostics(self._received[RULE_DIAGNOSTICS][stamp])
             for agent, distance in per_agent.items():

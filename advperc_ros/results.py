@@ -155,9 +155,9 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
         bags.write_scenario_static(bag, scenario)
         for k in range(rollout.num_frames):
             ns = int(scenario.stamps_ns[k])
-            bag.write(bags.CLOCK, ns, msgs.clock(ns))
+            bag.write(bags.CLOCK, ns, cdr.encode_clock(ns))
             bag.write(bags.GROUND_TRUTH, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "ground_truth"))
-            bag.write(bags.ODOMETRY, ns, msgs.odometry(_ego(rollout.ego[k]), ns))
+            bag.write(bags.ODOMETRY, ns, msgs.ego_to_cdr(_ego(rollout.ego[k]), ns))
             distance = float(rollout.rule[k])
             bag.write(bags.RULE, ns, msgs.float64(distance))
             bag.write(bags.RULE_DIAGNOSTICS, ns, msgs.diagnostics(

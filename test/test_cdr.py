@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.core.scenario import EgoState
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.lockstep import plan_from_cdr
@@ -165,3 +166,31 @@ def test_path_decoder_reads_any_path_in_either_byte_order():
         np.testing.assert_allclose(poses, [[1.0, 4.0, 0.6], [2.0, 5.0, 0.6], [3.0, 6.0, 0.6]], rtol=0, atol=1e-12)
         with pytest.raises(cdr.MessageError, match="where: .*Path"):
             cdr.decode_path(data[:-8], "where")
+
+
+def test_odometry_and_clock_are_rosbags_bytes():
+    data = cdr.encode_odometry(1.5, -2.0, 0.7, 8.25, T0)
+    assert data == reserialised(data, cdr.ODOMETRY)
+    msg = TS.deserialize_cdr(data, cdr.ODOMETRY)
+    assert msgs.stamp_ns(msg.header.stamp) == T0 and (msg.header.frame_id, msg.child_frame_id) == ("map", "base_link")
+    pose, twist = msg.pose.pose, msg.twist.twist
+    assert (pose.position.x, pose.position.y, pose.position.z) == (1.5, -2.0, 0.0)
+    assert (pose.orientation.z, pose.orientation.w) == (np.sin(0.35), np.cos(0.35))
+    assert (twist.linear.x, twist.linear.y, twist.angular.z) == (8.25, 0.0, 0.0)
+    assert not msg.pose.covariance.any() and not msg.twist.covariance.any()
+    clock = cdr.encode_clock(T0)
+    assert clock == reserialised(clock, "rosgraph_msgs/msg/Clock")
+    assert msgs.stamp_ns(TS.deserialize_cdr(clock, "rosgraph_msgs/msg/Clock").clock) == T0
+
+
+def test_odometry_decoder_reads_any_odometry_in_either_byte_order():
+    msg = msgs.odometry(EgoState(1.5, -2.0, 0.7, 8.25), T0)
+    msg.header.frame_id, msg.child_frame_id = "world", "ego_vehicle"
+    msg.pose.covariance = np.arange(36, dtype=float)
+    msg.twist.twist.angular.z = 0.5
+    for little_endian in (True, False):
+        data = bytes(TS.serialize_cdr(msg, cdr.ODOMETRY, little_endian=little_endian))
+        stamp, (x, y, yaw, speed) = cdr.decode_odometry(data, "test")
+        assert (stamp, x, y, speed) == (T0, 1.5, -2.0, 8.25) and yaw == pytest.approx(0.7, abs=1e-15)
+    with pytest.raises(cdr.MessageError, match="where: an Odometry cut short"):
+        cdr.decode_odometry(bytes(TS.serialize_cdr(msg, cdr.ODOMETRY))[:-400], "where")

@@ -27,7 +27,7 @@ class PlannerNode:
         self._pairs = StampPairs(self._answer)
         self._plan = transport.publisher(PLAN, TOPIC_TYPES[PLAN])
         transport.subscriber(TRACKING, TOPIC_TYPES[TRACKING], callback=self.on_tracks, raw=True)
-        transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry)
+        transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry, raw=True)
 
     def on_tracks(self, data: bytes) -> None:
         stamp, tracks = cdr.decode_objects(data, TRACKING)
@@ -36,8 +36,8 @@ class PlannerNode:
             return
         self._pairs.put(0, stamp, tracks)
 
-    def on_odometry(self, msg: Any) -> None:
-        self._pairs.put(1, msgs.stamp_ns(msg.header.stamp), msgs.odometry_to_ego(msg))
+    def on_odometry(self, data: bytes) -> None:
+        self._pairs.put(1, *msgs.ego_from_cdr(data, ODOMETRY))
 
     def _answer(self, stamp: int, tracks: dict, ego: Any) -> None:
         first, t = self._pairs.clock.answer(stamp)

@@ -28,7 +28,7 @@ class RuleMonitor:
         self._rule = transport.publisher(RULE, TOPIC_TYPES[RULE])
         self._diagnostics = transport.publisher(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS])
         transport.subscriber(GROUND_TRUTH, TOPIC_TYPES[GROUND_TRUTH], callback=self.on_ground_truth, raw=True)
-        transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry)
+        transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry, raw=True)
 
     def on_ground_truth(self, data: bytes) -> None:
         stamp, truth = cdr.decode_objects(data, GROUND_TRUTH)
@@ -37,8 +37,8 @@ class RuleMonitor:
             return
         self._pairs.put(0, stamp, truth)
 
-    def on_odometry(self, msg: Any) -> None:
-        self._pairs.put(1, msgs.stamp_ns(msg.header.stamp), msgs.odometry_to_ego(msg))
+    def on_odometry(self, data: bytes) -> None:
+        self._pairs.put(1, *msgs.ego_from_cdr(data, ODOMETRY))
 
     def _answer(self, stamp: int, truth: dict, ego: Any) -> None:
         self._pairs.clock.answer(stamp)

@@ -72,7 +72,7 @@ class ScenarioPlayer:
 
     def _publish_frame(self, frame: int, odometry: Any) -> None:
         stamp = self._stamp(frame)
-        self._pub[CLOCK].publish(msgs.clock(stamp))
+        self._pub[CLOCK].publish(cdr.encode_clock(stamp))
         self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
         self._pub[ODOMETRY].publish(odometry)
         self._run.frame = frame
@@ -119,7 +119,7 @@ class ScenarioPlayer:
             except PlanError as exc:
                 self._finish(INCONCLUSIVE, f"frame {k}: {exc}")
             else:
-                self._publish_frame(k + 1, msgs.odometry(ego, self._stamp(k + 1)))
+                self._publish_frame(k + 1, msgs.ego_to_cdr(ego, self._stamp(k + 1)))
 
     def poll(self) -> None:
         """Called periodically: a frame unanswered past its deadline ends the rollout."""

@@ -129,9 +129,9 @@ def write_scenario(bag: BagWriter, scenario: Scenario) -> None:
     """A ground-truth bag: static topics, the ego's start, then per frame clock and objects."""
     t0 = int(scenario.stamps_ns[0])
     write_scenario_static(bag, scenario)
-    bag.write(ODOMETRY, t0, msgs.odometry(scenario.ego_start, t0))
+    bag.write(ODOMETRY, t0, msgs.ego_to_cdr(scenario.ego_start, t0))
     for k, ns_time in enumerate(scenario.stamps_ns):
-        bag.write(CLOCK, int(ns_time), msgs.clock(int(ns_time)))
+        bag.write(CLOCK, int(ns_time), cdr.encode_clock(int(ns_time)))
         bag.write(GROUND_TRUTH, int(ns_time), cdr.encode_objects(scenario.agents.frame(k), int(ns_time), "ground_truth"))
 
 

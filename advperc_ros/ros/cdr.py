@@ -1,10 +1,10 @@
 """The per-frame messages of the topic contract as CDR bytes, packed from and read into numpy.
 
-Every frame the graph nodes exchange object MarkerArrays and a plan (a nav_msgs/Path of some 80
-poses). Going through rosbags message objects costs 0.2 to 0.9 ms per message (thousands of small
-Python objects built, serialised, decoded and read), more than a whole embedded IDM frame; packing
-the bytes straight from the arrays, or reading the arrays straight out of the bytes, costs a tenth
-of that. The bytes are exactly rosbags' (and so ROS 2's): plain CDR, little endian (encapsulation
+Every frame the graph nodes exchange object MarkerArrays, odometry, a clock and a plan (a
+nav_msgs/Path of some 80 poses). Going through rosbags message objects costs 0.2 to 0.9 ms per
+MarkerArray or Path (thousands of small Python objects built, serialised, decoded and read), more
+than a whole embedded IDM frame; packing the bytes straight from the arrays, or reading the arrays
+straight out of the bytes, costs a tenth of that. The bytes are exactly rosbags' (and so ROS 2's): plain CDR, little endian (encapsulation
 00 01 00 00), zero padding, alignment counted from the end of the encapsulation header. The
 rosbags-object factories in `messages` are built on these codecs, so the convention below is
 written once; test_cdr holds the bytes to rosbags', test_dds to Cyclone's.
@@ -19,6 +19,7 @@ Encoders write that convention; decoders read any valid message of the type (oth
 colours, textures, meshes, or big endian through rosbags), since external nodes publish too.
 """
 
+import functools
 import math
 import struct
 
@@ -29,7 +30,9 @@ from rosbags.typesys import Stores, get_typestore
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
+ODOMETRY = "nav_msgs/msg/Odometry"
 FRAME_ID = "map"
+CHILD_FRAME_ID = "base_link"
 OBJECTS_NS = "objects"
 VELOCITY_NS = "velocity"
 ARROW_SCALE = (0.2, 0.4, 0.4)
@@ -44,12 +47,15 @@ ARROW, CUBE, ADD, DELETEALL = _MARKER.ARROW, _MARKER.CUBE, _MARKER.ADD, _MARKER.
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # plain CDR, little endian
 _U32 = struct.Struct("<I")
+_STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: sec, nanosec
 _HEADER = struct.Struct("<iII")  # stamp sec, nanosec, then the frame_id string's length
 _MARKER_KIND = struct.Struct("<iii")  # id, type, action
 # From an 8-aligned pose to the points: pose (7), scale (3), color, lifetime, frame_locked,
 # padding to 4, the number of points; the points then start 8-aligned again.
 _MARKER_BODY = struct.Struct("<10d4fiI?3xI")
 _POINT_PAIR = struct.Struct("<6d")
+# Odometry from its 8-aligned pose: pose (7), covariance (36, zero), twist (6), covariance (zero)
+_ODOMETRY = struct.Struct("<7d288x6d288x")
 _POINT_SIZE = 24
 _POSE_SIZE = 56
 _IDENTITY = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
@@ -95,10 +101,13 @@ _OBJECTS_NAME = OBJECTS_NS.encode()
 _VELOCITY_NAME = VELOCITY_NS.encode()
 
 
+def _stamp(ns_time: int) -> bytes:
+    return _STAMP.pack(*divmod(int(ns_time), 1_000_000_000))
+
+
 def _header(ns_time: int) -> bytes:
     """std_msgs/Header stamped `ns_time` in FRAME_ID."""
-    sec, nanosec = divmod(int(ns_time), 1_000_000_000)
-    return struct.pack("<iI", sec, nanosec) + _string(FRAME_ID)
+    return _stamp(ns_time) + _string(FRAME_ID)
 
 
 def _put_marker(buf: bytearray, head: bytes, kind: tuple[int, int, int], pose_scale: tuple[float, ...],
@@ -175,6 +184,19 @@ def encode_path(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: np.nda
             _fill_poses(poses, np.asarray(xs)[part], np.asarray(ys)[part], np.asarray(yaws)[part], stamps[part])
         buf += first.tobytes() + rest.tobytes()
     return bytes(buf)
+
+
+def encode_odometry(x: float, y: float, yaw: float, speed: float, ns_time: int) -> bytes:
+    """A nav_msgs/Odometry's CDR: stamped `ns_time`, pose (x, y, 0) with `yaw` in FRAME_ID,
+    `speed` along the body's x axis (child frame CHILD_FRAME_ID), covariances zero."""
+    head = _run(_header(ns_time), _string(CHILD_FRAME_ID))
+    z, w = yaw_quaternion(yaw)
+    return ENCAPSULATION + head + bytes(-len(head) & 7) + _ODOMETRY.pack(x, y, 0.0, 0.0, 0.0, z, w, speed, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def encode_clock(ns_time: int) -> bytes:
+    """A rosgraph_msgs/Clock's CDR."""
+    return ENCAPSULATION + _stamp(ns_time)
 
 
 def payload(msg: object, msgtype: str) -> bytes:
@@ -302,6 +324,49 @@ def decode_objects(data: bytes, where: str) -> tuple[int | None, dict[str, np.nd
     return (markers[0][0] if markers else None), result
 
 
+def decode_odometry(data: bytes, where: str) -> tuple[int, tuple[float, float, float, float]]:
+    """The CDR of a nav_msgs/Odometry as (its stamp, (x, y, yaw, speed along the body's x axis));
+    `where` prefixes any error."""
+    body = _body(data, ODOMETRY, where)
+    try:
+        sec, nanosec, length = _HEADER.unpack_from(body, 0)
+        pos = (_skip_string(body, 12 + length) + 7) & -8  # past child_frame_id, to the pose
+        x, y, _, qx, qy, qz, qw, speed, *_ = _ODOMETRY.unpack_from(body, pos)
+    except struct.error as exc:
+        raise MessageError(f"{where}: an Odometry cut short ({exc})") from None
+    return sec * 1_000_000_000 + nanosec, (x, y, float(quaternion_yaw(qx, qy, qz, qw)), speed)
+
+
+@functools.lru_cache(maxsize=64)
+def _stamped_pose(length: int, start: int) -> np.dtype:
+    """The CDR layout of a geometry_msgs/PoseStamped whose frame_id takes `length` bytes (with its
+    NUL) and which starts at a body offset of `start` modulo 8: stamp, frame_id, padding to 8, pose."""
+    pose = ((start + 19 + length) & -8) - start
+    return np.dtype({"names": ["sec", "nanosec", "length", "pose"], "formats": ["<i4", "<u4", "<u4", ("<f8", 7)],
+                     "offsets": [0, 4, 8, pose], "itemsize": pose + _POSE_SIZE})
+
+
+def _read_poses(body: bytes, pos: int, count: int, where: str) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps (P,) ns, poses (P, 7)) of `count` PoseStamped from body offset `pos`. A pose ends
+    8-aligned, so poses whose frame_ids are as long follow each other at one stride and are read
+    as one numpy record array: the first pose, then usually all the others in a single run."""
+    stamps, poses = [], []
+    while count:
+        pos = (pos + 3) & -4
+        layout = _stamped_pose(_U32.unpack_from(body, pos + 8)[0], pos & 7)
+        fit = min(1 if pos & 7 else count, (len(body) - pos) // layout.itemsize)
+        if not fit:
+            raise MessageError(f"{where}: a Path cut short")
+        run = np.ndarray(fit, layout, body, pos)
+        same = run["length"] == run["length"][0]
+        run = run[: fit if same.all() else int(same.argmin())]
+        stamps.append(run["sec"].astype(np.int64) * 1_000_000_000 + run["nanosec"])
+        poses.append(run["pose"])
+        pos += len(run) * layout.itemsize
+        count -= len(run)
+    return (np.concatenate(stamps), np.concatenate(poses)) if stamps else (np.zeros(0, np.int64), np.zeros((0, 7)))
+
+
 def decode_path(data: bytes, where: str) -> tuple[int, np.ndarray, np.ndarray]:
     """The CDR of a nav_msgs/Path as (header stamp ns; poses (P, 3) as x, y, yaw; pose stamps
     (P,) ns); `where` prefixes any error."""
@@ -309,23 +374,8 @@ def decode_path(data: bytes, where: str) -> tuple[int, np.ndarray, np.ndarray]:
     try:
         sec, nanosec, length = _HEADER.unpack_from(body, 0)
         pos = (15 + length) & -4
-        count = _U32.unpack_from(body, pos)[0]
-        pos += 4
-        starts, offsets = [], []
-        for _ in range(count):  # each pose: stamp, frame_id, padding to 8, pose
-            start = (pos + 3) & -4
-            pos = (start + 19 + _U32.unpack_from(body, start + 8)[0]) & -8
-            starts.append(start)
-            offsets.append(pos)
-            pos += _POSE_SIZE
+        stamps, pose = _read_poses(body, pos + 4, _U32.unpack_from(body, pos)[0], where)
     except struct.error as exc:
         raise MessageError(f"{where}: a Path cut short or malformed ({exc})") from None
-    if pos > len(body):
-        raise MessageError(f"{where}: a Path cut short")
-    words = np.frombuffer(body, "<u4", count=len(body) // 4)
-    first = np.array(starts, dtype=np.int64) // 4
-    stamps = words[first].view("<i4").astype(np.int64) * 1_000_000_000 + words[first + 1]
-    doubles = np.frombuffer(body, "<f8", count=len(body) // 8)
-    pose = doubles[np.array(offsets, dtype=np.int64)[:, None] // 8 + np.arange(7)].reshape(-1, 7)
     poses = np.column_stack([pose[:, 0], pose[:, 1], quaternion_yaw(*pose[:, 3:7].T)])
     return sec * 1_000_000_000 + nanosec, poses, stamps

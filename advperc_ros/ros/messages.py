@@ -1,8 +1,8 @@
 """ROS 2 Jazzy messages of the topic contract as rosbags objects (no rclpy needed).
 
-For bags, tools and tests. The object MarkerArrays and Paths are made from, and read through,
-the CDR codecs of `advperc_ros.ros.cdr`, which also define the object convention; the graph nodes
-use those codecs directly, without rosbags objects. rosbags message classes have no defaults and
+For bags, tools and tests. The object MarkerArrays, Paths, Odometry and Clock are made from, and
+read through, the CDR codecs of `advperc_ros.ros.cdr`, which also define the object convention;
+the graph nodes use those codecs directly, without rosbags objects. rosbags message classes have no defaults and
 want numpy arrays for primitive arrays; the small factories below fill every field.
 """
 
@@ -11,7 +11,7 @@ import numpy as np
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.scenario import EgoState, Lane
 from advperc_ros.ros import cdr
-from advperc_ros.ros.cdr import COLORS, FRAME_ID, MARKER_ARRAY, PATH, TYPESTORE, MessageError  # noqa: F401 (re-exported)
+from advperc_ros.ros.cdr import COLORS, FRAME_ID, MARKER_ARRAY, ODOMETRY, PATH, TYPESTORE, MessageError  # noqa: F401
 
 T = TYPESTORE.types
 LANES_NS = "lanes"
@@ -36,10 +36,6 @@ def _point(x: float, y: float, z: float = 0.0):
 def _quaternion(yaw: float):
     z, w = cdr.yaw_quaternion(yaw)
     return T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=float(z), w=float(w))
-
-
-def _yaw(q) -> float:
-    return float(cdr.quaternion_yaw(q.x, q.y, q.z, q.w))
 
 
 def _pose(x: float, y: float, yaw: float, z: float = 0.0):
@@ -85,23 +81,23 @@ def markers_to_objects(msg, where: str) -> dict[str, np.ndarray]:
     return cdr.decode_objects(TYPESTORE.serialize_cdr(msg, MARKER_ARRAY), where)[1]
 
 
+def ego_to_cdr(ego: EgoState, ns_time: int) -> bytes:
+    """The ego state as the CDR of a nav_msgs/Odometry stamped `ns_time` (speed in twist.linear.x)."""
+    return cdr.encode_odometry(ego.x, ego.y, ego.yaw, ego.v, ns_time)
+
+
+def ego_from_cdr(data: bytes, where: str) -> tuple[int, EgoState]:
+    """(stamp, ego state) of a nav_msgs/Odometry's CDR; `where` prefixes any error."""
+    stamp, state = cdr.decode_odometry(data, where)
+    return stamp, EgoState(*state)
+
+
 def odometry(ego: EgoState, ns_time: int):
-    cov = np.zeros(36)
-    twist = T["geometry_msgs/msg/Twist"](
-        linear=T["geometry_msgs/msg/Vector3"](x=float(ego.v), y=0.0, z=0.0),
-        angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
-    )
-    return T["nav_msgs/msg/Odometry"](
-        header=header(ns_time),
-        child_frame_id="base_link",
-        pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=_pose(ego.x, ego.y, ego.yaw), covariance=cov),
-        twist=T["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=cov.copy()),
-    )
+    return TYPESTORE.deserialize_cdr(ego_to_cdr(ego, ns_time), ODOMETRY)
 
 
 def odometry_to_ego(msg) -> EgoState:
-    pose = msg.pose.pose
-    return EgoState(x=pose.position.x, y=pose.position.y, yaw=_yaw(pose.orientation), v=msg.twist.twist.linear.x)
+    return ego_from_cdr(TYPESTORE.serialize_cdr(msg, ODOMETRY), ODOMETRY)[1]
 
 
 def path(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: list[int], ns_time: int):
@@ -148,7 +144,7 @@ def path_points(msg) -> tuple[np.ndarray, np.ndarray]:
 
 
 def clock(ns_time: int):
-    return T["rosgraph_msgs/msg/Clock"](clock=stamp(ns_time))
+    return TYPESTORE.deserialize_cdr(cdr.encode_clock(ns_time), "rosgraph_msgs/msg/Clock")
 
 
 def float64(value: float):

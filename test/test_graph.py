@@ -126,6 +126,19 @@ def test_rollout_clock_resets_on_a_stamp_not_after_the_last_answered():
     assert clock.observe(1_000) is True  # a rollout of one frame, then the next
 
 
+def test_ground_truth_is_decoded_once_per_distinct_payload(scenario):
+    from advperc_ros.nodes.runtime import ground_truth_objects
+    from advperc_ros.ros import cdr
+
+    data = cdr.encode_objects(scenario.agents.frame(3), int(scenario.stamps_ns[3]), "ground_truth")
+    first, again = ground_truth_objects(data), ground_truth_objects(bytes(bytearray(data)))  # equal, not the same
+    assert first[0] == again[0] == scenario.stamps_ns[3]
+    assert first[1] is not again[1] and all(first[1][name] is again[1][name] for name in first[1])
+    assert not first[1]["x"].flags.writeable  # shared arrays cannot be changed by one caller for all
+    expected = cdr.decode_objects(data, "test")[1]
+    assert all(np.array_equal(first[1][name], expected[name], equal_nan=True) for name in expected)
+
+
 def test_each_node_gets_exactly_its_parameters(tmp_path):
     from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from advperc_ros.core.errors import confidence_scores
 from advperc_ros.core.geometry import wrap_angle
-from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
+from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros.bag import GROUND_TRUTH, PERCEPTION, TOPIC_TYPES
 from advperc_ros.ros.lockstep import CONTROL_TYPE, ERRORS, READY, RolloutErrors, parse_errors, ready_message
@@ -57,7 +57,7 @@ class ErrorInjector:
         self._ready.publish(ready_message(rollout.rollout))
 
     def on_ground_truth(self, data: bytes) -> None:
-        stamp, truth = cdr.decode_objects(data, GROUND_TRUTH)
+        stamp, truth = ground_truth_objects(data)
         if self._rollout is None or stamp not in self._frames:
             why = "no error tensor yet" if self._rollout is None else f"stamp {stamp} is not a frame of the error tensor"
             self._log.error(f"{GROUND_TRUTH}: dropped a frame ({why}); that rollout will time out")

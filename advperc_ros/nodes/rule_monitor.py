@@ -11,8 +11,7 @@ from typing import Any
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.rules import collision_distances
-from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, run_node
-from advperc_ros.ros import cdr
+from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, ground_truth_objects, run_node
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import GROUND_TRUTH, ODOMETRY, RULE, RULE_DIAGNOSTICS, TOPIC_TYPES
 from advperc_ros.ros.lockstep import rule_diagnostics
@@ -31,7 +30,7 @@ class RuleMonitor:
         transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry, raw=True)
 
     def on_ground_truth(self, data: bytes) -> None:
-        stamp, truth = cdr.decode_objects(data, GROUND_TRUTH)
+        stamp, truth = ground_truth_objects(data)
         if stamp is None:
             self._log.error(f"{GROUND_TRUTH}: a MarkerArray without markers has no stamp; dropped")
             return

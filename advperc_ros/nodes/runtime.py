@@ -14,6 +14,7 @@ The Cyclone path is taken when rclpy is missing or the arguments are our own fla
 """
 
 import argparse
+import functools
 import logging
 import os
 import signal
@@ -23,15 +24,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+import numpy as np
+
 from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.params import PLANNER_PARAMS, SCHEMA, ParamsError, load_params, node_values, parse_planner_params
-from advperc_ros.ros.bag import BagError
+from advperc_ros.ros import cdr
+from advperc_ros.ros.bag import GROUND_TRUTH, BagError
 from advperc_ros.ros.lockstep import CONTROL_TYPE, PRESENCE, presence_message
 from advperc_ros.ros.transport import Transport
 
 INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError)  # as the CLI's, without importing it
 POLL_PERIOD = 0.05  # s between `poll()` calls of a node that has one (the player's timeouts)
+GROUND_TRUTH_CACHE = 4096  # distinct /ground_truth/objects messages kept decoded
 EXIT_INPUT = 2
 
 
@@ -105,6 +110,22 @@ class StampPairs:
         if all(stamp in pending for pending in self._pending):
             first, second = (pending.pop(stamp) for pending in self._pending)
             self._answer(stamp, first, second)
+
+
+@functools.lru_cache(maxsize=GROUND_TRUTH_CACHE)
+def _ground_truth(data: bytes) -> tuple[int | None, dict[str, np.ndarray]]:
+    stamp, objects = cdr.decode_objects(data, GROUND_TRUTH)
+    for values in objects.values():
+        values.flags.writeable = False  # shared by every call with these bytes
+    return stamp, objects
+
+
+def ground_truth_objects(data: bytes) -> tuple[int | None, dict[str, np.ndarray]]:
+    """A /ground_truth/objects payload as `cdr.decode_objects` reads it, each distinct payload
+    decoded once: the player sends the bag's own bytes in every rollout, so a search would decode
+    the same few hundred messages again and again. The arrays are read-only (they are shared)."""
+    stamp, objects = _ground_truth(data)
+    return stamp, dict(objects)
 
 
 def announce(transport: Transport, name: str) -> None:

@@ -49,10 +49,10 @@ ENCAPSULATION = b"\x00\x01\x00\x00"  # plain CDR, little endian
 _U32 = struct.Struct("<I")
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: sec, nanosec
 _HEADER = struct.Struct("<iII")  # stamp sec, nanosec, then the frame_id string's length
-_MARKER_KIND = struct.Struct("<iii")  # id, type, action
-# From an 8-aligned pose to the points: pose (7), scale (3), color, lifetime, frame_locked,
-# padding to 4, the number of points; the points then start 8-aligned again.
-_MARKER_BODY = struct.Struct("<10d4fiI?3xI")
+# A Marker from its id: id, type, action, padding to 8 (when the offset after them is 4 mod 8),
+# pose (7), scale (3), color, lifetime, frame_locked, padding to 4, the number of points; the
+# points then start 8-aligned again. Indexed by that padding's presence.
+_MARKER_KIND_BODY = (struct.Struct("<3i10d4fiI?3xI"), struct.Struct("<3i4x10d4fiI?3xI"))
 _POINT_PAIR = struct.Struct("<6d")
 # Odometry from its 8-aligned pose: pose (7), covariance (36, zero), twist (6), covariance (zero)
 _ODOMETRY = struct.Struct("<7d288x6d288x")
@@ -61,7 +61,6 @@ _POSE_SIZE = 56
 _IDENTITY = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 _NO_ARROW = (0.0,) * 6  # velocity read as zero
 _BOX_FIELDS = ("x", "y", "yaw", "vx", "vy", "length", "width", "height", "score")
-_ZEROS = bytes(8)
 
 
 class MessageError(ValueError):
@@ -75,8 +74,10 @@ def yaw_quaternion(yaw: np.ndarray | float) -> tuple[np.ndarray | float, np.ndar
 
 def quaternion_yaw(x: np.ndarray | float, y: np.ndarray | float, z: np.ndarray | float,
                    w: np.ndarray | float) -> np.ndarray | float:
-    """The yaw (rotation about z) of a quaternion."""
-    return np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    """The yaw (rotation about z) of a quaternion, or of arrays of them (numpy's call costs more
+    than the arithmetic for one float: this runs for every decoded object)."""
+    atan2 = math.atan2 if isinstance(z, float) else np.arctan2
+    return atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 def _string(text: str) -> bytes:
@@ -110,21 +111,27 @@ def _header(ns_time: int) -> bytes:
     return _stamp(ns_time) + _string(FRAME_ID)
 
 
-def _put_marker(buf: bytearray, head: bytes, kind: tuple[int, int, int], pose_scale: tuple[float, ...],
-                color: tuple[float, ...], points: bytes = b"", text: bytes = b"") -> None:
-    """Append one visualization_msgs/Marker: `head` its header and namespace (`_run`), `kind`
-    (id, type, action), `points` packed Points. Offsets count from the end of the encapsulation
-    header, so the padding to 8 is computed with 4 added."""
-    buf += _ZEROS[: -len(buf) & 3]
-    buf += head
-    buf += _MARKER_KIND.pack(*kind)
-    buf += _ZEROS[: (4 - len(buf)) & 7]
-    buf += _MARKER_BODY.pack(*pose_scale, *color, 0, 0, False, len(points) // _POINT_SIZE)
-    buf += points
-    buf += _BEFORE_TEXT
-    buf += _U32.pack(len(text) + 1) + text + b"\0"
-    buf += _ZEROS[: -len(buf) & 3]
-    buf += _AFTER_TEXT
+@functools.lru_cache(maxsize=1024)
+def _marker_layout(offset: int, head: int, points: int, text: int) -> struct.Struct:
+    """The CDR of a Marker as the encoders write it, from a body offset of `offset` modulo 8
+    (padding to 4 first): header and namespace (`head` bytes, from `_run`), id, type, action,
+    padding to 8, pose, scale, color, lifetime, frame_locked, `points` Points, the empty fields
+    around `text` (`text` bytes). One struct per layout packs a marker in one call."""
+    lead = -offset & 3
+    to_pose = -(offset + lead + head + 12) & 7
+    after_text = -(text + 1) & 3
+    return struct.Struct(f"<{lead}x{head}s3i{to_pose}x10d4fiI?3xI{3 * points}d{len(_BEFORE_TEXT)}s"
+                         f"I{text}s{1 + after_text}x{len(_AFTER_TEXT)}s")
+
+
+def _put_marker(parts: list[bytes], offset: int, head: bytes, kind: tuple[int, int, int], pose_scale: tuple[float, ...],
+                color: tuple[float, ...], points: tuple[float, ...] = (), text: bytes = b"") -> int:
+    """Append one visualization_msgs/Marker at body offset `offset`; the offset after it. `head`
+    is its header and namespace (`_run`), `kind` (id, type, action), `points` their coordinates."""
+    layout = _marker_layout(offset & 7, len(head), len(points) // 3, len(text))
+    parts.append(layout.pack(head, *kind, *pose_scale, *color, 0, 0, False, len(points) // 3, *points,
+                             _BEFORE_TEXT, len(text) + 1, text, _AFTER_TEXT))
+    return offset + layout.size
 
 
 def encode_objects(objects: dict[str, np.ndarray], ns_time: int, kind: str) -> bytes:
@@ -133,57 +140,49 @@ def encode_objects(objects: dict[str, np.ndarray], ns_time: int, kind: str) -> b
     header = _header(ns_time)
     delete_all, cube, arrow = (_run(header, _string(ns)) for ns in ("", OBJECTS_NS, VELOCITY_NS))
     color = COLORS[kind]
-    buf = bytearray(ENCAPSULATION)
-    buf += _U32.pack(1 + 2 * len(objects["ids"]))
-    _put_marker(buf, delete_all, (0, CUBE, DELETEALL), _IDENTITY + (0.0, 0.0, 0.0), color)
+    parts = [ENCAPSULATION, _U32.pack(1 + 2 * len(objects["ids"]))]
+    offset = _put_marker(parts, 4, delete_all, (0, CUBE, DELETEALL), _IDENTITY + (0.0, 0.0, 0.0), color)
     x, y, height = objects["x"], objects["y"], objects["height"]
-    z, zero = height / 2.0, np.zeros_like(x)
-    cubes = np.column_stack([x, y, z, zero, zero, *yaw_quaternion(objects["yaw"]), objects["length"], objects["width"], height])
-    arrows = np.column_stack([x, y, z, x + objects["vx"], y + objects["vy"], z])
-    rows = zip(objects["ids"].tolist(), cubes.tolist(), arrows.tolist(), objects["score"].tolist())
-    for marker_id, box, tip, score in rows:
+    rows = np.array([x, y, height / 2.0, *yaw_quaternion(objects["yaw"]), objects["length"], objects["width"], height,
+                     x + objects["vx"], y + objects["vy"]]).T.tolist()
+    for marker_id, score, (x, y, z, qz, qw, length, width, height, tip_x, tip_y) in zip(
+            objects["ids"].tolist(), objects["score"].tolist(), rows):
         text = repr(score).encode() if math.isfinite(score) else b""
-        _put_marker(buf, cube, (marker_id, CUBE, ADD), box, color, text=text)
-        _put_marker(buf, arrow, (marker_id, ARROW, ADD), _IDENTITY + ARROW_SCALE, color, _POINT_PAIR.pack(*tip))
-    return bytes(buf)
+        offset = _put_marker(parts, offset, cube, (marker_id, CUBE, ADD), (x, y, z, 0.0, 0.0, qz, qw, length, width, height),
+                             color, text=text)
+        offset = _put_marker(parts, offset, arrow, (marker_id, ARROW, ADD), _IDENTITY + ARROW_SCALE, color,
+                             (x, y, z, tip_x, tip_y, z))
+    return b"".join(parts)
 
 
-def _pose_stamped(start: int) -> np.dtype:
-    """The CDR layout of a geometry_msgs/PoseStamped in FRAME_ID that starts at body offset
-    `start` (4-aligned): stamp, frame_id, padding to 8, pose."""
-    frame_id = _string(FRAME_ID)
-    pose = ((start + 8 + len(frame_id) + 7) & -8) - start
-    return np.dtype({"names": ["sec", "nanosec", "frame_id", "pose"],
-                     "formats": ["<i4", "<u4", f"V{len(frame_id)}", ("<f8", 7)],
-                     "offsets": [0, 4, 8, pose], "itemsize": pose + _POSE_SIZE})
-
-
-_PATH_HEAD = _run(_header(0)) + _NONE  # the layout of a Path's header and pose count
-_FIRST_POSE = _pose_stamped(len(_PATH_HEAD))
-_NEXT_POSE = _pose_stamped(0)  # a pose ends 8-aligned, so every later one starts so
-
-
-def _fill_poses(poses: np.ndarray, xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: np.ndarray) -> None:
-    poses["sec"], poses["nanosec"] = np.divmod(stamps, 1_000_000_000)
-    poses["frame_id"] = np.void(_string(FRAME_ID))
-    pose = poses["pose"]
-    pose[:, 0], pose[:, 1] = xs, ys
-    pose[:, 5], pose[:, 6] = yaw_quaternion(yaws)
+@functools.lru_cache(maxsize=64)
+def _stamped_pose(length: int, start: int) -> np.dtype:
+    """The CDR layout of a geometry_msgs/PoseStamped whose frame_id takes `length` bytes (with its
+    NUL) and which starts at a body offset of `start` modulo 8: stamp, frame_id (length, bytes),
+    padding to 8, pose. A pose ends 8-aligned, so all poses after the first with frame_ids as
+    long share one layout: numpy packs and reads them as one record array."""
+    pose = ((start + 19 + length) & -8) - start
+    return np.dtype({"names": ["sec", "nanosec", "length", "frame_id", "pose"],
+                     "formats": ["<i4", "<u4", "<u4", f"V{length}", ("<f8", 7)],
+                     "offsets": [0, 4, 8, 12, pose], "itemsize": pose + _POSE_SIZE})
 
 
 def encode_path(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: np.ndarray, ns_time: int) -> bytes:
     """A nav_msgs/Path's CDR: stamped `ns_time`, pose i at (xs[i], ys[i], 0) with yaw yaws[i],
     stamped stamps[i] (ns), all in FRAME_ID."""
-    stamps = np.asarray(stamps, dtype=np.int64)
-    buf = bytearray(ENCAPSULATION)
-    buf += _run(_header(ns_time))
-    buf += _U32.pack(len(stamps))
-    if len(stamps):
-        first, rest = np.zeros(1, _FIRST_POSE), np.zeros(len(stamps) - 1, _NEXT_POSE)
-        for poses, part in ((first, slice(0, 1)), (rest, slice(1, None))):
-            _fill_poses(poses, np.asarray(xs)[part], np.asarray(ys)[part], np.asarray(yaws)[part], stamps[part])
-        buf += first.tobytes() + rest.tobytes()
-    return bytes(buf)
+    xs, ys, yaws, stamps = np.asarray(xs), np.asarray(ys), np.asarray(yaws), np.asarray(stamps, dtype=np.int64)
+    head = ENCAPSULATION + _run(_header(ns_time)) + _U32.pack(len(stamps))
+    parts = [head]
+    frame_id = FRAME_ID.encode() + b"\0"
+    for run, start in ((slice(0, 1), len(head) - len(ENCAPSULATION)), (slice(1, None), 0)):  # the first, the others
+        poses = np.zeros(len(stamps[run]), _stamped_pose(len(frame_id), start & 7))
+        poses["sec"], poses["nanosec"] = np.divmod(stamps[run], 1_000_000_000)
+        poses["length"], poses["frame_id"] = len(frame_id), np.void(frame_id)
+        pose = poses["pose"]
+        pose[:, 0], pose[:, 1] = xs[run], ys[run]
+        pose[:, 5], pose[:, 6] = yaw_quaternion(yaws[run])
+        parts.append(poses.tobytes())
+    return b"".join(parts)
 
 
 def encode_odometry(x: float, y: float, yaw: float, speed: float, ns_time: int) -> bytes:
@@ -262,17 +261,16 @@ def _read_marker(body: bytes, pos: int) -> tuple[tuple, int]:
     length = _U32.unpack_from(body, pos)[0]
     ns = body[pos + 4: pos + 3 + length]
     pos = (pos + 7 + length) & -4
-    marker_id, _, action = _MARKER_KIND.unpack_from(body, pos)
-    pos = (pos + 19) & -8
-    fixed = _MARKER_BODY.unpack_from(body, pos)
-    count = fixed[-1]
-    pos += _MARKER_BODY.size
+    layout = _MARKER_KIND_BODY[(pos + 12) & 7 != 0]
+    fields = layout.unpack_from(body, pos)
+    pos += layout.size
+    count = fields[-1]
     points = _POINT_PAIR.unpack_from(body, pos) if count == 2 else None
     pos = _skip_media(body, pos + count * _POINT_SIZE)
     length = _U32.unpack_from(body, pos)[0]
     text = body[pos + 4: pos + 3 + length]
     pos = _skip_mesh(body, (pos + 7 + length) & -4)
-    return (sec * 1_000_000_000 + nanosec, ns, marker_id, action, fixed[:10], points, text), pos
+    return (sec * 1_000_000_000 + nanosec, ns, fields[0], fields[2], fields[3:13], points, text), pos
 
 
 def _read_markers(data: bytes, where: str) -> list[tuple]:
@@ -311,17 +309,16 @@ def decode_objects(data: bytes, where: str) -> tuple[int | None, dict[str, np.nd
         elif ns == _VELOCITY_NAME:
             arrows[marker_id] = points
     ids = sorted(cubes)
-    fixed = np.array([cubes[i][0] for i in ids], dtype=float).reshape(-1, 10)
-    tips = np.array([arrows.get(i) or _NO_ARROW for i in ids], dtype=float).reshape(-1, 6)
-    objects = {
-        "x": fixed[:, 0], "y": fixed[:, 1], "yaw": quaternion_yaw(*fixed[:, 3:7].T),
-        "vx": tips[:, 3] - tips[:, 0], "vy": tips[:, 4] - tips[:, 1],
-        "length": fixed[:, 7], "width": fixed[:, 8], "height": fixed[:, 9],
-        "score": np.array([_score(cubes[i][1], i, where) for i in ids], dtype=float),
-    }
-    result = {name: np.ascontiguousarray(objects[name]) for name in _BOX_FIELDS}
-    result["ids"] = np.asarray(ids, dtype=np.int64)
-    return (markers[0][0] if markers else None), result
+    rows = []
+    for marker_id in ids:  # per object in Python: numpy calls cost more than the arithmetic here
+        (x, y, _, qx, qy, qz, qw, length, width, height), text = cubes[marker_id]
+        tail_x, tail_y, _, tip_x, tip_y, _ = arrows.get(marker_id) or _NO_ARROW
+        rows.append((x, y, quaternion_yaw(qx, qy, qz, qw), tip_x - tail_x, tip_y - tail_y, length, width, height,
+                     _score(text, marker_id, where)))
+    columns = np.array(rows, dtype=float).reshape(-1, len(_BOX_FIELDS)).T.copy()
+    objects = dict(zip(_BOX_FIELDS, columns))
+    objects["ids"] = np.asarray(ids, dtype=np.int64)
+    return (markers[0][0] if markers else None), objects
 
 
 def decode_odometry(data: bytes, where: str) -> tuple[int, tuple[float, float, float, float]]:
@@ -335,15 +332,6 @@ def decode_odometry(data: bytes, where: str) -> tuple[int, tuple[float, float, f
     except struct.error as exc:
         raise MessageError(f"{where}: an Odometry cut short ({exc})") from None
     return sec * 1_000_000_000 + nanosec, (x, y, float(quaternion_yaw(qx, qy, qz, qw)), speed)
-
-
-@functools.lru_cache(maxsize=64)
-def _stamped_pose(length: int, start: int) -> np.dtype:
-    """The CDR layout of a geometry_msgs/PoseStamped whose frame_id takes `length` bytes (with its
-    NUL) and which starts at a body offset of `start` modulo 8: stamp, frame_id, padding to 8, pose."""
-    pose = ((start + 19 + length) & -8) - start
-    return np.dtype({"names": ["sec", "nanosec", "length", "pose"], "formats": ["<i4", "<u4", "<u4", ("<f8", 7)],
-                     "offsets": [0, 4, 8, pose], "itemsize": pose + _POSE_SIZE})
 
 
 def _read_poses(body: bytes, pos: int, count: int, where: str) -> tuple[np.ndarray, np.ndarray]:

@@ -166,6 +166,10 @@ def test_path_decoder_reads_any_path_in_either_byte_order():
         np.testing.assert_allclose(poses, [[1.0, 4.0, 0.6], [2.0, 5.0, 0.6], [3.0, 6.0, 0.6]], rtol=0, atol=1e-12)
         with pytest.raises(cdr.MessageError, match="where: .*Path"):
             cdr.decode_path(data[:-8], "where")
+    bogus = bytearray(cdr.encode_path([1.0, 2.0], [1.0, 2.0], [0.0, 0.0], [T0, T0 + 1], T0))
+    bogus[32:36] = (2**31).to_bytes(4, "little")  # first pose: encapsulation, header, count, stamp, then this
+    with pytest.raises(cdr.MessageError, match="where: a Path cut short"):
+        cdr.decode_path(bytes(bogus), "where")
 
 
 def test_odometry_and_clock_are_rosbags_bytes():

@@ -163,27 +163,29 @@ class GraphRollouts:
         self._present[name] = pid
 
     def _subscribe(self, topic: str) -> None:
-        """Keep what `topic` delivers by stamp; odometry, tracks and plans come raw and are kept
-        decoded (EgoState, objects, Trajectory), diagnostics as rosbags messages. Per-frame
-        messages are only read once the rollout is done, so they do not wake the spin (a wake-up
-        per message would compete for the CPU with the nodes in every frame)."""
+        """Keep what `topic` delivers (raw) by stamp, decoded as the result needs it (`_decode`).
+        Per-frame messages are only read once the rollout is done, so they do not wake the spin
+        (a wake-up per message would compete for the CPU with the nodes in every frame)."""
         received: dict[int, Any] = {}
         self._received[topic] = received
 
-        def keep(msg: Any) -> None:
-            stamp, value = self._decode(topic, msg)
+        def keep(data: bytes) -> None:
+            stamp, value = self._decode(topic, data)
             received[stamp] = value
 
-        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=topic != RULE_DIAGNOSTICS, wake=False)
+        self._transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=True, wake=False)
 
-    def _decode(self, topic: str, msg: Any) -> tuple[int | None, Any]:
+    def _decode(self, topic: str, data: bytes) -> tuple[int | None, Any]:
+        """(stamp, value) of a payload: EgoState, (minimum, distance per agent id), the tracks or
+        the Trajectory."""
         if topic == ODOMETRY:
-            return msgs.ego_from_cdr(msg, ODOMETRY)
+            return msgs.ego_from_cdr(data, ODOMETRY)
+        if topic == RULE_DIAGNOSTICS:
+            stamp, minimum, per_agent = parse_rule_diagnostics(data)
+            return stamp, (minimum, per_agent)
         if topic == TRACKING:
-            return cdr.decode_objects(msg, TRACKING)
-        if topic == PLAN:
-            return plan_from_cdr(msg, self._stamps[0], PLAN)
-        return msgs.stamp_ns(msg.header.stamp), msg
+            return cdr.decode_objects(data, TRACKING)
+        return plan_from_cdr(data, self._stamps[0], PLAN)
 
     def _start_recording(self) -> None:
         """Subscribe to tracks and plans, which only recorded rollouts need (decoding them every
@@ -298,7 +300,7 @@ class GraphRollouts:
     def _stopped_at_violation(self, done: RolloutDone) -> bool:
         if done.status == INCONCLUSIVE or not self.params["stop_at_collision"]:
             return False
-        _, minimum, _ = parse_rule_diagnostics(self._received[RULE_DIAGNOSTICS][self._stamps[done.frames - 1]])
+        minimum, _ = self._received[RULE_DIAGNOSTICS][self._stamps[done.frames - 1]]
         return minimum < 0.0
 
     def _tracked_frames(self, done: RolloutDone) -> int:
@@ -341,7 +343,7 @@ class GraphRollouts:
         for k, stamp in enumerate(stamps):
             state = self._received[ODOMETRY][stamp]
             ego[k] = (state.x, state.y, state.yaw, state.v)
-            _, _, per_agent = parse_rule_diagnostics(self._received[RULE_DIAGNOSTICS][stamp])
+            _, per_agent = self._received[RULE_DIAGNOSTICS][stamp]
             for agent, distance in per_agent.items():
                 distances[k, self._slots[agent]] = distance
         result = RolloutResult(ego=ego, distances=distances, inconclusive=inconclusive)

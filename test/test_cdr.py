@@ -51,7 +51,8 @@ def test_object_markers_are_rosbags_bytes_of_the_convention(count, kind, stamp):
         position = cube.pose.position
         assert (position.x, position.y, position.z) == (objects["x"][i], objects["y"][i], objects["height"][i] / 2)
         assert cube.pose.orientation.z == pytest.approx(np.sin(objects["yaw"][i] / 2), abs=1e-15)
-        assert (cube.scale.x, cube.scale.y, cube.scale.z) == (objects["length"][i], objects["width"][i], objects["height"][i])
+        scale = (cube.scale.x, cube.scale.y, cube.scale.z)
+        assert scale == (objects["length"][i], objects["width"][i], objects["height"][i])
         score = objects["score"][i]
         assert cube.text == (repr(float(score)) if np.isfinite(score) else "")
         tip = arrow.points[1]
@@ -198,3 +199,26 @@ def test_odometry_decoder_reads_any_odometry_in_either_byte_order():
         assert (stamp, x, y, speed) == (T0, 1.5, -2.0, 8.25) and yaw == pytest.approx(0.7, abs=1e-15)
     with pytest.raises(cdr.MessageError, match="where: an Odometry cut short"):
         cdr.decode_odometry(bytes(TS.serialize_cdr(msg, cdr.ODOMETRY))[:-400], "where")
+
+
+def test_diagnostics_are_rosbags_bytes_and_read_in_either_byte_order():
+    status = cdr.Status(2, "collision", "violated", "advperc", {"min_signed_distance": "-1.5", "agent 3": "inf", "ü": ""})
+    data = cdr.encode_diagnostics(T0, status)
+    assert data == reserialised(data, cdr.DIAGNOSTICS)
+    msg = TS.deserialize_cdr(data, cdr.DIAGNOSTICS)
+    assert msgs.stamp_ns(msg.header.stamp) == T0 and msg.header.frame_id == "map" and len(msg.status) == 1
+    assert (msg.status[0].level, msg.status[0].name, msg.status[0].message, msg.status[0].hardware_id) == status[:4]
+    assert {kv.key: kv.value for kv in msg.status[0].values} == status.values
+    bare = status._replace(values={})
+    assert cdr.decode_diagnostics(cdr.encode_diagnostics(T0, bare), "test") == (T0, [bare])
+    # statuses after the first follow unaligned (a status starts with a byte)
+    msg.status.append(T["diagnostic_msgs/msg/DiagnosticStatus"](level=1, name="abcde", message="", hardware_id="x",
+                                                                values=[]))
+    msg.status.append(T["diagnostic_msgs/msg/DiagnosticStatus"](
+        level=3, name="", message="m", hardware_id="", values=[T["diagnostic_msgs/msg/KeyValue"](key="k", value="vvv")]))
+    expected = [status, cdr.Status(1, "abcde", "", "x", {}), cdr.Status(3, "", "m", "", {"k": "vvv"})]
+    for little_endian in (True, False):
+        data = bytes(TS.serialize_cdr(msg, cdr.DIAGNOSTICS, little_endian=little_endian))
+        assert cdr.decode_diagnostics(data, "test") == (T0, expected)
+    with pytest.raises(cdr.MessageError, match="where: a DiagnosticArray cut short"):
+        cdr.decode_diagnostics(bytes(TS.serialize_cdr(msg, cdr.DIAGNOSTICS))[:-9], "where")

@@ -65,7 +65,7 @@ class ScenarioPlayer:
                 self._pub[topic].publish(topics[topic][0][1])
         transport.subscriber(READY, CONTROL_TYPE, callback=self.on_ready)
         transport.subscriber(PLAN, TOPIC_TYPES[PLAN], callback=self.on_plan, raw=True)
-        transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule)
+        transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule, raw=True)
 
     def _stamp(self, frame: int) -> int:
         return int(self.scenario.stamps_ns[frame])
@@ -94,10 +94,10 @@ class ScenarioPlayer:
             self._run.plan = plan
             self._step()
 
-    def on_rule(self, msg: Any) -> None:
+    def on_rule(self, data: bytes) -> None:
         if self._run is None:
             return
-        stamp, minimum, _ = parse_rule_diagnostics(msg)
+        stamp, minimum, _ = parse_rule_diagnostics(data)
         if stamp == self._stamp(self._run.frame):
             self._run.rule = minimum
             self._step()

@@ -1,7 +1,7 @@
 """The per-frame messages of the topic contract as CDR bytes, packed from and read into numpy.
 
-Every frame the graph nodes exchange object MarkerArrays, odometry, a clock and a plan (a
-nav_msgs/Path of some 80 poses). Going through rosbags message objects costs 0.2 to 0.9 ms per
+Every frame the graph nodes exchange object MarkerArrays, odometry, a clock, the rule value (a
+DiagnosticArray) and a plan (a nav_msgs/Path of some 80 poses). Going through rosbags message objects costs 0.2 to 0.9 ms per
 MarkerArray or Path (thousands of small Python objects built, serialised, decoded and read), more
 than a whole embedded IDM frame; packing the bytes straight from the arrays, or reading the arrays
 straight out of the bytes, costs a tenth of that. The bytes are exactly rosbags' (and so ROS
@@ -24,6 +24,7 @@ colours, textures, meshes, or big endian through rosbags), since external nodes 
 import functools
 import math
 import struct
+from typing import NamedTuple
 
 import numpy as np
 from rosbags.serde import SerdeError
@@ -33,6 +34,7 @@ TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
 ODOMETRY = "nav_msgs/msg/Odometry"
+DIAGNOSTICS = "diagnostic_msgs/msg/DiagnosticArray"
 FRAME_ID = "map"
 CHILD_FRAME_ID = "base_link"
 OBJECTS_NS = "objects"
@@ -69,6 +71,16 @@ class MessageError(ValueError):
     """A message that does not follow the topic contract; the text names the field."""
 
 
+class Status(NamedTuple):
+    """A diagnostic_msgs/DiagnosticStatus, its KeyValues as a dict."""
+
+    level: int
+    name: str
+    message: str
+    hardware_id: str
+    values: dict[str, str]
+
+
 def yaw_quaternion(yaw: np.ndarray | float) -> tuple[np.ndarray | float, np.ndarray | float]:
     """(z, w) of the quaternion of a rotation by `yaw` about z (x = y = 0)."""
     return np.sin(yaw / 2.0), np.cos(yaw / 2.0)
@@ -91,6 +103,12 @@ def _string(text: str) -> bytes:
 def _run(*fields: bytes) -> bytes:
     """4-aligned fields back to back, each padded for the next: valid wherever it starts 4-aligned."""
     return b"".join(field + bytes(-len(field) % 4) for field in fields)
+
+
+def _strings(*texts: str) -> bytes:
+    """CDR strings back to back from a 4-aligned offset (no padding after the last)."""
+    fields = [_string(text) for text in texts]
+    return _run(*fields[:-1]) + fields[-1]
 
 
 _EMPTY_STRING = _string("")
@@ -196,6 +214,14 @@ def encode_odometry(x: float, y: float, yaw: float, speed: float, ns_time: int) 
     return ENCAPSULATION + head + bytes(-len(head) & 7) + _ODOMETRY.pack(*pose_twist)
 
 
+def encode_diagnostics(ns_time: int, status: Status) -> bytes:
+    """A diagnostic_msgs/DiagnosticArray's CDR: stamped `ns_time` in FRAME_ID, one status."""
+    keys_values = [text for pair in status.values.items() for text in pair]
+    return (ENCAPSULATION + _run(_header(ns_time)) + _U32.pack(1) + bytes([status.level, 0, 0, 0])
+            + _run(_strings(status.name, status.message, status.hardware_id)) + _U32.pack(len(status.values))
+            + (_strings(*keys_values) if keys_values else b""))
+
+
 def encode_clock(ns_time: int) -> bytes:
     """A rosgraph_msgs/Clock's CDR."""
     return ENCAPSULATION + _stamp(ns_time)
@@ -225,6 +251,12 @@ def _body(data: bytes, msgtype: str, where: str) -> bytes:
 def _skip_string(body: bytes, pos: int) -> int:
     pos = (pos + 3) & -4
     return pos + 4 + _U32.unpack_from(body, pos)[0]
+
+
+def _read_string(body: bytes, pos: int) -> tuple[str, int]:
+    pos = (pos + 3) & -4
+    end = pos + 4 + _U32.unpack_from(body, pos)[0]
+    return body[pos + 4: end - 1].decode(), end
 
 
 def _skip_sequence(body: bytes, pos: int, item_size: int, item_align: int) -> int:
@@ -335,6 +367,42 @@ def decode_odometry(data: bytes, where: str) -> tuple[int, tuple[float, float, f
     except struct.error as exc:
         raise MessageError(f"{where}: an Odometry cut short ({exc})") from None
     return sec * 1_000_000_000 + nanosec, (x, y, quaternion_yaw(qx, qy, qz, qw), speed)
+
+
+def _read_status(body: bytes, pos: int) -> tuple[Status, int]:
+    """A DiagnosticStatus at body offset `pos` (a byte first: no alignment) and its end."""
+    level = body[pos]
+    name, pos = _read_string(body, pos + 1)
+    message, pos = _read_string(body, pos)
+    hardware_id, pos = _read_string(body, pos)
+    pos = (pos + 3) & -4
+    count = _U32.unpack_from(body, pos)[0]
+    pos += 4
+    values = {}
+    for _ in range(count):
+        key, pos = _read_string(body, pos)
+        values[key], pos = _read_string(body, pos)
+    return Status(level, name, message, hardware_id, values), pos
+
+
+def decode_diagnostics(data: bytes, where: str) -> tuple[int, list[Status]]:
+    """The CDR of a diagnostic_msgs/DiagnosticArray as (its stamp, its statuses); `where`
+    prefixes any error."""
+    body = _body(data, DIAGNOSTICS, where)
+    try:
+        sec, nanosec, length = _HEADER.unpack_from(body, 0)
+        pos = (15 + length) & -4
+        count = _U32.unpack_from(body, pos)[0]
+        pos += 4
+        statuses = []
+        for _ in range(count):
+            status, pos = _read_status(body, pos)
+            statuses.append(status)
+    except (struct.error, IndexError, UnicodeDecodeError) as exc:
+        raise MessageError(f"{where}: a DiagnosticArray cut short or malformed ({exc})") from None
+    if pos > len(body):
+        raise MessageError(f"{where}: a DiagnosticArray cut short")
+    return sec * 1_000_000_000 + nanosec, statuses
 
 
 def _read_poses(body: bytes, pos: int, count: int, where: str) -> tuple[np.ndarray, np.ndarray]:

@@ -28,6 +28,7 @@ from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.bag import RULE_DIAGNOSTICS
 
 ERRORS = "/attack/errors"
 READY = "/attack/ready"
@@ -107,21 +108,22 @@ def parse_done(msg) -> RolloutDone:
                        bool(data["timeout"]))
 
 
-def rule_diagnostics(ns_time: int, agent_ids: np.ndarray, distances: np.ndarray):
-    """The rule value of one frame: minimum and per-agent signed distances (m)."""
+def rule_diagnostics(ns_time: int, agent_ids: np.ndarray, distances: np.ndarray) -> bytes:
+    """The rule value of one frame, minimum and per-agent signed distances (m), as CDR."""
     minimum = float(distances.min(initial=np.inf))
     values = {MIN_KEY: repr(minimum)}
     values.update({f"{AGENT_KEY}{int(i)}": repr(float(d)) for i, d in zip(agent_ids, distances)})
     violated = minimum < 0.0
-    return msgs.diagnostics(ns_time, RULE_STATUS, "violated" if violated else "ok", values, level=2 if violated else 0)
+    return msgs.diagnostics_cdr(ns_time, RULE_STATUS, "violated" if violated else "ok", values, level=2 if violated else 0)
 
 
-def parse_rule_diagnostics(msg) -> tuple[int, float, dict[int, float]]:
-    """(stamp ns, minimum, distance per agent id) of a /rules/diagnostics message."""
-    status = next(s for s in msg.status if s.name == RULE_STATUS)
-    values = {kv.key: float(kv.value) for kv in status.values}
+def parse_rule_diagnostics(data: bytes) -> tuple[int, float, dict[int, float]]:
+    """(stamp ns, minimum, distance per agent id) of a /rules/diagnostics message's CDR."""
+    stamp, statuses = cdr.decode_diagnostics(data, RULE_DIAGNOSTICS)
+    status = next(s for s in statuses if s.name == RULE_STATUS)
+    values = {key: float(value) for key, value in status.values.items()}
     per_agent = {int(k[len(AGENT_KEY):]): v for k, v in values.items() if k.startswith(AGENT_KEY)}
-    return msgs.stamp_ns(msg.header.stamp), values[MIN_KEY], per_agent
+    return stamp, values[MIN_KEY], per_agent
 
 
 def plan_from_cdr(data: bytes, first_stamp_ns: int, where: str) -> tuple[int, Trajectory]:

@@ -1,9 +1,10 @@
 """ROS 2 Jazzy messages of the topic contract as rosbags objects (no rclpy needed).
 
-For bags, tools and tests. The object MarkerArrays, Paths, Odometry and Clock are made from, and
-read through, the CDR codecs of `advperc_ros.ros.cdr`, which also define the object convention;
-the graph nodes use those codecs directly, without rosbags objects. rosbags message classes have no defaults and
-want numpy arrays for primitive arrays; the small factories below fill every field.
+For bags, tools and tests. The object MarkerArrays, Paths, Odometry, Clock and DiagnosticArrays
+are made from, and read through, the CDR codecs of `advperc_ros.ros.cdr`, which also define the
+object convention; the graph nodes use those codecs directly, without rosbags objects. rosbags
+message classes have no defaults and want numpy arrays for primitive arrays; the small factories
+below fill every field.
 """
 
 import numpy as np
@@ -11,10 +12,12 @@ import numpy as np
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.scenario import EgoState, Lane
 from advperc_ros.ros import cdr
-from advperc_ros.ros.cdr import COLORS, FRAME_ID, MARKER_ARRAY, ODOMETRY, PATH, TYPESTORE, MessageError  # noqa: F401
+from advperc_ros.ros.cdr import (COLORS, DIAGNOSTICS, FRAME_ID, MARKER_ARRAY, ODOMETRY, PATH, TYPESTORE,  # noqa: F401
+                                  MessageError)
 
 T = TYPESTORE.types
 LANES_NS = "lanes"
+HARDWARE_ID = "advperc"
 
 
 def stamp(ns: int):
@@ -155,12 +158,10 @@ def string(text: str):
     return T["std_msgs/msg/String"](data=text)
 
 
+def diagnostics_cdr(ns_time: int, name: str, message: str, values: dict[str, str], level: int = 0) -> bytes:
+    """A DiagnosticArray's CDR with one status of ours (hardware_id `advperc`)."""
+    return cdr.encode_diagnostics(ns_time, cdr.Status(level, name, message, HARDWARE_ID, values))
+
+
 def diagnostics(ns_time: int, name: str, message: str, values: dict[str, str], level: int = 0):
-    status = T["diagnostic_msgs/msg/DiagnosticStatus"](
-        level=level,
-        name=name,
-        message=message,
-        hardware_id="advperc",
-        values=[T["diagnostic_msgs/msg/KeyValue"](key=k, value=v) for k, v in values.items()],
-    )
-    return T["diagnostic_msgs/msg/DiagnosticArray"](header=header(ns_time), status=[status])
+    return TYPESTORE.deserialize_cdr(diagnostics_cdr(ns_time, name, message, values, level), DIAGNOSTICS)

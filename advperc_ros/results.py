@@ -159,7 +159,7 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
             bag.write(bags.GROUND_TRUTH, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "ground_truth"))
             bag.write(bags.ODOMETRY, ns, msgs.ego_to_cdr(_ego(rollout.ego[k]), ns))
             distance = float(rollout.rule[k])
-            bag.write(bags.RULE, ns, msgs.float64(distance))
+            bag.write(bags.RULE, ns, cdr.encode_float64(distance))
             bag.write(bags.RULE_DIAGNOSTICS, ns, msgs.diagnostics_cdr(
                 ns, "collision", "violated" if distance < 0 else "ok", {"min_signed_distance": repr(distance)},
                 level=2 if distance < 0 else 0,

@@ -12,6 +12,7 @@ from typing import Any
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.rules import collision_distances
 from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, ground_truth_objects, run_node
+from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import GROUND_TRUTH, ODOMETRY, RULE, RULE_DIAGNOSTICS, TOPIC_TYPES
 from advperc_ros.ros.lockstep import rule_diagnostics
@@ -42,7 +43,7 @@ class RuleMonitor:
     def _answer(self, stamp: int, truth: dict, ego: Any) -> None:
         self._pairs.clock.answer(stamp)
         distances = collision_distances(ego, self._ego_length, self._ego_width, BoxSequence.stack([truth]), 0)
-        self._rule.publish(msgs.float64(float(distances.min(initial=float("inf")))))
+        self._rule.publish(cdr.encode_float64(float(distances.min(initial=float("inf")))))
         self._diagnostics.publish(rule_diagnostics(stamp, truth["ids"], distances))
 
 

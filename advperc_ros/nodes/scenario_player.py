@@ -55,7 +55,8 @@ class ScenarioPlayer:
         by_stamp = {cdr.decode_objects(data, GROUND_TRUTH)[0]: data for _, data in topics[GROUND_TRUTH]}
         self._ground_truth = [by_stamp[int(stamp)] for stamp in self.scenario.stamps_ns]
         start = msgs.TYPESTORE.deserialize_cdr(topics[ODOMETRY][0][1], TOPIC_TYPES[ODOMETRY])
-        self._start = dataclasses.replace(start, header=msgs.header(int(self.scenario.stamps_ns[0])))
+        restamped = dataclasses.replace(start, header=msgs.header(int(self.scenario.stamps_ns[0])))
+        self._start = cdr.payload(restamped, TOPIC_TYPES[ODOMETRY])
         self._run: _Run | None = None
         self._pub = {topic: transport.publisher(topic, TOPIC_TYPES[topic], latched=topic in LATCHED)
                      for topic in (CLOCK, GROUND_TRUTH, ODOMETRY, LANES, ROUTE)}
@@ -70,7 +71,7 @@ class ScenarioPlayer:
     def _stamp(self, frame: int) -> int:
         return int(self.scenario.stamps_ns[frame])
 
-    def _publish_frame(self, frame: int, odometry: Any) -> None:
+    def _publish_frame(self, frame: int, odometry: bytes) -> None:
         stamp = self._stamp(frame)
         self._pub[CLOCK].publish(cdr.encode_clock(stamp))
         self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])

@@ -1,7 +1,7 @@
 """ROS 2 Jazzy messages of the topic contract as rosbags objects (no rclpy needed).
 
-For bags, tools and tests. The object MarkerArrays, Paths, Odometry, Clock and DiagnosticArrays
-are made from, and read through, the CDR codecs of `advperc_ros.ros.cdr`, which also define the
+For bags, tools and tests. The object MarkerArrays, Paths, Odometry, Clock, Float64 and
+DiagnosticArrays are made from, and read through, the CDR codecs of `advperc_ros.ros.cdr`, which also define the
 object convention; the graph nodes use those codecs directly, without rosbags objects. rosbags
 message classes have no defaults and want numpy arrays for primitive arrays; the small factories
 below fill every field.
@@ -151,7 +151,7 @@ def clock(ns_time: int):
 
 
 def float64(value: float):
-    return T["std_msgs/msg/Float64"](data=float(value))
+    return TYPESTORE.deserialize_cdr(cdr.encode_float64(value), "std_msgs/msg/Float64")
 
 
 def string(text: str):

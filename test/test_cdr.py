@@ -154,8 +154,8 @@ def test_paths_are_rosbags_bytes_and_decode_to_the_plan(count):
 
 
 def test_path_decoder_reads_any_path_in_either_byte_order():
-    path = msgs.path(np.array([1.0, 2.0, 3.0]), np.array([4.0, 5.0, 6.0]), np.array([0.1, -3.0, 2.5]),
-                     [T0, T0 + 1, T0 + 2], T0)
+    data = cdr.encode_path([1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [0.1, -3.0, 2.5], [T0, T0 + 1, T0 + 2], T0)
+    path = TS.deserialize_cdr(data, cdr.PATH)
     for k, pose in enumerate(path.poses):
         pose.header.frame_id = "f" * (3 * k)  # frame ids of other lengths shift every later pose
         pose.pose.position.z = 7.0

@@ -79,11 +79,6 @@ def objects_to_markers(objects: dict[str, np.ndarray], ns_time: int, kind: str):
     return TYPESTORE.deserialize_cdr(cdr.encode_objects(objects, ns_time, kind), MARKER_ARRAY)
 
 
-def markers_to_objects(msg, where: str) -> dict[str, np.ndarray]:
-    """Decode the object convention; `where` (file and topic) prefixes any error."""
-    return cdr.decode_objects(TYPESTORE.serialize_cdr(msg, MARKER_ARRAY), where)[1]
-
-
 def ego_to_cdr(ego: EgoState, ns_time: int) -> bytes:
     """The ego state as the CDR of a nav_msgs/Odometry stamped `ns_time` (speed in twist.linear.x)."""
     return cdr.encode_odometry(ego.x, ego.y, ego.yaw, ego.v, ns_time)
@@ -101,10 +96,6 @@ def odometry(ego: EgoState, ns_time: int):
 
 def odometry_to_ego(msg) -> EgoState:
     return ego_from_cdr(TYPESTORE.serialize_cdr(msg, ODOMETRY), ODOMETRY)[1]
-
-
-def path(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: list[int], ns_time: int):
-    return TYPESTORE.deserialize_cdr(cdr.encode_path(xs, ys, yaws, stamps, ns_time), PATH)
 
 
 def trajectory_cdr(plan: Trajectory, ns_time: int) -> bytes:

@@ -2,7 +2,7 @@
 
 Node logic (advperc_ros.nodes) and the graph backend (advperc_ros.graph) only ever call
 `publisher(topic, msgtype, latched).publish(msg)`, `subscriber(topic, msgtype, latched,
-callback, raw)` and `spin_once(timeout)`. Messages go in as rosbags message objects or as their
+callback, raw, wake)` and `spin_once(timeout)`. Messages go in as rosbags message objects or as their
 CDR payload (bytes, encapsulation header first, as `advperc_ros.ros.cdr` packs them), and come
 out as rosbags objects, or with `raw=True` as the CDR payload, which the nodes read with `cdr`'s
 decoders: the per-frame messages then never become rosbags objects (docs/graph.md,

@@ -37,7 +37,7 @@ setup(
     ],
     extras_require={
         "commonroad": ["commonroad-io>=2023.1"],
-        "test": ["pytest>=7", "commonroad-io>=2023.1"],
+        "test": ["pytest>=7", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],  # colcon: the ROS workspace test
     },
     zip_safe=True,
     maintainer="advperc_ros developers",

@@ -7,7 +7,7 @@ import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -26,35 +26,28 @@ from advperc_ros.core.tracker import Tracker, TrackerConfig
 from advperc_ros.params import AttackParams, ParamsError
 
 
+EXTERNAL = "external"  # the `planner` of a report whose planner was a node of someone else's
+
+
+@dataclass(frozen=True)
+class AttackedPlanner:
+    """Which planner the rollouts went through: the params' own, or an external node (its name as
+    the middleware tells it, "" where it cannot), so the report names the system attacked."""
+
+    name: str
+    node: str | None = None
+
+
 @dataclass(frozen=True)
 class AttackOutcome:
     scenario: Scenario
-    params: AttackParams
+    params: AttackParams  # as run: `planner` is EXTERNAL when an external node planned
     heuristic_best: Evaluation | None  # None when no agent is influential
     best: Evaluation | None  # best adversarial evaluation of the whole search
     recorded: RolloutResult | None  # the best attack rolled out again with tracks and plans kept
     log: list[LogRow]
     wall_time_s: float
-
-
-def resolve_bag(params: AttackParams) -> Path:
-    """The bag named in the params: as given, next to the params file, or in the package share."""
-    return find_bag(params["bag"], params.source)
-
-
-def find_bag(bag: str, source: Path | None) -> Path:
-    """`bag` as given, next to the params file `source`, or in the package share."""
-    name = Path(bag)
-    candidates = [name]
-    if not name.is_absolute():
-        if source is not None:
-            candidates.append(source.parent / name)
-        candidates.append(Path(sys.prefix) / "share" / "advperc_ros" / name)
-    for candidate in candidates:
-        if candidate.exists():
-            return candidate
-    where = source or "params"
-    raise ParamsError(f"{where}: parameter 'bag' names '{name}', which does not exist")
+    planner_node: str | None = None  # the external planner node, when one planned
 
 
 class Stack:
@@ -71,13 +64,16 @@ class Stack:
         )
         self.tracker = Tracker(TrackerConfig(gate=params["tracker.gate"], max_age=params["tracker.max_age"]))
         self.planner = load_planner(params["planner"], context, params.planner_params)
+        self.attacked_planner = AttackedPlanner(params["planner"])
 
     def rollout(self, errors, record: bool = False) -> RolloutResult:
         return rollout(self.scenario, errors, self.tracker, self.planner, self.config, record=record)
 
 
 class Rollouts(Protocol):
-    """What the search needs of a backend: one rollout of an error tensor."""
+    """What the search needs of a backend: one rollout of an error tensor; which planner it runs."""
+
+    attacked_planner: AttackedPlanner
 
     def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult: ...
 
@@ -131,6 +127,9 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         bar.close()
     best = problem.best
     recorded = backend.rollout(best.errors, record=True) if best is not None else None
+    attacked = backend.attacked_planner
+    if attacked.node is not None:
+        params = replace(params, values={**params.values, "planner": EXTERNAL}, planner_params={})
     return AttackOutcome(
         scenario=scenario,
         params=params,
@@ -139,4 +138,5 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         recorded=recorded,
         log=problem.log,
         wall_time_s=time.perf_counter() - started,
+        planner_node=attacked.node,
     )

@@ -14,34 +14,16 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros.core.feasibility import ScenarioRejected
-from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
-from advperc_ros.core.search.problem import OBJECTIVES, GroundTruthFails
-from advperc_ros.graph import GraphError
+from advperc_ros.core.search.problem import OBJECTIVES
+from advperc_ros.exits import EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.params import ParamsError, load_params
 from advperc_ros.ros.bag import BagError
 
-INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError)
-EXIT_INPUT = 2
-EXIT_NOTHING_TO_ATTACK = 1
-EXIT_REJECTED = 3
-EXIT_GRAPH = 4
-
-
-def _default_output(params_path: Path, seed: int) -> Path:
-    base = Path("results") / f"{params_path.stem}-seed{seed}"
-    candidate, n = base, 1
-    while candidate.exists():
-        n += 1
-        candidate = base.with_name(f"{base.name}-{n}")
-    return candidate
-
 
 def cmd_attack(args: argparse.Namespace) -> int:
-    from advperc_ros.attack import open_rollouts, resolve_bag, run_attack
-    from advperc_ros.results import write_results
-    from advperc_ros.ros.bag import read_scenario
+    from advperc_ros.application import attack_to_folder, summary
 
     params = load_params(args.params)
     if args.seed is not None:
@@ -50,18 +32,10 @@ def cmd_attack(args: argparse.Namespace) -> int:
         params = params.with_values(rollout_backend=args.backend)
     if args.objective is not None:
         params = params.with_values(objective=args.objective)
-    output = Path(args.output) if args.output else _default_output(Path(args.params), params["seed"])
-    if output.exists():
-        raise ParamsError(f"{output}: output folder exists already; choose another --output")
-    bag_path = resolve_bag(params)
-    scenario = read_scenario(bag_path)
-    with open_rollouts(scenario, params, bag_path) as rollouts:
-        outcome = run_attack(scenario, params, progress=not args.quiet, rollouts=rollouts)
-    report = write_results(output, outcome, bag_path)
-    summary = {k: report.get(k) for k in ("scenario", "objective", "collision", "nds", "nds_t", "fn", "tp", "rollouts")}
-    print(json.dumps(summary))
+    output, report = attack_to_folder(params, Path(args.output) if args.output else None, progress=not args.quiet)
+    print(json.dumps(summary(report)))
     print(f"results written to {output}", file=sys.stderr)
-    return 0
+    return EXIT_OK
 
 
 def cmd_make_bags(args: argparse.Namespace) -> int:
@@ -124,7 +98,8 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
 
 
 def cmd_check_typical(args: argparse.Namespace) -> int:
-    from advperc_ros.attack import Stack, resolve_bag
+    from advperc_ros.attack import Stack
+    from advperc_ros.params import resolve_bag
     from advperc_ros.core.pem import PEM, default_pem
     from advperc_ros.core.typical import check_typical
     from advperc_ros.ros.bag import read_scenario
@@ -308,17 +283,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    outcomes = (  # expected failures: one line on stderr and an exit code of their own
-        (INPUT_ERRORS, "error: ", EXIT_INPUT),
-        ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),
-        ((ScenarioRejected,), "", EXIT_REJECTED),
-        ((GraphError,), "error: graph backend: ", EXIT_GRAPH),
-    )
     try:
         return args.func(args)
-    except tuple(kind for kinds, _, _ in outcomes for kind in kinds) as exc:
-        prefix, code = next((prefix, code) for kinds, prefix, code in outcomes if isinstance(exc, kinds))
-        print(f"advperc: {prefix}{exc}", file=sys.stderr)
+    except EXPECTED_TYPES as exc:
+        line, code = expected_failure(exc)
+        print(f"advperc: {line}", file=sys.stderr)
         return code
 
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from advperc_ros.attack import EXTERNAL, AttackedPlanner
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
@@ -52,6 +53,7 @@ from advperc_ros.ros.lockstep import (CONTROL_TYPE, DONE, ERRORS, INCONCLUSIVE, 
                                       errors_message, parse_done, parse_presence, parse_rule_diagnostics, plan_from_cdr)
 
 NODES = ("scenario_player", "error_injector", "tracker", "planner", "rule_monitor")
+PLANNER_NODE = "planner"
 RECORDED = (TRACKING, PLAN)  # topics only recorded rollouts need
 STARTUP_TIMEOUT = 60.0  # s for the children to start, discover each other and pass the warm-up
 WARMUP_STALL = 0.5  # s without progress after which a warm-up rollout is first re-sent
@@ -157,6 +159,15 @@ class GraphRollouts:
         self._transport.subscriber(DONE, CONTROL_TYPE, callback=lambda msg: self._done.append(parse_done(msg)))
         self._present.clear()
         self._transport.subscriber(PRESENCE, CONTROL_TYPE, latched=True, callback=self._on_presence)
+
+    @property
+    def attacked_planner(self) -> AttackedPlanner:
+        """Our planner node (started by us, or announced on /attack/nodes: the launch file
+        configures it from the same params), else an external node, named where the middleware
+        tells who publishes the plans."""
+        if self._spawn or PLANNER_NODE in self._present:
+            return AttackedPlanner(self.params["planner"])
+        return AttackedPlanner(EXTERNAL, ", ".join(self._transport.publishers_of(PLAN)))
 
     def _on_presence(self, msg: Any) -> None:
         name, pid = parse_presence(msg)

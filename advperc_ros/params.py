@@ -8,6 +8,7 @@ Everything is checked before any work starts; errors name the file and the param
 
 import hashlib
 import json
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ from typing import Any
 import yaml
 
 NODE = "orchestrator"
+PACKAGE = "advperc_ros"
 
 
 class ParamsError(ValueError):
@@ -149,9 +151,19 @@ def _check_ranges(where: str, values: dict[str, Any]) -> None:
         raise ParamsError(f"{where}: parameter 'dds.domain_id' must be within 0..232, got {values['dds.domain_id']}")
 
 
-def node_values(flat: dict[str, Any], names: tuple[str, ...], where: str) -> dict[str, Any]:
-    """The parameters `names` of one graph node, checked as strictly as a params file: used by the
-    rclpy nodes, whose parameters arrive one by one rather than as a file."""
+def node_values(flat: dict[str, Any], names: tuple[str, ...], where: str,
+                takes_planner_params: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A graph node's parameters as ROS hands them over (dotted names, one by one rather than as a
+    file), checked as strictly as a params file: (its `names` values, the planner's keyword
+    arguments given as `planner_params.<key>` if it takes them). Any other name is refused, so no
+    override a user types is silently ignored."""
+    prefix = f"{PLANNER_PARAMS}."
+    planner_params = {name[len(prefix):]: value for name, value in flat.items()
+                      if takes_planner_params and name.startswith(prefix)}
+    for name in flat:
+        if name not in names and not (takes_planner_params and name.startswith(prefix)):
+            takes = [*names, *([f"{prefix}<key>"] if takes_planner_params else [])]
+            raise ParamsError(f"{where}: unknown parameter '{name}' (this node takes: {', '.join(takes) or 'none'})")
     values = {}
     for name in names:
         param = SCHEMA[name]
@@ -162,16 +174,7 @@ def node_values(flat: dict[str, Any], names: tuple[str, ...], where: str) -> dic
         else:
             values[name] = _check_type(where, name, flat[name], param)
     _check_ranges(where, values)
-    return values
-
-
-def parse_planner_params(where: str, text: str) -> dict[str, Any]:
-    """`planner_params` given as one YAML/JSON mapping string (a ROS parameter cannot be a mapping)."""
-    try:
-        raw = yaml.safe_load(text) if text.strip() else {}
-    except yaml.YAMLError as exc:
-        raise ParamsError(f"{where}: parameter '{PLANNER_PARAMS}' is not a YAML mapping: {exc}".replace("\n", " ")) from exc
-    return _check_planner_params(where, raw)
+    return values, _check_planner_params(where, planner_params)
 
 
 def parse_params(document: Any, where: str, source: Path | None = None) -> AttackParams:
@@ -209,3 +212,38 @@ def load_params(path: str | Path) -> AttackParams:
     except (OSError, yaml.YAMLError) as exc:
         raise ParamsError(f"{path}: cannot read params file: {exc}".replace("\n", " ")) from exc
     return parse_params(document, str(path), path)
+
+
+def package_share() -> Path:
+    """Where this package's shared files (bags/, config/, launch/) are installed: ament_index knows
+    a colcon or ROS install; a plain pip install puts them under Python's prefix."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+    except ImportError:
+        return Path(sys.prefix) / "share" / PACKAGE
+    try:
+        return Path(get_package_share_directory(PACKAGE))
+    except PackageNotFoundError:
+        return Path(sys.prefix) / "share" / PACKAGE
+
+
+def find_bag(bag: str, source: Path | None) -> Path:
+    """The bag a params file names, in one order for every way of running: as given (absolute, or
+    relative to the working directory), relative to the params file `source`, then in the package
+    share (`package_share`)."""
+    name = Path(bag)
+    candidates = [name]
+    if not name.is_absolute():
+        if source is not None:
+            candidates.append(source.parent / name)
+        candidates.append(package_share() / name)
+    for candidate in candidates:
+        if candidate.exists():
+            return candidate
+    tried = ", ".join(str(c) for c in candidates)
+    raise ParamsError(f"{source or 'params'}: parameter 'bag' names '{name}', which does not exist (tried {tried})")
+
+
+def resolve_bag(params: AttackParams) -> Path:
+    """The bag named in the params, found by `find_bag`."""
+    return find_bag(params["bag"], params.source)

@@ -70,7 +70,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     best = outcome.best
     report = {
         "scenario": outcome.scenario.name,
-        "bag": str(bag_path),
+        "bag": params["bag"],
+        "bag_sha256": bags.digest(bag_path),
         "planner": params["planner"],
         "objective": params["objective"],
         "seed": params["seed"],
@@ -79,6 +80,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         "collision_frame": None,
         "collision_agent": None,
     }
+    if outcome.planner_node is not None:
+        report["planner_node"] = outcome.planner_node
     if best is not None:
         rollout = outcome.recorded
         frame = int(np.argmin(rollout.rule))
@@ -108,9 +111,14 @@ def _fmt(value, digits: int = 2) -> str:
     return "N/A" if value is None else f"{value:.{digits}f}"
 
 
+def _planner_label(report: dict) -> str:
+    node = report.get("planner_node")
+    return report["planner"] if node is None else f"{report['planner']} ({node or 'node name unknown'})"
+
+
 def report_markdown(report: dict) -> str:
     lines = [
-        f"# Attack on {report['scenario']} ({report['planner']} planner, objective {report['objective']})",
+        f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']})",
         "",
         "| Search | Total FN/TP | MPE (m) | MAOE (rad) | NDS | NDS-t | PEM LL | Rollouts |",
         "|---|---|---|---|---|---|---|---|",

@@ -1,26 +1,34 @@
-"""Graph backend against embedded rollouts, side by side on the same error tensors.
+"""The node graph against embedded rollouts, side by side on the same error tensors.
 
     python benchmarks/graph_bench.py [--repeats 5] [--domain-id 120] [SCENARIO ...]
 
 or from benchmarks/bench.py: `from graph_bench import bench_graph; bench_graph(repeats)`. Per
 scenario (default idm_lane_following and obp_overtake): a ground-truth rollout and a lead-dropping
-one (agent slot 0 dropped from frame 20), each run `repeats` times embedded and through the five
-node processes over Cyclone DDS on loopback, alternately, so that a change in the machine's load
-hits both backends alike; the median times, their ratio, the graph's start-up time (processes,
-discovery, warm-up rollout) and the largest difference between the two backends' ego
-trajectories and signed distances. Then one ratio per scenario (total graph time over total
-embedded time of its rollouts) against the issue's target for its planner. The load average is
-printed too: on a shared machine the ratios move with it.
+one (agent slot 0 dropped from frame 20), each run `repeats` times on three backends in turn, so
+that a change in the machine's load hits all alike: embedded; the five node processes over bare
+Cyclone DDS (what `--backend graph` starts); and, when ROS 2 is sourced, the five nodes as rclpy
+nodes driven from an rclpy node (what `ros2 launch advperc_ros attack.launch.py` runs). Printed:
+the median times, their ratios to embedded, each graph's start-up time (processes, discovery,
+warm-up rollout) and the largest difference from the embedded ego trajectories and signed
+distances; then one ratio per scenario and backend (total time over total embedded time of its
+rollouts) against the issue's goal for its planner. All DDS traffic stays on loopback (the rclpy
+graph relies on ../shared/ros2/activate.sh's CYCLONEDDS_URI). The load average is printed too: on
+a shared machine the ratios move with it.
 """
 
 import argparse
+import contextlib
 import os
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
@@ -29,11 +37,44 @@ from advperc_ros.attack import Stack  # noqa: E402
 from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.rollout import RolloutResult  # noqa: E402
 from advperc_ros.graph import GraphRollouts  # noqa: E402
+from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
 
 SCENARIOS = ("idm_lane_following", "obp_overtake")
-TARGETS = {"idm": 3.0, "obp": 1.3}  # graph / embedded rollout time, per planner (issue 4)
+GOALS = {("cyclone", "idm"): 1.5, ("rclpy", "idm"): 3.0, ("cyclone", "obp"): 1.1, ("rclpy", "obp"): 1.1}
+"""graph / embedded rollout time, per backend and planner (issue 10)"""
+
+
+@contextlib.contextmanager
+def rclpy_graph(scenario, params, bag: Path, domain_id: int) -> Iterator[GraphRollouts]:
+    """The launch file's graph without launch: the five nodes as rclpy processes (parameters as the
+    launch file gives them) on `domain_id`, driven through an rclpy node of this process."""
+    import rclpy
+    from rclpy.node import Node
+
+    from advperc_ros.ros.transport import RclpyTransport
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id))
+    with tempfile.TemporaryDirectory(prefix="advperc-bench-") as folder:
+        node_params = Path(folder) / "nodes.yaml"
+        node_params.write_text(yaml.safe_dump({spec.name: {"ros__parameters": ros_parameters(spec, params, bag)}
+                                               for spec in SPECS}))
+        nodes = [subprocess.Popen([sys.executable, "-m", f"advperc_ros.nodes.{spec.name}", "--ros-args",
+                                   "--params-file", str(node_params)], env=env, stdout=subprocess.DEVNULL,
+                                  stderr=subprocess.DEVNULL) for spec in SPECS]
+        rclpy.init(domain_id=domain_id)
+        try:
+            node = Node("graph_bench")
+            with GraphRollouts(scenario, params.with_values(**{"graph.spawn_nodes": False}), bag,
+                               RclpyTransport(node)) as graph:
+                yield graph
+        finally:
+            rclpy.try_shutdown()
+            for process in nodes:
+                process.terminate()
+            for process in nodes:
+                process.wait(timeout=30)
 
 
 def _timed(run, errors: PerceptionErrors) -> tuple[float, RolloutResult]:
@@ -54,11 +95,17 @@ def _load() -> str:
 
 
 def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain_id: int = 120) -> list[dict]:
-    """Prints one line per scenario and error tensor, then one ratio per scenario; returns the
-    per-tensor rows as dicts."""
-    print(f"== Graph (5 node processes over Cyclone DDS, loopback) vs embedded rollouts, median of {repeats}, "
-          f"alternating; {_load()} ==")
-    print(f"{'scenario':22s} {'errors':12s} {'frames':>6s} {'embedded s':>10s} {'graph s':>8s} {'ratio':>6s} {'max diff':>9s}")
+    """Prints one line per scenario and error tensor, then one ratio per scenario and backend;
+    returns the per-tensor rows as dicts."""
+    try:
+        import rclpy  # noqa: F401
+        backends = ("cyclone", "rclpy")
+    except ImportError:
+        backends = ("cyclone",)
+        print("(ROS 2 not sourced: the rclpy graph is left out; source ../shared/ros2/activate.sh to include it)")
+    print(f"== Graphs (5 node processes, loopback) vs embedded rollouts, median of {repeats}, in turn; {_load()} ==")
+    print(f"{'scenario':22s} {'errors':12s} {'frames':>6s} {'embedded s':>10s} "
+          + " ".join(f"{b + ' s':>9s} {'ratio':>6s} {'diff':>8s}" for b in backends))
     rows = []
     for name in scenarios:
         bag = REPO / "bags" / name
@@ -68,31 +115,43 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
         stack = Stack(scenario, params)
         none = PerceptionErrors.none(*scenario.agents.shape)
         cases = {"ground truth": none, "lead dropped": none.with_drop(0, 20, scenario.num_frames - 1)}
-        started = time.perf_counter()
-        with GraphRollouts(scenario, params, bag) as graph:
-            startup = time.perf_counter() - started
+        with contextlib.ExitStack() as stacked:
+            graphs, startup = {}, {}
+            for backend in backends:
+                started = time.perf_counter()
+                graphs[backend] = stacked.enter_context(
+                    GraphRollouts(scenario, params, bag) if backend == "cyclone"
+                    else rclpy_graph(scenario, params, bag, domain_id + 1))
+                startup[backend] = time.perf_counter() - started
             for label, errors in cases.items():
-                times: dict[str, list[float]] = {"embedded": [], "graph": []}
+                times: dict[str, list[float]] = {"embedded": [], **{b: [] for b in backends}}
+                results = {}
                 for _ in range(repeats):
-                    embedded_s, embedded = _timed(stack.rollout, errors)
-                    graph_s, result = _timed(graph.rollout, errors)
-                    times["embedded"].append(embedded_s)
-                    times["graph"].append(graph_s)
-                embedded_s, graph_s = statistics.median(times["embedded"]), statistics.median(times["graph"])
-                row = {"scenario": name, "planner": params["planner"], "errors": label, "frames": result.num_frames,
-                       "embedded_s": embedded_s, "graph_s": graph_s, "ratio": graph_s / embedded_s,
-                       "max_difference": _difference(result, embedded), "startup_s": startup}
-                rows.append(row)
-                print(f"{name:22s} {label:12s} {row['frames']:6d} {embedded_s:10.3f} {graph_s:8.3f} {row['ratio']:6.2f} "
-                      f"{row['max_difference']:9.1e}")
-        print(f"{name:22s} graph start-up (processes, discovery, warm-up rollout): {startup:.1f} s")
-    print(f"-- graph / embedded per scenario (all its rollouts); {_load()}")
+                    seconds, embedded = _timed(stack.rollout, errors)
+                    times["embedded"].append(seconds)
+                    for backend, graph in graphs.items():
+                        seconds, results[backend] = _timed(graph.rollout, errors)
+                        times[backend].append(seconds)
+                median = {key: statistics.median(values) for key, values in times.items()}
+                for backend in backends:
+                    rows.append({"scenario": name, "planner": params["planner"], "backend": backend, "errors": label,
+                                 "frames": results[backend].num_frames, "embedded_s": median["embedded"],
+                                 "graph_s": median[backend], "ratio": median[backend] / median["embedded"],
+                                 "max_difference": _difference(results[backend], embedded),
+                                 "startup_s": startup[backend]})
+                mine = rows[-len(backends):]
+                print(f"{name:22s} {label:12s} {mine[0]['frames']:6d} {median['embedded']:10.3f} "
+                      + " ".join(f"{r['graph_s']:9.3f} {r['ratio']:6.2f} {r['max_difference']:8.1e}" for r in mine))
+        print(f"{name:22s} start-up (processes, discovery, warm-up rollout): "
+              + ", ".join(f"{b} {s:.1f} s" for b, s in startup.items()))
+    print(f"-- graph / embedded per scenario and backend (all its rollouts); {_load()}")
     for name in scenarios:
-        mine = [row for row in rows if row["scenario"] == name]
-        ratio = sum(row["graph_s"] for row in mine) / sum(row["embedded_s"] for row in mine)
-        target = TARGETS.get(mine[0]["planner"])
-        verdict = f" (target <= {target:g}x: {'met' if ratio <= target else 'NOT met'})" if target else ""
-        print(f"{name:22s} {ratio:5.2f}x{verdict}")
+        for backend in backends:
+            mine = [row for row in rows if row["scenario"] == name and row["backend"] == backend]
+            ratio = sum(row["graph_s"] for row in mine) / sum(row["embedded_s"] for row in mine)
+            goal = GOALS.get((backend, mine[0]["planner"]))
+            verdict = f" (goal <= {goal:g}x: {'met' if ratio <= goal else 'NOT met'})" if goal else ""
+            print(f"{name:22s} {backend:8s} {ratio:5.2f}x{verdict}")
     return rows
 
 

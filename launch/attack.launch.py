@@ -6,6 +6,8 @@ orchestrator driving its search through them, all configured from one params fil
 
 `planner:=external` leaves our planner node out: run yours on the planner topics (docs/graph.md).
 The params file is validated before any node starts; the launch ends when the orchestrator does.
+The orchestrator reads the params file itself (only the graph settings are overridden), so its
+report is the one `ros2 run advperc_ros orchestrator` and `advperc attack` write for that file.
 """
 
 from launch import LaunchDescription
@@ -15,9 +17,8 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from advperc_ros.attack import resolve_bag
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
-from advperc_ros.params import load_params
+from advperc_ros.params import load_params, resolve_bag
 
 PACKAGE = "advperc_ros"
 
@@ -33,7 +34,7 @@ def _graph(context, *args, **kwargs):
         for spec in SPECS
         if not (external and spec.name == "planner")
     ]
-    overrides = {"bag": str(bag), "rollout_backend": "graph", "graph.spawn_nodes": False}
+    overrides = {"rollout_backend": "graph", "graph.spawn_nodes": False}
     output = LaunchConfiguration("output").perform(context)
     if output:
         overrides["output"] = output

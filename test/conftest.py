@@ -1,5 +1,9 @@
 """Shared fixtures: the repository's bundled scenarios and bags."""
 
+import importlib
+import itertools
+import os
+import shutil
 from pathlib import Path
 
 import pytest
@@ -31,3 +35,42 @@ def bundled(request):
 def idm_bundled(request):
     """The bundled scenarios whose 100-rollout checks are cheap enough for the test suite."""
     return _bundled(request.param)
+
+
+# ----- ROS 2 ------------------------------------------------------------------------------------------
+# CI runs the suite twice: without ROS (these tests skip, saying why) and with the Jazzy kit sourced and
+# ADVPERC_REQUIRE_ROS=1, where a missing ROS 2 piece fails the test instead of skipping it.
+REQUIRE_ROS = os.environ.get("ADVPERC_REQUIRE_ROS") == "1"
+
+
+def need_ros(module: str = "rclpy"):
+    """Import a ROS 2 Python module, or skip (fail under ADVPERC_REQUIRE_ROS=1) saying which is missing."""
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        if REQUIRE_ROS:
+            pytest.fail(f"{module} cannot be imported though ADVPERC_REQUIRE_ROS=1: is ROS 2 Jazzy sourced?")
+        pytest.skip(f"ROS 2 Jazzy is not sourced ({module} missing): the ROS path is untested here")
+
+
+def need_program(name: str) -> str:
+    """A command on PATH (ros2, colcon), or skip (fail under ADVPERC_REQUIRE_ROS=1)."""
+    path = shutil.which(name)
+    if path is None:
+        if REQUIRE_ROS:
+            pytest.fail(f"{name} is not on PATH though ADVPERC_REQUIRE_ROS=1")
+        pytest.skip(f"{name} is not on PATH (ROS 2 Jazzy not sourced, or colcon not installed)")
+    return path
+
+
+# ROS tests use domain ids 200..232 (test_dds and test_graph take 100..199), a fresh one per test while
+# they last; rclpy and the ros2 tools read ROS_DOMAIN_ID, and activate.sh keeps DDS on loopback.
+_ros_domains = itertools.cycle(range(200 + (os.getpid() % 3) * 11, 233))
+
+
+@pytest.fixture
+def ros_domain(monkeypatch) -> int:
+    need_ros()
+    domain = next(_ros_domains)
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
+    return domain

@@ -9,6 +9,8 @@ import csv
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -25,9 +27,10 @@ from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
 from advperc_ros.graph import GraphRollouts  # noqa: E402
 from advperc_ros.nodes.runtime import RolloutClock  # noqa: E402
-from advperc_ros.params import ParamsError, load_params  # noqa: E402
+from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
+from conftest import need_ros  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 BAG = REPO / "bags" / "idm_lane_following"
@@ -147,8 +150,21 @@ def test_each_node_gets_exactly_its_parameters(tmp_path):
     assert by_node["error_injector"] == {}
     assert by_node["tracker"] == {"tracker.gate": 2.0, "tracker.max_age": 1.0}
     assert by_node["scenario_player"] == {"bag": str(BAG), "stop_at_collision": True, "graph.timeout": 10.0}
-    assert json.loads(by_node["planner"]["planner_params"]) == {"target_speed": 14.0}
+    assert by_node["planner"]["planner_params.target_speed"] == 14.0
     assert by_node["planner"]["planner"] == "idm" and by_node["rule_monitor"] == {"ego.length": 4.6, "ego.width": 1.9}
+    for spec in SPECS:  # what the launch file hands a node is what the node accepts, unchanged
+        values, planner_params = node_values(by_node[spec.name], spec.params, spec.name, spec.planner_params)
+        assert values == {name: by_node[spec.name][name] for name in spec.params}
+        assert planner_params == (params.planner_params if spec.planner_params else {})
+
+
+def test_a_node_refuses_parameters_it_does_not_take():
+    with pytest.raises(ParamsError, match="unknown parameter 'tracker.gate'.*takes: ego.length, ego.width"):
+        node_values({"tracker.gate": 2.0}, ("ego.length", "ego.width"), "node 'rule_monitor'")
+    with pytest.raises(ParamsError, match="unknown parameter 'planner_params.target_speed'"):
+        node_values({"planner_params.target_speed": 2.0}, (), "node 'tracker'")
+    with pytest.raises(ParamsError, match="'tracker.gate' must be a float"):
+        node_values({"tracker.gate": 2}, ("tracker.gate",), "node 'tracker'")
 
 
 def test_node_without_ros_refuses_a_bad_params_file(tmp_path, caplog):
@@ -262,8 +278,8 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
 
 # ----- (e) the rclpy path, where ROS 2 Jazzy is sourced -----------------------------------------------
 
-def test_rclpy_transport_passes_rosbags_messages_through():
-    rclpy = pytest.importorskip("rclpy", reason="ROS 2 Jazzy is not sourced (rclpy missing): rclpy path untested here")
+def test_rclpy_transport_passes_rosbags_messages_through(ros_domain):
+    rclpy = need_ros("rclpy")
     from rclpy.node import Node
 
     from advperc_ros.ros import messages as msgs
@@ -287,15 +303,23 @@ def test_rclpy_transport_passes_rosbags_messages_through():
         rclpy.try_shutdown()
 
 
-def test_rclpy_node_main_refuses_bad_parameters():
-    pytest.importorskip("rclpy", reason="ROS 2 Jazzy is not sourced (rclpy missing): rclpy path untested here")
-    from advperc_ros.nodes.tracker import main
+@pytest.mark.parametrize("override, says", [
+    ("tracker.gate:=-1.0", "'tracker.gate' must be positive"),
+    ("tracker.gate:=2", "'tracker.gate' must be a float"),
+    ("seed:=3", "unknown parameter 'seed'"),
+    ("planner_params:={target_speed: 14.0}", "a ROS parameter cannot be a mapping"),
+    ("tracker.gate:=[1", "parameter 'tracker.gate': cannot parse"),
+])
+def test_rclpy_node_main_refuses_a_bad_override_in_one_line(ros_domain, override, says):
+    need_ros("rclpy")
+    run = subprocess.run([sys.executable, "-m", "advperc_ros.nodes.tracker", "--ros-args", "-p", override],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and says in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and "Traceback" not in run.stderr
 
-    assert main(["--ros-args", "-p", "tracker.gate:=-1.0"]) == 2
 
-
-def test_example_external_planner_answers_every_tracks_message():
-    pytest.importorskip("rclpy", reason="ROS 2 Jazzy is not sourced (rclpy missing): rclpy path untested here")
+def test_example_external_planner_answers_every_tracks_message(ros_domain):
+    need_ros("rclpy")
     import importlib.util
 
     import rclpy
@@ -340,7 +364,7 @@ def test_example_external_planner_answers_every_tracks_message():
 
 
 def test_launch_file_builds_the_graph():
-    pytest.importorskip("launch_ros", reason="ROS 2 Jazzy is not sourced (launch_ros missing): launch file untested here")
+    need_ros("launch_ros")
     import importlib.util
 
     from launch import LaunchContext

@@ -1,11 +1,13 @@
 """The orchestrator node: parameter plumbing everywhere, the rclpy path where ROS 2 is sourced."""
 
 import json
+import os
+import subprocess
+import sys
 
-import pytest
 import yaml
 
-from advperc_ros.nodes.orchestrator import main
+from advperc_ros.nodes.orchestrator import main, params_source
 from advperc_ros.params import nest, parse_params
 
 
@@ -19,18 +21,23 @@ def test_dotted_parameters_nest_back_into_the_params_file_layout(repo):
     assert parsed["search.random.steps"] == 40 and parsed.planner_params == {"target_speed": 14.0}
 
 
-def test_without_rclpy_the_node_says_how_to_proceed(capsys):
-    try:
-        import rclpy  # noqa: F401
-    except ImportError:
-        assert main([]) == 2
-        assert "advperc attack" in capsys.readouterr().err
-    else:
-        pytest.skip("rclpy is installed: the ROS path is tested below")
+def test_without_rclpy_the_node_says_how_to_proceed():
+    ros_free = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "LD_LIBRARY_PATH")}
+    run = subprocess.run([sys.executable, "-c", "from advperc_ros.nodes.orchestrator import main; raise SystemExit(main([]))"],
+                         env=ros_free, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2 and "advperc attack" in run.stderr and len(run.stderr.strip().splitlines()) == 1
 
 
-def test_node_runs_an_attack_from_a_params_file(tmp_path, repo):
-    pytest.importorskip("rclpy", reason="ROS 2 Jazzy is not sourced")
+def test_params_source_is_the_last_params_file_that_set_the_bag(tmp_path):
+    first, second = tmp_path / "a.yaml", tmp_path / "b.yaml"
+    first.write_text("orchestrator:\n  ros__parameters:\n    bag: bags/x\n")
+    second.write_text("orchestrator:\n  ros__parameters:\n    seed: 3\n")
+    args = ["--ros-args", "--params-file", str(first), "--params-file", str(second)]
+    assert params_source(args, "bags/x") == first
+    assert params_source(args, "bags/y") is None  # from -p bag:=bags/y: relative to the working directory
+
+
+def test_node_runs_an_attack_from_a_params_file(tmp_path, repo, ros_domain):
     document = yaml.safe_load((repo / "config" / "idm_lane_following.yaml").read_text())
     params = document["orchestrator"]["ros__parameters"]
     params["bag"] = str(repo / "bags" / "idm_lane_following")

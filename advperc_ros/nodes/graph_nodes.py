@@ -4,7 +4,6 @@ One place for the launch file (launch/attack.launch.py) to turn a params file in
 parameters, so `ros2 launch` and the graph backend's child processes configure the nodes alike.
 """
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -16,11 +15,11 @@ SPECS: tuple[NodeSpec, ...] = tuple(m.SPEC for m in (scenario_player, error_inje
 
 
 def ros_parameters(spec: NodeSpec, params: AttackParams, bag: Path) -> dict[str, Any]:
-    """The node's declared parameters from validated params, `bag` absolute; `planner_params` as
-    the one YAML/JSON string the node declares (a ROS parameter cannot be a mapping)."""
+    """The node's parameters from validated params, `bag` absolute; the planner's keyword
+    arguments as `planner_params.<key>` (a ROS parameter cannot be a mapping)."""
     values: dict[str, Any] = {name: params[name] for name in spec.params}
     if "bag" in values:
         values["bag"] = str(Path(bag).resolve())
     if spec.planner_params:
-        values[PLANNER_PARAMS] = json.dumps(params.planner_params)
+        values.update({f"{PLANNER_PARAMS}.{key}": value for key, value in params.planner_params.items()})
     return values

@@ -3,77 +3,66 @@
     ros2 run advperc_ros orchestrator --ros-args --params-file config/idm_lane_following.yaml
 
 Parameters are those of the params file (see advperc_ros.params.SCHEMA), plus `output`, the
-results folder (default results/<scenario>-seed<N>). They are validated by the same code as
-`advperc attack`, so both accept and refuse exactly the same files. With `rollout_backend: graph`
-every rollout goes through the node graph (advperc_ros.graph): the orchestrator starts the five
-nodes itself (`graph.spawn_nodes: true`, Cyclone DDS child processes) or, with `graph.spawn_nodes:
-false` (launch/attack.launch.py), drives the nodes already running through this rclpy node.
+results folder (default as `advperc attack`'s). They are validated by the same code as `advperc
+attack`, and the attack runs through the same application layer, so both accept and refuse the
+same files and write the same report. A relative `bag` is looked up in the order of
+`params.find_bag`; the params file of that order is the `--params-file` that set `bag`. With
+`rollout_backend: graph` every rollout goes through the node graph (advperc_ros.graph): the
+orchestrator starts the five nodes itself (`graph.spawn_nodes: true`, Cyclone DDS child
+processes) or, with `graph.spawn_nodes: false` (launch/attack.launch.py), drives the nodes
+already running through this rclpy node.
 """
 
+import json
 import sys
 from pathlib import Path
-from advperc_ros.params import NODE, ParamsError, nest, parse_params
+from typing import Any
+
+import yaml
+
+from advperc_ros.params import NODE, nest, parse_params
 
 OUTPUT = "output"
-ROS_OWN = {"use_sim_time", "start_type_description_service"}
+
+
+def params_source(args: list[str], bag: Any) -> Path | None:
+    """The params file a relative `bag` is relative to: the last `--params-file` among the ROS
+    arguments that sets the orchestrator's `bag` to this value (later files override earlier
+    ones, as in rcl), or None when it came from `-p bag:=...`."""
+    files = [Path(args[i + 1]) for i, arg in enumerate(args[:-1]) if arg == "--params-file"]
+    for path in reversed(files):
+        try:
+            if yaml.safe_load(path.read_text())[NODE]["ros__parameters"]["bag"] == bag:
+                return path
+        except (OSError, UnicodeDecodeError, yaml.YAMLError, KeyError, TypeError):
+            continue
+    return None
 
 
 def main(args: list[str] | None = None) -> int:
     try:
-        import rclpy
-        from rclpy.executors import ExternalShutdownException
-        from rclpy.node import Node
+        import rclpy  # noqa: F401
     except ImportError:
         print("orchestrator: rclpy not found; source ROS 2 Jazzy, or run `advperc attack PARAMS` instead", file=sys.stderr)
-        return 2  # the CLI's EXIT_INPUT; importing the CLI first would hide this message behind its imports
-
-    from advperc_ros.attack import open_rollouts, resolve_bag, run_attack
-    from advperc_ros.cli import EXIT_GRAPH, EXIT_INPUT, EXIT_NOTHING_TO_ATTACK, INPUT_ERRORS
-    from advperc_ros.core.search.problem import GroundTruthFails
-    from advperc_ros.graph import GraphError
-    from advperc_ros.results import write_results
-    from advperc_ros.ros.bag import read_scenario
+        return 2  # exits.EXIT_INPUT; importing the whole stack first would hide this message behind its imports
+    from advperc_ros.application import attack_to_folder, summary
+    from advperc_ros.nodes.runtime import given_parameters, run_rclpy
     from advperc_ros.ros.transport import RclpyTransport
 
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = Node(NODE, automatically_declare_parameters_from_overrides=True)
-        flat = {name: p.value for name, p in node.get_parameters_by_prefix("").items() if name not in ROS_OWN}
+    argv = sys.argv[1:] if args is None else list(args)
+
+    def body(node: Any) -> int:
+        flat = given_parameters(node)
         output = flat.pop(OUTPUT, "")
-        try:
-            params = parse_params({NODE: {"ros__parameters": nest(flat)}}, f"node '{NODE}' parameters")
-            bag_path = resolve_bag(params)
-            scenario = read_scenario(bag_path)
-            target = Path(output or f"results/{scenario.name}-seed{params['seed']}")
-            if target.exists():
-                raise ParamsError(f"parameter '{OUTPUT}': {target} exists already")
-            node.get_logger().info(f"attacking {scenario.name} ({params['planner']}, objective {params['objective']})")
-            transport = None if params["graph.spawn_nodes"] else RclpyTransport(node)
-            with open_rollouts(scenario, params, bag_path, transport) as rollouts:
-                outcome = run_attack(scenario, params, progress=False, rollouts=rollouts)
-            report = write_results(target, outcome, bag_path)
-            node.get_logger().info(
-                f"collision={report['collision']} nds={report.get('nds')} nds_t={report.get('nds_t')} "
-                f"rollouts={report['rollouts']}; results in {target}"
-            )
-        except INPUT_ERRORS as exc:
-            node.get_logger().error(str(exc))
-            code = EXIT_INPUT
-        except GroundTruthFails as exc:
-            node.get_logger().error(str(exc))
-            code = EXIT_NOTHING_TO_ATTACK
-        except GraphError as exc:
-            node.get_logger().error(f"graph backend: {exc}")
-            code = EXIT_GRAPH
-    except (KeyboardInterrupt, ExternalShutdownException):
-        code = 1
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return code
+        source = params_source(argv, flat.get("bag"))
+        params = parse_params({NODE: {"ros__parameters": nest(flat)}}, str(source or f"node '{NODE}' parameters"), source)
+        node.get_logger().info(f"attacking {params['bag']} ({params['planner']}, objective {params['objective']})")
+        transport = None if params["graph.spawn_nodes"] else RclpyTransport(node)
+        folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport)
+        node.get_logger().info(f"{json.dumps(summary(report))}; results in {folder}")
+        return 0
+
+    return run_rclpy(NODE, argv, body)
 
 
 if __name__ == "__main__":

@@ -4,7 +4,8 @@ Every node module has a `main(args=None)` that calls `run_node` with its `NodeSp
 executable runs two ways:
 
 - with ROS 2 (`ros2 run advperc_ros tracker --ros-args ...`, or launch/attack.launch.py): an rclpy
-  node with its parameters declared with types and descriptions, spun until shutdown;
+  node holding every parameter it is given, checked as strictly as a params file (a name it does
+  not take is refused), the rest declared with defaults and descriptions, spun until shutdown;
 - without ROS (`tracker --params-file P.yaml --domain-id 42 --localhost-only true`): a Cyclone DDS
   participant speaking ROS 2's wire conventions, parameters read from an orchestrator params file.
   This is how `advperc_ros.graph.GraphRollouts` starts the graph as separate OS processes.
@@ -17,6 +18,7 @@ import argparse
 import functools
 import logging
 import os
+import re
 import signal
 import sys
 from collections.abc import Callable
@@ -25,19 +27,17 @@ from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
+import yaml
 
-from advperc_ros.core.planners.base import PlannerError
-from advperc_ros.core.scenario import ScenarioError
-from advperc_ros.params import PLANNER_PARAMS, SCHEMA, ParamsError, load_params, node_values, parse_planner_params
+from advperc_ros.exits import EXIT_INPUT, EXPECTED_TYPES, INPUT_ERRORS, expected_failure
+from advperc_ros.params import SCHEMA, find_bag, load_params, node_values
 from advperc_ros.ros import cdr
-from advperc_ros.ros.bag import GROUND_TRUTH, BagError
+from advperc_ros.ros.bag import GROUND_TRUTH
 from advperc_ros.ros.lockstep import CONTROL_TYPE, PRESENCE, presence_message
 from advperc_ros.ros.transport import Transport
 
-INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError)  # as the CLI's, without importing it
 POLL_PERIOD = 0.05  # s between `poll()` calls of a node that has one (the player's timeouts)
 GROUND_TRUTH_CACHE = 4096  # distinct /ground_truth/objects messages kept decoded
-EXIT_INPUT = 2
 
 
 class Logger(Protocol):
@@ -153,70 +153,117 @@ def run_node(spec: NodeSpec, args: list[str] | None = None) -> int:
 def _resolve(values: dict[str, Any], source: Path | None) -> dict[str, Any]:
     """`bag` as a path, found as `advperc attack` finds it."""
     if "bag" in values:
-        from advperc_ros.attack import find_bag
-
         values["bag"] = find_bag(values["bag"], source)
     return values
 
 
-_ROS_TYPES = {str: "STRING", float: "DOUBLE", int: "INTEGER", bool: "BOOL"}
+ROS_OWN = frozenset({"use_sim_time", "start_type_description_service"})  # parameters rclpy declares itself
+_RULE = re.compile(r"parameter override rule: '(?P<rule>[^']*)'")
 
 
-def _run_rclpy(spec: NodeSpec, args: list[str] | None) -> int:
+def ros_arguments_error(text: str) -> str:
+    """rcl's refusal of the ROS arguments, as one line a user can act on."""
+    match = _RULE.search(text)
+    if match is None:
+        return "cannot parse the ROS arguments: " + text.split(", at ")[0]
+    rule = match.group("rule")
+    name, _, value = rule.removeprefix("-p ").partition(":=")
+    hint = (f"; a ROS parameter cannot be a mapping: give each key as its own parameter, e.g. -p {name}.<key>:=<value>"
+            if value.lstrip().startswith("{") else "")
+    return f"parameter '{name}': cannot parse the override '{rule}'{hint}"
+
+
+def _refused_override(args: list[str] | None) -> str | None:
+    """What rcl would refuse among the `-p name:=value` overrides (a value that is not YAML, or
+    a mapping), said before rcl says it in two lines of its own."""
+    args = list(args or [])
+    for flag, rule in zip(args, args[1:]):
+        if flag in ("-p", "--param"):
+            name, _, value = rule.partition(":=")
+            try:
+                parsed = yaml.safe_load(value)
+            except yaml.YAMLError:
+                return ros_arguments_error(f"parameter override rule: '-p {rule}'")
+            if isinstance(parsed, dict):
+                return ros_arguments_error(f"parameter override rule: '-p {rule}'")
+    return None
+
+
+def given_parameters(node: Any) -> dict[str, Any]:
+    """Every parameter given to an rclpy node (overrides and params files, dotted names), without
+    the ones rclpy declares itself; the node must be created with
+    `automatically_declare_parameters_from_overrides=True`, so none is silently left out."""
+    return {name: p.value for name, p in node.get_parameters_by_prefix("").items() if name not in ROS_OWN}
+
+
+def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int]) -> int:
+    """The Jazzy main idiom for every node of this package: init, a node named `name` holding every
+    parameter it was given, `body(node)` (which declares, validates, spins), shutdown. Each expected
+    failure (ROS arguments rcl cannot parse, a bad parameter or bag: exit 2; the others of
+    `exits.EXPECTED`) is one line and its exit code; Ctrl-C or a ROS shutdown ends it quietly."""
     import rclpy
-    from rcl_interfaces.msg import ParameterDescriptor
-    from rclpy.exceptions import InvalidParameterTypeException, ParameterUninitializedException
     from rclpy.executors import ExternalShutdownException
+    from rclpy.impl.implementation_singleton import rclpy_implementation
     from rclpy.node import Node
-    from rclpy.parameter import Parameter
 
-    from advperc_ros.ros.transport import RclpyTransport
-
-    rclpy.init(args=args)
-    node = None
-    code = 0
+    refused = _refused_override(args if args is not None else sys.argv)
+    if refused is not None:
+        print(f"{name}: error: {refused}", file=sys.stderr)
+        return EXIT_INPUT
     try:
-        node = Node(spec.name)
-        where = f"node '{spec.name}' parameters"
-        flat: dict[str, Any] = {}
-        try:
-            for name in spec.params:
-                param = SCHEMA[name]
-                kind = getattr(Parameter.Type, _ROS_TYPES[param.type])
-                descriptor = ParameterDescriptor(description=param.description, type=kind.value)
-                node.declare_parameter(name, kind if param.default is None else param.default, descriptor)
-                try:
-                    flat[name] = node.get_parameter(name).value
-                except ParameterUninitializedException:
-                    flat[name] = None
-            planner_params: dict[str, Any] = {}
-            if spec.planner_params:
-                descriptor = ParameterDescriptor(description="keyword arguments of the planner's constructor, "
-                                                 "as one YAML mapping, e.g. '{target_speed: 14.0}'",
-                                                 type=Parameter.Type.STRING.value)
-                text = node.declare_parameter(PLANNER_PARAMS, "{}", descriptor).value
-                planner_params = parse_planner_params(where, text)
-            values = _resolve(node_values(flat, spec.params, where), None)
-            transport = RclpyTransport(node)
-            logic = spec.build(transport, values, planner_params, node.get_logger())
-            announce(transport, spec.name)
-        except InvalidParameterTypeException as exc:
-            raise ParamsError(f"{where}: {exc}") from exc
-        poll = getattr(logic, "poll", None)
-        if poll is not None:
-            node.create_timer(POLL_PERIOD, poll)
-        rclpy.spin(node)
-    except INPUT_ERRORS as exc:
-        if node is not None:
-            node.get_logger().error(str(exc))
-        code = EXIT_INPUT
+        rclpy.init(args=args)
+    except rclpy_implementation.RCLError as exc:
+        print(f"{name}: error: {ros_arguments_error(str(exc))}", file=sys.stderr)
+        return EXIT_INPUT
+    node = None
+    try:
+        node = Node(name, automatically_declare_parameters_from_overrides=True)
+        return body(node)
+    except EXPECTED_TYPES as exc:
+        line, code = expected_failure(exc)
+        if node is None:
+            print(f"{name}: {line}", file=sys.stderr)
+        else:
+            node.get_logger().error(line)
+        return code
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        return 0
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
-    return code
+
+
+def _declare_defaults(node: Any, spec: NodeSpec, given: dict[str, Any]) -> None:
+    """Declare the node's parameters it was not given, with their defaults and descriptions, so
+    `ros2 param list/describe` show them."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    for name in spec.params:
+        param = SCHEMA[name]
+        if name not in given and param.default is not None:
+            node.declare_parameter(name, param.default, ParameterDescriptor(description=param.description))
+
+
+def _run_rclpy(spec: NodeSpec, args: list[str] | None) -> int:
+    def body(node: Any) -> int:
+        import rclpy
+
+        from advperc_ros.ros.transport import RclpyTransport
+
+        given = given_parameters(node)
+        values, planner_params = node_values(given, spec.params, f"node '{spec.name}' parameters", spec.planner_params)
+        _declare_defaults(node, spec, given)
+        transport = RclpyTransport(node)
+        logic = spec.build(transport, _resolve(values, None), planner_params, node.get_logger())
+        announce(transport, spec.name)
+        poll = getattr(logic, "poll", None)
+        if poll is not None:
+            node.create_timer(POLL_PERIOD, poll)
+        rclpy.spin(node)
+        return 0
+
+    return run_rclpy(spec.name, args, body)
 
 
 def _flag(text: str) -> bool:

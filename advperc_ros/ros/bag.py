@@ -5,6 +5,7 @@ bag info`, Foxglove and the mcap-ros2-support decoder read them. A bag is writte
 sibling directory and renamed into place once complete: a killed run leaves no bag that looks whole.
 """
 
+import hashlib
 import shutil
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
@@ -49,6 +50,7 @@ TOPIC_TYPES = {
 }
 LATCHED = {LANES, ROUTE, SUMMARY}
 SCENARIO_KEY = "advperc.scenario"
+ROS_DISTRO = "jazzy"  # the message definitions come from rosbags' Jazzy typestore
 
 
 class BagError(ValueError):
@@ -107,12 +109,36 @@ def open_bag_for_writing(path: Path) -> Iterator[BagWriter]:
         finally:
             writer.close()
         (staging / f"{staging.name}.mcap").rename(staging / f"{path.name}.mcap")
-        metadata = staging / "metadata.yaml"
-        metadata.write_text(metadata.read_text().replace(f"{staging.name}.mcap", f"{path.name}.mcap"))
+        _finish_metadata(staging / "metadata.yaml", staging.name, path.name)
         staging.rename(path)
     finally:
         if staging.exists():
             shutil.rmtree(staging)
+
+
+def _finish_metadata(metadata: Path, staged: str, final: str) -> None:
+    """The metadata rosbags wrote, with the file's final name and the distro the messages are
+    from (rosbags writes its own name there; `ros2 bag info` shows it as "ROS Distro")."""
+    document = yaml.safe_load(metadata.read_text())
+    info = document["rosbag2_bagfile_information"]
+    info["relative_file_paths"] = [name.replace(f"{staged}.mcap", f"{final}.mcap") for name in info["relative_file_paths"]]
+    for file in info["files"]:
+        file["path"] = file["path"].replace(f"{staged}.mcap", f"{final}.mcap")
+    info["ros_distro"] = ROS_DISTRO
+    metadata.write_text(yaml.safe_dump(document, sort_keys=False))
+
+
+def digest(path: Path) -> str:
+    """sha256 of a bag's messages on the contract's topics (topic, log time, CDR bytes): which data
+    was attacked, wherever the bag lies and whatever its file is called."""
+    messages, _ = read_topics(path, TOPIC_TYPES, raw=True)
+    sha = hashlib.sha256()
+    for topic in sorted(messages):
+        for log_time, data in messages[topic]:
+            sha.update(topic.encode())
+            sha.update(log_time.to_bytes(8, "little", signed=True))
+            sha.update(data)
+    return sha.hexdigest()
 
 
 def write_scenario_static(bag: BagWriter, scenario: Scenario) -> None:

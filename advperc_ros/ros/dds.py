@@ -305,6 +305,10 @@ class DdsTransport:
             if delivered or not woke or not remaining:  # else only writer-gone notices were taken
                 return delivered
 
+    def publishers_of(self, topic: str) -> tuple[str, ...]:
+        """Node names are a ROS layer above DDS (rmw's ros_discovery_info), not read here."""
+        return ()
+
     def close(self) -> None:
         """Delete the participant and everything in it now (idempotent)."""
         if self._participant is None:

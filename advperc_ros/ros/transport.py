@@ -48,6 +48,10 @@ class Transport(Protocol):
     def spin_once(self, timeout: float) -> int:
         """Deliver pending messages to callbacks, waiting up to `timeout` s for the first."""
 
+    def publishers_of(self, topic: str) -> tuple[str, ...]:
+        """Full names of the ROS nodes publishing `topic`, where the middleware says (rclpy's graph
+        API); bare DDS carries no node names, so () there."""
+
 
 def _message_class(msgtype: str) -> Any:
     """The rclpy (rosidl) class of `pkg/msg/Type`: module `pkg.msg`, attribute `Type`."""
@@ -102,6 +106,10 @@ class RclpyTransport:
             callback(data if raw else TYPESTORE.deserialize_cdr(data, msgtype))
 
         return self._node.create_subscription(_message_class(msgtype), topic, deliver, _rclpy_qos(latched), raw=True)
+
+    def publishers_of(self, topic: str) -> tuple[str, ...]:
+        return tuple(sorted({f"{info.node_namespace.rstrip('/')}/{info.node_name}"
+                             for info in self._node.get_publishers_info_by_topic(topic)}))
 
     def spin_once(self, timeout: float) -> int:
         before = self._delivered

@@ -1,0 +1,34 @@
+"""Exit codes and the expected failures behind them: one table for `advperc` and every node.
+
+An expected failure is one line on stderr (or the node's log) and its own exit code; anything
+else is a bug and keeps its traceback.
+"""
+
+from advperc_ros.core.feasibility import ScenarioRejected
+from advperc_ros.core.planners.base import PlannerError
+from advperc_ros.core.scenario import ScenarioError
+from advperc_ros.core.search.problem import GroundTruthFails
+from advperc_ros.graph import GraphError
+from advperc_ros.params import ParamsError
+from advperc_ros.ros.bag import BagError
+
+EXIT_OK = 0
+EXIT_NOTHING_TO_ATTACK = 1  # the stack fails with perfect perception, or check-typical found collisions
+EXIT_INPUT = 2  # bad input: params, bag, planner, output folder
+EXIT_REJECTED = 3  # a recording whose traffic hits the ego whatever it does
+EXIT_GRAPH = 4  # the node graph could not be started or made ready
+
+INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError)
+EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (
+    (INPUT_ERRORS, "error: ", EXIT_INPUT),
+    ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),
+    ((ScenarioRejected,), "", EXIT_REJECTED),
+    ((GraphError,), "error: graph backend: ", EXIT_GRAPH),
+)
+EXPECTED_TYPES = tuple(kind for kinds, _, _ in EXPECTED for kind in kinds)
+
+
+def expected_failure(exc: BaseException) -> tuple[str, int]:
+    """(the line to print after the program's name, the exit code) of an `EXPECTED_TYPES` error."""
+    prefix, code = next((prefix, code) for kinds, prefix, code in EXPECTED if isinstance(exc, kinds))
+    return f"{prefix}{exc}", code

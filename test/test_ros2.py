@@ -1,0 +1,349 @@
+"""The package as ROS users run it, against a real ROS 2 Jazzy (CI's second run sources the kit):
+
+- a colcon workspace: `ros2 run advperc_ros orchestrator` and `ros2 launch advperc_ros
+  attack.launch.py`, from a folder that is not the repository, write the report `advperc attack`
+  writes; `planner:=external` with examples/external_planner.py completes and says so;
+- the live graph matches the contract table of docs/graph.md (nodes, topics, types, QoS);
+- a mixed graph (some nodes over rclpy, the others over our bare Cyclone transport) gives the
+  embedded report: the bare-DDS transport interoperates with rmw_cyclonedds;
+- rosbag2: `ros2 bag info` lists every topic of our bags, `ros2 bag play` feeds the graph.
+
+All DDS traffic stays on loopback (activate.sh's CYCLONEDDS_URI for ROS, `dds.localhost_only` for
+ours), each test on a domain id of its own (conftest.ros_domain).
+"""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
+from advperc_ros.params import NODE, load_params
+from advperc_ros.ros import bag as bags
+from conftest import REPO, need_program, need_ros
+
+SMALL_SEARCH = {"heuristic": {"iterations": 1}, "random": {"steps": 4}, "refine": {"iterations": 0}}
+"""A short search (about a dozen rollouts): what is compared is the plumbing, not the search."""
+WALL_CLOCK = ("wall_time_s",)
+TIMEOUT = 300
+
+
+def _report(folder: Path) -> dict:
+    report = json.loads((folder / "report.json").read_text())
+    return {key: value for key, value in report.items() if key not in WALL_CLOCK}
+
+
+def _small_params(folder: Path, source: Path, **changes) -> Path:
+    """`source` (a bundled params file) with the short search, written into `folder`."""
+    document = yaml.safe_load(source.read_text())
+    document[NODE]["ros__parameters"]["search"] = SMALL_SEARCH
+    document[NODE]["ros__parameters"].update(changes)
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / source.name
+    path.write_text(yaml.safe_dump(document))
+    return path
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory) -> Path:
+    """A colcon workspace with this package built into it, as a ROS user installs it."""
+    need_ros("rclpy")
+    need_program("colcon")
+    ws = tmp_path_factory.mktemp("ws")
+    source = ws / "src" / "advperc_ros"
+    tracked = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, check=True).stdout
+    for name in filter(None, tracked.decode().split("\0")):
+        if (REPO / name).is_file():
+            (source / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(REPO / name, source / name)
+    subprocess.run(["colcon", "build", "--packages-select", "advperc_ros"], cwd=ws, check=True,
+                   capture_output=True, timeout=TIMEOUT)
+    return ws
+
+
+def _sourced(ws: Path, command: str, cwd: Path, background: bool = False, **popen):
+    """`command` in bash with the workspace's install/setup.bash sourced (ROS 2 already is)."""
+    args = ["bash", "-c", f"source {ws}/install/setup.bash && {command}"]
+    if background:
+        return subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                start_new_session=True, **popen)
+    return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=TIMEOUT, **popen)
+
+
+def _share(ws: Path) -> Path:
+    return ws / "install" / "advperc_ros" / "share" / "advperc_ros"
+
+
+def _finish(process: subprocess.Popen) -> str:
+    try:
+        output, _ = process.communicate(timeout=TIMEOUT)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, 9)
+        output, _ = process.communicate()
+        raise AssertionError(f"timed out: {output[-2000:]}")
+    assert process.returncode == 0, output[-3000:]
+    return output
+
+
+# ----- docs/graph.md: the contract table ----------------------------------------------------------------
+
+def _contract() -> dict[str, tuple[str, str]]:
+    """docs/graph.md's topic table: topic -> (type, QoS: 'volatile' or 'latched')."""
+    text = (REPO / "docs" / "graph.md").read_text()
+    rows = re.findall(r"^\| `(/[\w/]+)` \| `([\w/]+)` \| (volatile|latched) \|", text, flags=re.M)
+    assert len(rows) >= 14, "docs/graph.md lost its topic table"
+    return {topic: (msgtype, qos) for topic, msgtype, qos in rows}
+
+
+def _node_table() -> dict[str, tuple[set[str], set[str]]]:
+    """docs/graph.md's node table: node -> (topics it subscribes, topics it publishes); topics in
+    parentheses (only for the recorded rollout) are left out."""
+    text = (REPO / "docs" / "graph.md").read_text().split("\n## Nodes\n")[1].split("\n## ")[0]
+    out = {}
+    for name, subscribes, publishes in re.findall(r"^\| `(\w+)` \| [^|]* \| ([^|]*) \| ([^|]*) \|$", text, flags=re.M):
+        def topics(cell: str) -> set[str]:
+            return set(re.findall(r"/[\w/]+", re.sub(r"\(.*?\)", "", cell)))
+        out[name] = (topics(subscribes), topics(publishes))
+    assert set(out) == {"scenario_player", "error_injector", "tracker", "planner", "rule_monitor", "orchestrator"}
+    return out
+
+
+def test_docs_topic_table_is_the_code_s():
+    """Types and QoS of the contract table are those the code uses (the live graph is checked below)."""
+    for topic, (msgtype, qos) in _contract().items():
+        assert bags.TOPIC_TYPES.get(topic, "std_msgs/msg/String") == msgtype, topic
+        latched = topic in bags.LATCHED or topic in ("/attack/errors", "/attack/nodes")
+        assert (qos == "latched") == latched, topic
+
+
+def _live_graph(domain: int, expected_nodes: set[str], deadline: float) -> dict:
+    """The graph as rclpy sees it once `expected_nodes` are all up: per node its publishers and
+    subscriptions with types, and per topic its endpoints' QoS."""
+    import rclpy
+    from rclpy.node import Node
+
+    rclpy.init(domain_id=domain)
+    try:
+        probe = Node("advperc_contract_probe")
+        while time.monotonic() < deadline:
+            names = {name for name, _ in probe.get_node_names_and_namespaces()}
+            if expected_nodes <= names:
+                break
+            time.sleep(0.2)
+        else:
+            raise AssertionError(f"nodes never all up: {sorted(expected_nodes - names)} missing")
+        time.sleep(1.0)  # every endpoint of the nodes discovered
+        graph = {"nodes": {}, "qos": {}}
+        for name in expected_nodes:
+            graph["nodes"][name] = (dict(probe.get_subscriber_names_and_types_by_node(name, "/")),
+                                    dict(probe.get_publisher_names_and_types_by_node(name, "/")))
+        for topic in _contract():
+            endpoints = probe.get_publishers_info_by_topic(topic) + probe.get_subscriptions_info_by_topic(topic)
+            graph["qos"][topic] = [(e.node_name, e.qos_profile) for e in endpoints]
+        probe.destroy_node()
+        return graph
+    finally:
+        rclpy.try_shutdown()
+
+
+def _check_contract(graph: dict) -> None:
+    from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
+    contract = _contract()
+    for name, (subscribes, publishes) in _node_table().items():
+        live_subs, live_pubs = graph["nodes"][name]
+        own = {t: types for t, types in live_subs.items() if not t.startswith("/parameter_events")}
+        assert subscribes <= set(own), f"{name} does not subscribe {sorted(subscribes - set(own))}"
+        for topic in subscribes:
+            assert own[topic] == [contract[topic][0]], (name, topic, own[topic])
+        pubs = {t: types for t, types in live_pubs.items() if t not in ("/rosout", "/parameter_events")}
+        assert set(pubs) == publishes, f"{name} publishes {sorted(pubs)}, docs say {sorted(publishes)}"
+        for topic in publishes:
+            assert pubs[topic] == [contract[topic][0]], (name, topic, pubs[topic])
+    for topic, endpoints in graph["qos"].items():
+        for node, qos in endpoints:
+            assert qos.reliability == ReliabilityPolicy.RELIABLE, (topic, node)
+            latched = contract[topic][1] == "latched"
+            durability = DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE
+            assert qos.durability == durability, (topic, node, qos.durability)
+
+
+# ----- a colcon workspace, as a ROS user runs the package -----------------------------------------------
+
+def test_ros2_run_and_ros2_launch_write_the_report_advperc_attack_writes(workspace, tmp_path, ros_domain):
+    elsewhere = tmp_path / "elsewhere"  # not the repository: bags are found in the installed share
+    small = _small_params(tmp_path / "params", _share(workspace) / "config" / "idm_lane_following.yaml")
+    attack = _sourced(workspace, f"{sys.executable} -m advperc_ros.cli attack {small} --output {elsewhere}/cli --quiet",
+                      cwd=tmp_path)
+    assert attack.returncode == 0, attack.stderr
+    overrides = " ".join(f"-p search.{stage}.{key}:={value}" for stage, values in SMALL_SEARCH.items()
+                         for key, value in values.items())
+    elsewhere.mkdir(exist_ok=True)
+    run = _sourced(workspace, "ros2 run advperc_ros orchestrator --ros-args --params-file "
+                   f"{_share(workspace)}/config/idm_lane_following.yaml -p output:=run {overrides}", cwd=elsewhere)
+    assert run.returncode == 0, run.stdout + run.stderr
+    launch = _sourced(workspace, f"ros2 launch advperc_ros attack.launch.py params:={small} output:=launch",
+                      cwd=elsewhere, background=True)
+    graph = _live_graph(ros_domain, {"scenario_player", "error_injector", "tracker", "planner", "rule_monitor",
+                                     "orchestrator"}, time.monotonic() + 120)
+    _finish(launch)
+    _check_contract(graph)
+    expected = _report(elsewhere / "cli")
+    assert expected["collision"] and expected["bag"] == "bags/idm_lane_following"
+    assert _report(elsewhere / "run") == expected
+    assert _report(elsewhere / "launch") == expected
+
+
+def test_launch_with_an_external_planner_names_it_in_the_report(workspace, tmp_path, ros_domain):
+    small = _small_params(tmp_path / "params", _share(workspace) / "config" / "idm_lane_following.yaml")
+    planner = subprocess.Popen([sys.executable, str(REPO / "examples" / "external_planner.py")],
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    try:
+        launch = _sourced(workspace, f"ros2 launch advperc_ros attack.launch.py params:={small} planner:=external "
+                          "output:=external", cwd=tmp_path, background=True)
+        _finish(launch)
+    finally:
+        os.killpg(planner.pid, 2)
+        planner.wait(timeout=30)
+    report = _report(tmp_path / "external")
+    assert report["planner"] == "external" and report["planner_node"] == "/external_planner"
+    assert report["params"]["planner"] == "external" and report["params"]["planner_params"] == {}
+    ours = _sourced(workspace, f"{sys.executable} -m advperc_ros.cli attack {small} --output ours --quiet", cwd=tmp_path)
+    assert ours.returncode == 0 and _report(tmp_path / "ours")["config_hash"] != report["config_hash"]
+    assert "external (/external_planner) planner" in (tmp_path / "external" / "report.md").read_text()
+
+
+def test_readme_ros_section_runs_as_written(workspace, ros_domain):
+    """The README's ROS 2 block, verbatim, from the workspace root (it builds the package again)."""
+    readme = (REPO / "README.md").read_text().split("\n## The ROS 2 way\n")[1]
+    block = re.search(r"```bash\n(.*?)\n```", readme, flags=re.S).group(1)
+    results = workspace / "results"
+    shutil.rmtree(results, ignore_errors=True)
+    run = subprocess.run(["bash", "-e", "-c", block], cwd=workspace, capture_output=True, text=True, timeout=2 * TIMEOUT)
+    assert run.returncode == 0, (run.stdout + run.stderr)[-3000:]
+    expected = _report(results / "run")
+    assert expected["collision"] and _report(results / "launch") == expected
+    external = _report(results / "external")
+    assert external["planner"] == "external" and external["planner_node"] == "/external_planner"
+    cli = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", "config/idm_lane_following.yaml",
+                          "--output", str(results / "cli"), "--quiet"], cwd=REPO, capture_output=True, text=True,
+                         timeout=TIMEOUT)
+    assert cli.returncode == 0, cli.stderr
+    assert _report(results / "cli") == expected
+
+
+# ----- a mixed graph: rclpy and bare Cyclone nodes on one domain ----------------------------------------
+
+@pytest.mark.parametrize("over_rclpy", [("scenario_player", "error_injector", "tracker"), ("planner", "rule_monitor")],
+                         ids=["player-injector-tracker-rclpy", "planner-rule-rclpy"])
+def test_a_mixed_graph_gives_the_embedded_report(tmp_path, ros_domain, over_rclpy):
+    need_ros("rclpy")
+    params_file = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
+                                bag=str(REPO / "bags" / "idm_lane_following"),
+                                dds={"domain_id": ros_domain, "localhost_only": True},
+                                graph={"spawn_nodes": False, "timeout": 10.0}, rollout_backend="graph")
+    params = load_params(params_file)
+    ros_params = tmp_path / "nodes.yaml"
+    ros_params.write_text(yaml.safe_dump({spec.name: {"ros__parameters": ros_parameters(spec, params, params["bag"])}
+                                          for spec in SPECS}))
+    nodes = []
+    try:
+        for spec in SPECS:
+            rest = (["--ros-args", "--params-file", str(ros_params)] if spec.name in over_rclpy
+                    else ["--params-file", str(params_file), "--exit-with-parent"])
+            nodes.append(subprocess.Popen([sys.executable, "-m", f"advperc_ros.nodes.{spec.name}", *rest],
+                                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+        graph = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params_file), "--output",
+                                str(tmp_path / "graph"), "--quiet"], capture_output=True, text=True, timeout=TIMEOUT)
+        assert graph.returncode == 0, graph.stderr
+    finally:
+        for node in nodes:
+            node.send_signal(2)
+        for node in nodes:
+            node.wait(timeout=30)
+    embedded = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params_file), "--backend",
+                               "embedded", "--output", str(tmp_path / "embedded"), "--quiet"],
+                              capture_output=True, text=True, timeout=TIMEOUT)
+    assert embedded.returncode == 0, embedded.stderr
+    assert _report(tmp_path / "graph") == _report(tmp_path / "embedded")
+    assert all(node.returncode == 0 for node in nodes), [node.stderr.read()[-500:] for node in nodes]
+
+
+# ----- rosbag2 ------------------------------------------------------------------------------------------
+
+def _bag_info(path: Path) -> tuple[str, dict[str, tuple[str, int]]]:
+    run = subprocess.run(["ros2", "bag", "info", str(path)], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr
+    distro = re.search(r"ROS Distro:\s+(\S+)", run.stdout).group(1)
+    topics = {topic: (msgtype, int(count)) for topic, msgtype, count in
+              re.findall(r"Topic: (\S+) \| Type: (\S+) \| Count: (\d+)", run.stdout)}
+    return distro, topics
+
+
+def _recorded(path: Path) -> dict[str, tuple[str, int]]:
+    messages, _ = bags.read_topics(path, bags.TOPIC_TYPES, raw=True)
+    return {topic: (bags.TOPIC_TYPES[topic], len(found)) for topic, found in messages.items() if found}
+
+
+def test_ros2_bag_info_lists_every_topic_of_our_bags(tmp_path, ros_domain):
+    need_program("ros2")
+    ground_truth = sorted((REPO / "bags").iterdir())
+    attack = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack",
+                             str(_small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
+                                               bag=str(REPO / "bags" / "idm_lane_following"))),
+                             "--output", str(tmp_path / "out"), "--quiet"], capture_output=True, text=True, timeout=TIMEOUT)
+    assert attack.returncode == 0, attack.stderr
+    for path in [*ground_truth, tmp_path / "out" / "attack"]:
+        distro, topics = _bag_info(path)
+        assert distro == "jazzy" and topics == _recorded(path), path
+    assert {bags.PERCEPTION, bags.TRACKING, bags.PLAN, bags.RULE} <= set(_bag_info(tmp_path / "out" / "attack")[1])
+
+
+def test_ros2_bag_play_feeds_ground_truth_the_graph_accepts(ros_domain):
+    need_program("ros2")
+    import rclpy
+    from rclpy.node import Node
+
+    from advperc_ros.nodes.runtime import ground_truth_objects
+    from advperc_ros.ros.transport import RclpyTransport
+
+    path = REPO / "bags" / "idm_overtake_follow"
+    scenario = bags.read_scenario(path)
+    rclpy.init(domain_id=ros_domain)
+    player = None
+    try:
+        node = Node("advperc_bag_listener")
+        received: dict[int, dict] = {}
+
+        def keep(data: bytes) -> None:
+            stamp, objects = ground_truth_objects(data)  # what the injector and rule monitor do with it
+            received[stamp] = objects
+
+        transport = RclpyTransport(node)
+        transport.subscriber(bags.GROUND_TRUTH, bags.TOPIC_TYPES[bags.GROUND_TRUTH], callback=keep, raw=True)
+        player = subprocess.Popen(["ros2", "bag", "play", str(path), "--rate", "5", "--topics", bags.GROUND_TRUTH,
+                                   "--delay", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 120
+        while len(received) < scenario.num_frames and time.monotonic() < deadline:
+            transport.spin_once(0.1)
+        assert player.wait(timeout=60) == 0, player.stderr.read()
+        assert sorted(received) == [int(s) for s in scenario.stamps_ns]
+        for k, stamp in enumerate(scenario.stamps_ns):
+            expected = scenario.agents.frame(k)
+            objects = received[int(stamp)]
+            order = np.argsort(objects["ids"])
+            assert np.array_equal(objects["ids"][order], np.sort(expected["ids"]))
+            assert np.allclose(objects["x"][order], expected["x"][np.argsort(expected["ids"])], atol=1e-9)
+        node.destroy_node()
+    finally:
+        if player is not None and player.poll() is None:
+            player.kill()
+        rclpy.try_shutdown()

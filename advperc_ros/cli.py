@@ -58,7 +58,8 @@ def cmd_attack(args: argparse.Namespace) -> int:
     with open_rollouts(scenario, params, bag_path) as rollouts:
         outcome = run_attack(scenario, params, progress=not args.quiet, rollouts=rollouts)
     report = write_results(output, outcome, bag_path)
-    summary = {k: report.get(k) for k in ("scenario", "objective", "collision", "nds", "nds_t", "fn", "tp", "rollouts")}
+    found = ("nds", "nds_t", "fn", "tp") if report["collision"] else ("closest_approach", "message")
+    summary = {k: report[k] for k in ("scenario", "objective", "collision", *found, "rollouts")}
     print(json.dumps(summary))
     print(f"results written to {output}", file=sys.stderr)
     return 0

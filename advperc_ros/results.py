@@ -18,6 +18,7 @@ import numpy as np
 from advperc_ros import __version__
 from advperc_ros.attack import AttackOutcome
 from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.ros import bag as bags
@@ -55,6 +56,54 @@ def _scores(evaluation: Evaluation) -> dict:
     return {k: _rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
 
 
+def closest_approach(rollout: RolloutResult) -> tuple[int, int]:
+    """(frame, agent slot) of the rollout's smallest signed distance: the collision, when there is one."""
+    frame = int(np.argmin(rollout.rule))
+    return frame, int(np.argmin(rollout.distances[frame]))
+
+
+def _ids(ids: list[int], shown: int = 10) -> str:
+    text = ", ".join(str(i) for i in ids[:shown])
+    return text + (f", ... ({len(ids)} in all)" if len(ids) > shown else "")
+
+
+def why_no_collision(log: list[LogRow]) -> dict:
+    """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
+    refines only a drop that collides) and the closest approach any rollout reached."""
+    drops = [row for row in log if row.phase == "heuristic_drop"]
+    conclusive = [row for row in log if not row.inconclusive and math.isfinite(row.min_signed_distance)]
+    closest = min(conclusive, key=lambda row: row.min_signed_distance, default=None)
+    inconclusive = [row for row in drops if row.inconclusive]
+    if not drops:
+        text = "no collision found: the scenario has no agents whose perception could be attacked"
+    else:
+        text = (f"no collision found: dropping any one of the {len(drops)} agents ({_ids([r.agent for r in drops])}) "
+                f"for the whole scenario never made the ego collide, so the heuristic had no failure to narrow "
+                f"and the random search none to improve")
+    if inconclusive:
+        text += (f"; the drops of agents {_ids([r.agent for r in inconclusive])} were inconclusive "
+                 f"({inconclusive[0].inconclusive})")
+    if closest is not None:
+        what = "with perfect perception" if closest.agent < 0 else f"with agent {closest.agent} dropped"
+        text += f"; closest approach {closest.min_signed_distance:.2f} m, {what} (rollout {closest.rollout})"
+    truth = next((row for row in log if row.phase == "ground_truth"), None)
+    return {
+        "message": text,
+        "agents_tried": [row.agent for row in drops],
+        "closest_approach": None if closest is None else {
+            "min_signed_distance": _rounded("min_signed_distance", closest.min_signed_distance),
+            "agent": closest.agent if closest.agent >= 0 else None,
+            "rollout": closest.rollout,
+        },
+        "closest_approach_by_agent": {
+            str(row.agent): _rounded("min_signed_distance", row.min_signed_distance) for row in drops
+            if not row.inconclusive and math.isfinite(row.min_signed_distance)
+        },
+        "ground_truth_min_signed_distance": None if truth is None else _rounded(
+            "min_signed_distance", truth.min_signed_distance),
+    }
+
+
 def versions() -> dict[str, str]:
     out = {"advperc_ros": __version__, "python": platform.python_version()}
     for name in LIBRARIES:
@@ -81,8 +130,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     }
     if best is not None:
         rollout = outcome.recorded
-        frame = int(np.argmin(rollout.rule))
-        slot = int(np.argmin(rollout.distances[frame]))
+        frame, slot = closest_approach(rollout)
         report.update(
             min_signed_distance=_rounded("min_signed_distance", rollout.min_signed_distance),
             collision_frame=frame,
@@ -90,7 +138,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             **_scores(best),
         )
     else:
-        report["message"] = "no agent whose drop breaks the rule: the heuristic found no failure to refine"
+        report.update(why_no_collision(outcome.log))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": _rounded("metric", outcome.heuristic_best.metric), **_scores(outcome.heuristic_best)}
     report.update(
@@ -109,32 +157,46 @@ def _fmt(value, digits: int = 2) -> str:
 
 
 def report_markdown(report: dict) -> str:
-    lines = [
-        f"# Attack on {report['scenario']} ({report['planner']} planner, objective {report['objective']})",
+    title = f"# Attack on {report['scenario']} ({report['planner']} planner, objective {report['objective']})"
+    lines = [title, ""] + (_table(report) if report["collision"] else _no_collision(report)) + [
         "",
+        f"- seed {report['seed']}, config hash {report['config_hash']}, {report['rollouts']} rollouts, "
+        f"wall time {report['wall_time_s']:.1f} s",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _table(report: dict) -> list[str]:
+    lines = [
         "| Search | Total FN/TP | MPE (m) | MAOE (rad) | NDS | NDS-t | PEM LL | Rollouts |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    rows = [("heuristic", report.get("heuristic"), "")]
-    if report["collision"]:
-        rows.append((report["objective"], report, str(report["rollouts"])))
-    for name, row, rollouts in rows:
-        if row is None:
-            continue
+    for name, row, rollouts in (("heuristic", report["heuristic"], ""), (report["objective"], report, report["rollouts"])):
         lines.append(
             f"| {name} | {row['fn']}/{row['tp']} | {_fmt(row['mpe'])} | {_fmt(row['maoe'])} | "
             f"{_fmt(row['nds'], 4)} | {_fmt(row['nds_t'], 4)} | {_fmt(row['pem_ll'])} | {rollouts} |"
         )
-    lines += [
+    return lines + [
         "",
-        f"- collision: {report['collision']}"
-        + (f" with agent {report['collision_agent']} at frame {report['collision_frame']}, "
-           f"min signed distance {report['min_signed_distance']:.3f} m" if report["collision"] else ""),
-        f"- seed {report['seed']}, config hash {report['config_hash']}, wall time {report['wall_time_s']:.1f} s",
-        f"- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
-        "",
+        f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
+        f"min signed distance {report['min_signed_distance']:.3f} m",
+        "- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
     ]
-    return "\n".join(lines)
+
+
+def _no_collision(report: dict) -> list[str]:
+    """Why there is no Table 1 row: the closest approach of each agent's drop, nearest first."""
+    lines = [f"{report['message'][0].upper()}{report['message'][1:]}.", ""]
+    if report["ground_truth_min_signed_distance"] is not None:
+        lines.append(f"- with perfect perception the ego comes within {report['ground_truth_min_signed_distance']:.2f} m")
+    by_agent = sorted(report["closest_approach_by_agent"].items(), key=lambda item: item[1])
+    if by_agent:
+        lines += ["", "| agent dropped (whole track) | closest approach (m) |", "|---|---|"]
+        lines += [f"| {agent} | {distance:.2f} |" for agent, distance in by_agent[:10]]
+        if len(by_agent) > 10:
+            lines.append(f"| ... {len(by_agent) - 10} more, all farther | |")
+    return lines
 
 
 def write_search_log(path: Path, log: list[LogRow]) -> None:

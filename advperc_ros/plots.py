@@ -1,5 +1,5 @@
-"""Plots of an attack: best metric against rollouts (the paper's figure 3) and a bird's-eye view of the
-last seconds. Headless (Agg)."""
+"""Plots of an attack: best metric against rollouts (the paper's figure 3), a bird's-eye view of the
+last seconds and an animation of the whole attack rollout. Headless (Agg)."""
 
 from pathlib import Path
 
@@ -13,6 +13,7 @@ from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.lines import Line2D  # noqa: E402
 from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
+from PIL import Image  # noqa: E402
 
 from advperc_ros.attack import AttackOutcome  # noqa: E402
 from advperc_ros.core.errors import inject  # noqa: E402
@@ -21,7 +22,7 @@ from advperc_ros.core.search.problem import LogRow  # noqa: E402
 from advperc_ros.results import closest_approach  # noqa: E402
 
 METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
-# one style per layer (the bag's colours where it has them)
+# one style per layer, shared by the bird's-eye view and the animation (the bag's colours where it has them)
 BOX_STYLES = {
     "truth": dict(facecolor="none", edgecolor="black", linewidth=1.2, label="ground truth"),
     "perceived": dict(facecolor="tab:green", edgecolor="none", alpha=0.45, label="perceived"),
@@ -34,7 +35,9 @@ NEAR = 10.0  # m: agents closer than this to the ego are kept inside the bird's-
 LOOK_AHEAD = 2.0  # s: the view reaches where the ego will be this much later, so it follows its heading
 MIN_HALF_WIDTH = 12.0  # m
 MARGIN = 3.0  # m around everything a panel must show
-
+GIF_PERIOD = 0.2  # s of scenario between animation frames (5 frames per second of scenario)
+GIF_MAX_FRAMES = 80  # a longer scenario plays faster rather than costing more
+GIF_WINDOW = ((-15.0, 45.0), (-15.0, 15.0))  # m, ego frame: x ahead, y left
 
 
 def metric_figure(log: list[LogRow], objective: str) -> Figure:
@@ -196,6 +199,81 @@ def _unlabelled(style: dict) -> dict:
 
 def birds_eye_view(path: Path, outcome: AttackOutcome, seconds_before: float = 3.0) -> None:
     _save(bev_figure(outcome, seconds_before), path, dpi=110)
+
+
+def _to_ego(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Map points (..., 2) into the ego frame of pose (x, y, yaw): x ahead, y to the left."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    d = points - pose[:2]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
+
+def animation_frames(outcome: AttackOutcome) -> np.ndarray:
+    """Frames of the recorded rollout the animation shows: every GIF_PERIOD, at most GIF_MAX_FRAMES,
+    always ending on the last (the collision)."""
+    last = outcome.recorded.num_frames - 1
+    step = max(1, int(round(GIF_PERIOD / outcome.scenario.dt)), int(np.ceil((last + 1) / GIF_MAX_FRAMES)))
+    return np.arange(last, -1, -step)[::-1]
+
+
+def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
+    """The whole attack rollout as a GIF in the ego's frame (it drives to the right), so the axes never
+    move and can be blitted: the static figure is drawn once, each frame redraws only the moving artists.
+    (matplotlib's PillowWriter redraws the whole figure per frame, several times the cost; the frames go
+    to Pillow the way it hands them over.)"""
+    scene, scenario = _Scene(outcome), outcome.scenario
+    fig, ax = plt.subplots(figsize=(5.6, 3.4), dpi=dpi)
+    lanes = ax.add_collection(LineCollection([], animated=True, **LANE_STYLE))
+    layers = {name: ax.add_collection(PolyCollection([], animated=True, **_unlabelled(style)))
+              for name, style in BOX_STYLES.items()}
+    (plan,) = ax.plot([], [], animated=True, **_unlabelled(PLAN_STYLE))
+    label = ax.text(0.01, 0.98, "", transform=ax.transAxes, va="top", fontsize=8, family="monospace", animated=True)
+    ax.set_xlim(*GIF_WINDOW[0])
+    ax.set_ylim(*GIF_WINDOW[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("m ahead of the ego", fontsize=8)
+    ax.set_ylabel("m to its left", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.2)
+    ax.set_title(f"{scenario.name}: attack on the {outcome.params['planner']} planner", fontsize=9)
+    _legend(fig, loc="lower center", fontsize=7, handlelength=1.2, columnspacing=1.0)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    canvas = fig.canvas
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+    _, slot = closest_approach(scene.rollout)
+    agent = int(scenario.agents.ids[:, slot][scenario.agents.valid[:, slot]][0])
+    last = scene.rollout.num_frames - 1
+    images = []
+    for k in animation_frames(outcome):
+        pose = scene.rollout.ego[k, :3]
+        lanes.set_segments([_to_ego(points, pose) for points in _lanes(outcome)])
+        for name, corners in scene.boxes(k).items():
+            layers[name].set_verts(_to_ego(corners, pose))
+        plan.set_data(*_to_ego(scene.plan(k), pose).T)
+        text = f"t = {scenario.times[k]:4.1f} s   nearest agent {scene.rollout.rule[k]:5.2f} m"
+        if k == last and scene.rollout.collided:
+            text += f"\ncollision with agent {agent}"
+        label.set_text(text)
+        canvas.restore_region(background)
+        for artist in (lanes, *layers.values(), plan, label):
+            ax.draw_artist(artist)
+        images.append(Image.frombuffer("RGBA", canvas.get_width_height(), canvas.buffer_rgba(), "raw", "RGBA", 0, 1)
+                      .convert("RGB"))
+    plt.close(fig)
+    _write_gif(path, images)
+
+
+def _write_gif(path: Path, images: list[Image.Image]) -> None:
+    """One palette for all frames, from the first, middle and last: Pillow's per-frame quantisation would
+    cost most of the animation's time and double its size, and the figure has few colours."""
+    width, height = images[0].size
+    sample = Image.new("RGB", (width, 3 * height))
+    for i, image in enumerate((images[0], images[len(images) // 2], images[-1])):
+        sample.paste(image, (0, i * height))
+    palette = sample.quantize(colors=48, method=Image.Quantize.MAXCOVERAGE, dither=Image.Dither.NONE)
+    frames = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=round(1000 * GIF_PERIOD), loop=0)
 
 
 def robustness(path: Path, points, objective: str) -> None:

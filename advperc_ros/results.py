@@ -31,6 +31,7 @@ SEARCH_LOG = "search_log.csv"
 BAG_DIR = "attack"  # rosbag2 directory: attack/attack.mcap + attack/metadata.yaml
 METRIC_PLOT = "metric_vs_rollouts.png"
 BEV_PLOT = "bev.png"
+ANIMATION = "attack.gif"
 ERRORS = "attack_errors.npz"  # the error tensor e of the best attack, with agent ids and stamps
 WALL_CLOCK_FIELDS = ("wall_time_s",)
 TRAJECTORY_FIELDS = ("min_signed_distance", "pem_ll", "metric")
@@ -273,6 +274,7 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
+            plots.attack_animation(staging / ANIMATION, outcome)
         staging.rename(output)
     finally:
         if staging.exists():

@@ -1,11 +1,13 @@
 """The pictures of an attack show what they claim: the ego and the car it hits inside every bird's-eye
-panel, whatever the road's heading; a search that found nothing plotted as such."""
+panel, whatever the road's heading; an animation of the whole rollout; a search that found nothing
+plotted as such."""
 
 import re
 
 import matplotlib.pyplot as plt
 import numpy as np
 import pytest
+from PIL import Image
 
 from advperc_ros import plots
 from advperc_ros.attack import run_attack
@@ -58,6 +60,20 @@ def test_every_bev_panel_holds_the_ego_and_the_collision_agent(outcome):
         assert _inside(hit, ax), ax.get_title()
     assert "collision" in panels[-1].get_title()
     plt.close(fig)
+
+
+def test_the_animation_shows_the_whole_rollout_up_to_the_collision(outcome, tmp_path):
+    frames = plots.animation_frames(outcome)
+    last = outcome.recorded.num_frames - 1
+    step = frames[1] - frames[0]
+    assert frames[-1] == last and frames[0] < step and np.all(np.diff(frames) == step)
+    assert len(frames) <= plots.GIF_MAX_FRAMES
+    plots.attack_animation(tmp_path / "attack.gif", outcome)
+    with Image.open(tmp_path / "attack.gif") as gif:
+        assert gif.format == "GIF" and gif.n_frames == len(frames)
+        gif.seek(gif.n_frames - 1)
+        colours = np.unique(np.asarray(gif.convert("RGB")).reshape(-1, 3), axis=0)
+        assert len(colours) > 5  # a drawn scene, not a blank frame
 
 
 def _drawn_labels(ax) -> set[str]:

@@ -32,6 +32,7 @@ BAG_DIR = "attack"  # rosbag2 directory: attack/attack.mcap + attack/metadata.ya
 METRIC_PLOT = "metric_vs_rollouts.png"
 BEV_PLOT = "bev.png"
 ANIMATION = "attack.gif"
+FOXGLOVE_LAYOUT = "foxglove_layout.json"  # beside attack/: Foxglove's Layouts > Import from file
 ERRORS = "attack_errors.npz"  # the error tensor e of the best attack, with agent ids and stamps
 WALL_CLOCK_FIELDS = ("wall_time_s",)
 TRAJECTORY_FIELDS = ("min_signed_distance", "pem_ll", "metric")
@@ -235,6 +236,63 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
         bag.write(bags.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
 
 
+def _hex(rgba: tuple[float, ...]) -> str:
+    return "#" + "".join(f"{round(255 * c):02x}" for c in rgba)
+
+
+EGO_COLOR = (0.9, 0.15, 0.15, 1.0)
+PLAN_COLOR = (1.0, 0.55, 0.0, 1.0)
+
+
+def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
+    """A Foxglove layout for an attack bag: a top-down 3D panel over `target` (map frame) with each
+    layer on its own topic in its own colour (the bag's marker colours), the collision rule over time
+    and the JSON summary. config/foxglove_layout.json is this layout over the origin."""
+    markers = {bags.GROUND_TRUTH: "ground_truth", bags.PERCEPTION: "perception", bags.TRACKING: "tracking",
+               bags.LANES: "lanes"}
+    topics = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
+              for topic, kind in markers.items()}
+    topics[bags.ODOMETRY] = {"visible": True, "type": "arrow", "arrowScale": [4.0, 0.8, 0.8], "color": _hex(EGO_COLOR),
+                             "showCovariance": False}
+    topics[bags.PLAN] = {"visible": True, "type": "line", "lineWidth": 0.4,
+                         "gradient": [_hex(PLAN_COLOR), _hex(PLAN_COLOR[:3] + (0.3,))]}
+    topics[bags.ROUTE] = {"visible": True, "type": "line", "lineWidth": 0.15, "gradient": ["#80808080", "#80808080"]}
+    three_d, plot, summary = "3D!attack", "Plot!collision_rule", "RawMessages!summary"
+    return {
+        "configById": {
+            three_d: {
+                "cameraState": {"perspective": False, "distance": 80.0, "phi": 0.0, "thetaOffset": 0.0,
+                                "target": [0.0, 0.0, 0.0], "targetOffset": [float(target[0]), float(target[1]), 0.0],
+                                "targetOrientation": [0.0, 0.0, 0.0, 1.0], "fovy": 45.0, "near": 0.5, "far": 5000.0},
+                "followMode": "follow-none",
+                "followTf": "map",
+                "scene": {"backgroundColor": "#202020"},
+                "transforms": {},
+                "topics": topics,
+                "layers": {},
+                "foxglovePanelTitle": "attack: truth white, perceived green, tracks blue, ego red, plan orange",
+            },
+            plot: {
+                "foxglovePanelTitle": f"{bags.RULE}: min signed distance (m), < 0 is a collision",
+                "paths": [{"value": f"{bags.RULE}.data", "enabled": True, "timestampMethod": "receiveTime",
+                           "label": "signed distance (m)", "color": _hex(EGO_COLOR)}],
+                "showLegend": True,
+                "isSynced": True,
+            },
+            summary: {"topicPath": f"{bags.SUMMARY}.data", "foxglovePanelTitle": "attack summary (report.json)"},
+        },
+        "globalVariables": {},
+        "userNodes": {},
+        "playbackConfig": {"speed": 1.0},
+        "layout": {"direction": "row", "first": three_d, "splitPercentage": 65,
+                   "second": {"direction": "column", "first": plot, "second": summary, "splitPercentage": 50}},
+    }
+
+
+def write_foxglove_layout(path: Path, layout: dict) -> None:
+    path.write_text(json.dumps(layout, indent=2) + "\n")
+
+
 def write_errors(path: Path, outcome: AttackOutcome) -> None:
     errors = outcome.best.errors
     agents = outcome.scenario.agents
@@ -273,6 +331,8 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
         if outcome.best is not None:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
+            frame, _ = closest_approach(outcome.recorded)
+            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.recorded.ego[frame, :2])))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
             plots.attack_animation(staging / ANIMATION, outcome)
         staging.rename(output)

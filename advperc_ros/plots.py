@@ -227,7 +227,8 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
     layers = {name: ax.add_collection(PolyCollection([], animated=True, **_unlabelled(style)))
               for name, style in BOX_STYLES.items()}
     (plan,) = ax.plot([], [], animated=True, **_unlabelled(PLAN_STYLE))
-    label = ax.text(0.01, 0.98, "", transform=ax.transAxes, va="top", fontsize=8, family="monospace", animated=True)
+    label = ax.text(0.01, 0.98, "", transform=ax.transAxes, va="top", fontsize=8, family="monospace", animated=True,
+                    bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=1.5))
     ax.set_xlim(*GIF_WINDOW[0])
     ax.set_ylim(*GIF_WINDOW[1])
     ax.set_aspect("equal")

@@ -78,7 +78,7 @@ def _best_metric(ax, log: list[LogRow], index: np.ndarray, collided: np.ndarray,
 
 def _closest_approaches(ax, log: list[LogRow], index: np.ndarray) -> None:
     """Each rollout's closest approach (perfect perception, then one agent's whole track dropped per
-    rollout): how far the search stayed from a collision. The nearest, or all when few, name their agent."""
+    rollout): how far the search stayed from a collision. All rollouts, when few, or the nearest name their drop."""
     distance = np.array([row.min_signed_distance for row in log])
     conclusive = np.isfinite(distance) & np.array([not row.inconclusive for row in log], dtype=bool)
     ax.scatter(index[conclusive], distance[conclusive], s=14, color="0.4", label="rollout (no collision)", zorder=3)
@@ -87,13 +87,14 @@ def _closest_approaches(ax, log: list[LogRow], index: np.ndarray) -> None:
                    label="inconclusive", zorder=3)
     ax.axhline(0.0, color="tab:red", linestyle="--", linewidth=1, label="collision (signed distance < 0)")
     rows = np.flatnonzero(conclusive)
-    named = rows if rows.size <= 12 else rows[np.argsort(distance[rows])[:3]]
-    for i in named:
+    few = rows.size <= 12
+    for i in rows if few else rows[np.argsort(distance[rows], kind="stable")[:1]]:
         row = log[i]
         what = "no drop" if row.agent < 0 else f"agent {row.agent} dropped"
         ax.annotate(f"{what}: {row.min_signed_distance:.2f} m", (row.rollout, row.min_signed_distance),
-                    textcoords="offset points", xytext=(0, -12), ha="center", fontsize=7)
-    ax.margins(x=0.15)
+                    textcoords="offset points", xytext=(0, -12), ha="center" if few else "left", fontsize=7)
+    if few:
+        ax.margins(x=0.15)  # room for the labels of the first and last rollouts
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("rollouts")
     ax.set_ylabel("closest approach of the ego (m)")

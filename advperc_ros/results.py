@@ -71,38 +71,40 @@ def _ids(ids: list[int], shown: int = 10) -> str:
 
 def why_no_collision(log: list[LogRow]) -> dict:
     """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
-    refines only a drop that collides) and the closest approach any rollout reached."""
+    refines only a drop that collides) and how close the ego came, hidden agent or not."""
+    truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
     drops = [row for row in log if row.phase == "heuristic_drop"]
-    conclusive = [row for row in log if not row.inconclusive and math.isfinite(row.min_signed_distance)]
-    closest = min(conclusive, key=lambda row: row.min_signed_distance, default=None)
+    conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]
     inconclusive = [row for row in drops if row.inconclusive]
     if not drops:
-        text = "no collision found: the scenario has no agents whose perception could be attacked"
+        text = "no collision found: no agent to attack, the scenario has none"
     else:
-        text = (f"no collision found: dropping any one of the {len(drops)} agents ({_ids([r.agent for r in drops])}) "
-                f"for the whole scenario never made the ego collide, so the heuristic had no failure to narrow "
-                f"and the random search none to improve")
+        text = (f"no collision found: no agent is influential (dropping any one of the {len(drops)} agents "
+                f"({_ids([r.agent for r in drops])}) for the whole scenario never made the ego collide), so the "
+                f"heuristic had no failure to narrow and the random search none to improve")
     if inconclusive:
         text += (f"; the drops of agents {_ids([r.agent for r in inconclusive])} were inconclusive "
                  f"({inconclusive[0].inconclusive})")
-    if closest is not None:
-        what = "with perfect perception" if closest.agent < 0 else f"with agent {closest.agent} dropped"
-        text += f"; closest approach {closest.min_signed_distance:.2f} m, {what} (rollout {closest.rollout})"
-    truth = next((row for row in log if row.phase == "ground_truth"), None)
+    nearest = min(conclusive, key=lambda row: row.min_signed_distance, default=truth)
+    if nearest.min_signed_distance < truth.min_signed_distance:
+        text += (f"; closest approach {nearest.min_signed_distance:.2f} m, with agent {nearest.agent} dropped "
+                 f"(rollout {nearest.rollout}; perfect perception {truth.min_signed_distance:.2f} m)")
+    else:
+        nearest = truth
+        text += (f"; {'no single drop brought the ego closer than perfect perception does: ' if conclusive else ''}"
+                 f"closest approach {truth.min_signed_distance:.2f} m")
     return {
         "message": text,
         "agents_tried": [row.agent for row in drops],
-        "closest_approach": None if closest is None else {
-            "min_signed_distance": _rounded("min_signed_distance", closest.min_signed_distance),
-            "agent": closest.agent if closest.agent >= 0 else None,
-            "rollout": closest.rollout,
+        "closest_approach": {
+            "min_signed_distance": _rounded("min_signed_distance", nearest.min_signed_distance),
+            "agent": nearest.agent if nearest.agent >= 0 else None,
+            "rollout": nearest.rollout,
         },
         "closest_approach_by_agent": {
-            str(row.agent): _rounded("min_signed_distance", row.min_signed_distance) for row in drops
-            if not row.inconclusive and math.isfinite(row.min_signed_distance)
+            str(row.agent): _rounded("min_signed_distance", row.min_signed_distance) for row in conclusive
         },
-        "ground_truth_min_signed_distance": None if truth is None else _rounded(
-            "min_signed_distance", truth.min_signed_distance),
+        "ground_truth_min_signed_distance": _rounded("min_signed_distance", truth.min_signed_distance),
     }
 
 
@@ -188,16 +190,16 @@ def _table(report: dict) -> list[str]:
 
 
 def _no_collision(report: dict) -> list[str]:
-    """Why there is no Table 1 row: the closest approach of each agent's drop, nearest first."""
-    lines = [f"{report['message'][0].upper()}{report['message'][1:]}.", ""]
-    if report["ground_truth_min_signed_distance"] is not None:
-        lines.append(f"- with perfect perception the ego comes within {report['ground_truth_min_signed_distance']:.2f} m")
-    by_agent = sorted(report["closest_approach_by_agent"].items(), key=lambda item: item[1])
+    """Why there is no Table 1 row; the drops that brought the ego closer than perfect perception, nearest first."""
+    lines = [f"{report['message'][0].upper()}{report['message'][1:]}."]
+    closer = [(agent, distance) for agent, distance in report["closest_approach_by_agent"].items()
+              if distance < report["ground_truth_min_signed_distance"]]
+    by_agent = sorted(closer, key=lambda item: item[1])
     if by_agent:
         lines += ["", "| agent dropped (whole track) | closest approach (m) |", "|---|---|"]
         lines += [f"| {agent} | {distance:.2f} |" for agent, distance in by_agent[:10]]
         if len(by_agent) > 10:
-            lines.append(f"| ... {len(by_agent) - 10} more, all farther | |")
+            lines.append(f"| ... {len(by_agent) - 10} more, farther | |")
     return lines
 
 

@@ -12,7 +12,7 @@ from advperc_ros.results import FOXGLOVE_LAYOUT, foxglove_layout
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros.bag import write_ground_truth_bag
 from test_cli import write_params
-from toy_scenarios import RUNAWAY_LEAD_SPEC
+from toy_scenarios import CLOSING_LEAD_SPEC, RUNAWAY_LEAD_SPEC
 
 
 @pytest.fixture(scope="module")
@@ -69,21 +69,30 @@ def test_the_results_folder_holds_the_animation_and_the_layout(attack):
     assert (attack / FOXGLOVE_LAYOUT).is_file() and (attack / "bev.png").is_file()
 
 
-def test_a_search_that_finds_nothing_says_why(repo, tmp_path, capsys):
-    write_ground_truth_bag(tmp_path / "runaway", build_scenario(RUNAWAY_LEAD_SPEC))
-    params = write_params(tmp_path / "params.yaml", repo, bag=str(tmp_path / "runaway"))
+@pytest.mark.parametrize("spec, closest, why, table", [
+    (RUNAWAY_LEAD_SPEC, 15.40, "no single drop brought the ego closer than perfect perception does: closest approach "
+     "15.40 m", None),
+    (CLOSING_LEAD_SPEC, 7.43, "closest approach 7.43 m, with agent 1 dropped (rollout 2; perfect perception 15.40 m)",
+     "| 1 | 7.43 |"),
+])
+def test_a_search_that_finds_nothing_says_why(repo, tmp_path, capsys, spec, closest, why, table):
+    write_ground_truth_bag(tmp_path / "bag", build_scenario(spec))
+    params = write_params(tmp_path / "params.yaml", repo, bag=str(tmp_path / "bag"))
     capsys.readouterr()
     assert main(["attack", str(params), "--output", str(tmp_path / "out"), "--quiet"]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["collision"] is False and "nds" not in summary
-    for words in ("no collision found", "2 agents (1, 7)", "never made the ego collide", "closest approach 15.40 m"):
+    for words in ("no collision found", "no agent is influential", "2 agents (1, 7)", "never made the ego collide", why):
         assert words in summary["message"], words
-    assert summary["closest_approach"]["min_signed_distance"] == pytest.approx(15.4)
 
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["agents_tried"] == [1, 7] and set(report["closest_approach_by_agent"]) == {"1", "7"}
+    assert report["closest_approach"]["min_signed_distance"] == pytest.approx(closest, abs=0.005)
     markdown = (tmp_path / "out" / "report.md").read_text()
-    assert summary["message"][1:] in markdown and "| 7 | 15.40 |" in markdown
-    assert "| heuristic |" not in markdown and "N/A" not in markdown
+    assert summary["message"][1:] in markdown and "N/A" not in markdown
+    if table is None:
+        assert "|" not in markdown  # no empty table
+    else:
+        assert table in markdown and "| 7 |" not in markdown  # only the drops that came closer
     written = {path.name for path in (tmp_path / "out").iterdir()}
     assert written == {"report.json", "report.md", "search_log.csv", "metric_vs_rollouts.png"}

@@ -17,13 +17,17 @@ FOLLOW_SPEC = {
     ],
 }
 
-# The lead drives away faster than the ego may (IDM target 14 m/s): hiding any one car never makes the
-# ego collide, so an attack finds nothing.
-RUNAWAY_LEAD_SPEC = {
-    **FOLLOW_SPEC,
-    "name": "runaway_lead",
-    "agents": [{**FOLLOW_SPEC["agents"][0], "speed": 16.0}, FOLLOW_SPEC["agents"][1]],
-}
+
+def with_lead_speed(name: str, speed: float) -> dict:
+    """FOLLOW_SPEC with its lead at another constant speed."""
+    return {**FOLLOW_SPEC, "name": name, "agents": [{**FOLLOW_SPEC["agents"][0], "speed": speed}, FOLLOW_SPEC["agents"][1]]}
+
+
+# Attacks that find nothing (IDM target 14 m/s): the lead drives away faster than the ego may, so hiding
+# it changes nothing; or the lead is slower, and the ego, blind to it, closes from 15.4 m to 7.4 m in the
+# 10 s but never reaches it.
+RUNAWAY_LEAD_SPEC = with_lead_speed("runaway_lead", 16.0)
+CLOSING_LEAD_SPEC = with_lead_speed("closing_lead", 10.5)
 
 
 def rotated(spec: dict, degrees: float) -> dict:

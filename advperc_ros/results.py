@@ -34,6 +34,8 @@ BEV_PLOT = "bev.png"
 ANIMATION = "attack.gif"
 FOXGLOVE_LAYOUT = "foxglove_layout.json"  # beside attack/: Foxglove's Layouts > Import from file
 ERRORS = "attack_errors.npz"  # the error tensor e of the best attack, with agent ids and stamps
+EGO_COLOR = (0.9, 0.15, 0.15, 1.0)  # RGBA in the Foxglove layout; objects keep the bag's colours (cdr.COLORS)
+PLAN_COLOR = (1.0, 0.55, 0.0, 1.0)
 WALL_CLOCK_FIELDS = ("wall_time_s",)
 TRAJECTORY_FIELDS = ("min_signed_distance", "pem_ll", "metric")
 """Report floats that depend continuously on the ego trajectory. The graph backend's trajectory
@@ -240,10 +242,6 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
 
 def _hex(rgba: tuple[float, ...]) -> str:
     return "#" + "".join(f"{round(255 * c):02x}" for c in rgba)
-
-
-EGO_COLOR = (0.9, 0.15, 0.15, 1.0)
-PLAN_COLOR = (1.0, 0.55, 0.0, 1.0)
 
 
 def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:

@@ -37,6 +37,7 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
 
 
 def summary(report: dict) -> dict:
-    """What both ways print of a report when they finish."""
-    keys = ("scenario", "planner", "objective", "collision", "nds", "nds_t", "fn", "tp", "rollouts")
-    return {key: report.get(key) for key in keys}
+    """What both ways print of a report when they finish: the scores of an attack found, or how
+    close the search came and why nothing was found."""
+    found = ("nds", "nds_t", "fn", "tp") if report["collision"] else ("closest_approach", "message")
+    return {key: report[key] for key in ("scenario", "planner", "objective", "collision", *found, "rollouts")}

@@ -18,6 +18,7 @@ import numpy as np
 from advperc_ros import __version__
 from advperc_ros.attack import AttackOutcome
 from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.ros import bag as bags
@@ -30,7 +31,11 @@ SEARCH_LOG = "search_log.csv"
 BAG_DIR = "attack"  # rosbag2 directory: attack/attack.mcap + attack/metadata.yaml
 METRIC_PLOT = "metric_vs_rollouts.png"
 BEV_PLOT = "bev.png"
+ANIMATION = "attack.gif"
+FOXGLOVE_LAYOUT = "foxglove_layout.json"  # beside attack/: Foxglove's Layouts > Import from file
 ERRORS = "attack_errors.npz"  # the error tensor e of the best attack, with agent ids and stamps
+EGO_COLOR = (0.9, 0.15, 0.15, 1.0)  # RGBA in the Foxglove layout; objects keep the bag's colours (cdr.COLORS)
+PLAN_COLOR = (1.0, 0.55, 0.0, 1.0)
 WALL_CLOCK_FIELDS = ("wall_time_s",)
 TRAJECTORY_FIELDS = ("min_signed_distance", "pem_ll", "metric")
 """Report floats that depend continuously on the ego trajectory. The graph backend's trajectory
@@ -53,6 +58,56 @@ def _rounded(name: str, value):
 
 def _scores(evaluation: Evaluation) -> dict:
     return {k: _rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
+
+
+def closest_approach(rollout: RolloutResult) -> tuple[int, int]:
+    """(frame, agent slot) of the rollout's smallest signed distance: the collision, when there is one."""
+    frame = int(np.argmin(rollout.rule))
+    return frame, int(np.argmin(rollout.distances[frame]))
+
+
+def _ids(ids: list[int], shown: int = 10) -> str:
+    text = ", ".join(str(i) for i in ids[:shown])
+    return text + (f", ... ({len(ids)} in all)" if len(ids) > shown else "")
+
+
+def why_no_collision(log: list[LogRow]) -> dict:
+    """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
+    refines only a drop that collides) and how close the ego came, hidden agent or not."""
+    truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
+    drops = [row for row in log if row.phase == "heuristic_drop"]
+    conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]
+    inconclusive = [row for row in drops if row.inconclusive]
+    if not drops:
+        text = "no collision found: no agent to attack, the scenario has none"
+    else:
+        text = (f"no collision found: no agent is influential (dropping any one of the {len(drops)} agents "
+                f"({_ids([r.agent for r in drops])}) for the whole scenario never made the ego collide), so the "
+                f"heuristic had no failure to narrow and the random search none to improve")
+    if inconclusive:
+        text += (f"; the drops of agents {_ids([r.agent for r in inconclusive])} were inconclusive "
+                 f"({inconclusive[0].inconclusive})")
+    nearest = min(conclusive, key=lambda row: row.min_signed_distance, default=truth)
+    if nearest.min_signed_distance < truth.min_signed_distance:
+        text += (f"; closest approach {nearest.min_signed_distance:.2f} m, with agent {nearest.agent} dropped "
+                 f"(rollout {nearest.rollout}; perfect perception {truth.min_signed_distance:.2f} m)")
+    else:
+        nearest = truth
+        text += (f"; {'no single drop brought the ego closer than perfect perception does: ' if conclusive else ''}"
+                 f"closest approach {truth.min_signed_distance:.2f} m")
+    return {
+        "message": text,
+        "agents_tried": [row.agent for row in drops],
+        "closest_approach": {
+            "min_signed_distance": _rounded("min_signed_distance", nearest.min_signed_distance),
+            "agent": nearest.agent if nearest.agent >= 0 else None,
+            "rollout": nearest.rollout,
+        },
+        "closest_approach_by_agent": {
+            str(row.agent): _rounded("min_signed_distance", row.min_signed_distance) for row in conclusive
+        },
+        "ground_truth_min_signed_distance": _rounded("min_signed_distance", truth.min_signed_distance),
+    }
 
 
 def versions() -> dict[str, str]:
@@ -84,8 +139,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         report["planner_node"] = outcome.planner_node
     if best is not None:
         rollout = outcome.recorded
-        frame = int(np.argmin(rollout.rule))
-        slot = int(np.argmin(rollout.distances[frame]))
+        frame, slot = closest_approach(rollout)
         report.update(
             min_signed_distance=_rounded("min_signed_distance", rollout.min_signed_distance),
             collision_frame=frame,
@@ -93,7 +147,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             **_scores(best),
         )
     else:
-        report["message"] = "no agent whose drop breaks the rule: the heuristic found no failure to refine"
+        report.update(why_no_collision(outcome.log))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": _rounded("metric", outcome.heuristic_best.metric), **_scores(outcome.heuristic_best)}
     report.update(
@@ -117,32 +171,46 @@ def _planner_label(report: dict) -> str:
 
 
 def report_markdown(report: dict) -> str:
-    lines = [
-        f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']})",
+    title = f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']})"
+    lines = [title, ""] + (_table(report) if report["collision"] else _no_collision(report)) + [
         "",
+        f"- seed {report['seed']}, config hash {report['config_hash']}, {report['rollouts']} rollouts, "
+        f"wall time {report['wall_time_s']:.1f} s",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _table(report: dict) -> list[str]:
+    lines = [
         "| Search | Total FN/TP | MPE (m) | MAOE (rad) | NDS | NDS-t | PEM LL | Rollouts |",
         "|---|---|---|---|---|---|---|---|",
     ]
-    rows = [("heuristic", report.get("heuristic"), "")]
-    if report["collision"]:
-        rows.append((report["objective"], report, str(report["rollouts"])))
-    for name, row, rollouts in rows:
-        if row is None:
-            continue
+    for name, row, rollouts in (("heuristic", report["heuristic"], ""), (report["objective"], report, report["rollouts"])):
         lines.append(
             f"| {name} | {row['fn']}/{row['tp']} | {_fmt(row['mpe'])} | {_fmt(row['maoe'])} | "
             f"{_fmt(row['nds'], 4)} | {_fmt(row['nds_t'], 4)} | {_fmt(row['pem_ll'])} | {rollouts} |"
         )
-    lines += [
+    return lines + [
         "",
-        f"- collision: {report['collision']}"
-        + (f" with agent {report['collision_agent']} at frame {report['collision_frame']}, "
-           f"min signed distance {report['min_signed_distance']:.3f} m" if report["collision"] else ""),
-        f"- seed {report['seed']}, config hash {report['config_hash']}, wall time {report['wall_time_s']:.1f} s",
-        f"- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
-        "",
+        f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
+        f"min signed distance {report['min_signed_distance']:.3f} m",
+        "- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
     ]
-    return "\n".join(lines)
+
+
+def _no_collision(report: dict) -> list[str]:
+    """Why there is no Table 1 row; the drops that brought the ego closer than perfect perception, nearest first."""
+    lines = [f"{report['message'][0].upper()}{report['message'][1:]}."]
+    closer = [(agent, distance) for agent, distance in report["closest_approach_by_agent"].items()
+              if distance < report["ground_truth_min_signed_distance"]]
+    by_agent = sorted(closer, key=lambda item: item[1])
+    if by_agent:
+        lines += ["", "| agent dropped (whole track) | closest approach (m) |", "|---|---|"]
+        lines += [f"| {agent} | {distance:.2f} |" for agent, distance in by_agent[:10]]
+        if len(by_agent) > 10:
+            lines.append(f"| ... {len(by_agent) - 10} more, farther | |")
+    return lines
 
 
 def write_search_log(path: Path, log: list[LogRow]) -> None:
@@ -178,6 +246,59 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
             if k < len(rollout.plans):
                 bag.write(bags.PLAN, ns, msgs.trajectory_cdr(rollout.plans[k], ns))
         bag.write(bags.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
+
+
+def _hex(rgba: tuple[float, ...]) -> str:
+    return "#" + "".join(f"{round(255 * c):02x}" for c in rgba)
+
+
+def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
+    """A Foxglove layout for an attack bag: a top-down 3D panel over `target` (map frame) with each
+    layer on its own topic in its own colour (the bag's marker colours), the collision rule over time
+    and the JSON summary. config/foxglove_layout.json is this layout over the origin."""
+    markers = {bags.GROUND_TRUTH: "ground_truth", bags.PERCEPTION: "perception", bags.TRACKING: "tracking",
+               bags.LANES: "lanes"}
+    topics = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
+              for topic, kind in markers.items()}
+    topics[bags.ODOMETRY] = {"visible": True, "type": "arrow", "arrowScale": [4.0, 0.8, 0.8], "color": _hex(EGO_COLOR),
+                             "showCovariance": False}
+    topics[bags.PLAN] = {"visible": True, "type": "line", "lineWidth": 0.4,
+                         "gradient": [_hex(PLAN_COLOR), _hex(PLAN_COLOR[:3] + (0.3,))]}
+    topics[bags.ROUTE] = {"visible": True, "type": "line", "lineWidth": 0.15, "gradient": ["#80808080", "#80808080"]}
+    three_d, plot, summary = "3D!attack", "Plot!collision_rule", "RawMessages!summary"
+    return {
+        "configById": {
+            three_d: {
+                "cameraState": {"perspective": False, "distance": 80.0, "phi": 0.0, "thetaOffset": 0.0,
+                                "target": [0.0, 0.0, 0.0], "targetOffset": [float(target[0]), float(target[1]), 0.0],
+                                "targetOrientation": [0.0, 0.0, 0.0, 1.0], "fovy": 45.0, "near": 0.5, "far": 5000.0},
+                "followMode": "follow-none",
+                "followTf": "map",
+                "scene": {"backgroundColor": "#202020"},
+                "transforms": {},
+                "topics": topics,
+                "layers": {},
+                "foxglovePanelTitle": "attack: truth white, perceived green, tracks blue, ego red, plan orange",
+            },
+            plot: {
+                "foxglovePanelTitle": f"{bags.RULE}: min signed distance (m), < 0 is a collision",
+                "paths": [{"value": f"{bags.RULE}.data", "enabled": True, "timestampMethod": "receiveTime",
+                           "label": "signed distance (m)", "color": _hex(EGO_COLOR)}],
+                "showLegend": True,
+                "isSynced": True,
+            },
+            summary: {"topicPath": f"{bags.SUMMARY}.data", "foxglovePanelTitle": "attack summary (report.json)"},
+        },
+        "globalVariables": {},
+        "userNodes": {},
+        "playbackConfig": {"speed": 1.0},
+        "layout": {"direction": "row", "first": three_d, "splitPercentage": 65,
+                   "second": {"direction": "column", "first": plot, "second": summary, "splitPercentage": 50}},
+    }
+
+
+def write_foxglove_layout(path: Path, layout: dict) -> None:
+    path.write_text(json.dumps(layout, indent=2) + "\n")
 
 
 def write_errors(path: Path, outcome: AttackOutcome) -> None:
@@ -218,7 +339,10 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
         if outcome.best is not None:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
+            frame, _ = closest_approach(outcome.recorded)
+            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.recorded.ego[frame, :2])))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
+            plots.attack_animation(staging / ANIMATION, outcome)
         staging.rename(output)
     finally:
         if staging.exists():

@@ -1,4 +1,6 @@
-"""A small scenario the unit tests share: the ego follows a lead; an oncoming car passes harmlessly."""
+"""Small scenarios the unit tests share: the ego follows a lead; an oncoming car passes harmlessly."""
+
+import math
 
 FOLLOW_SPEC = {
     "name": "follow",
@@ -14,3 +16,23 @@ FOLLOW_SPEC = {
         {"id": 7, "lane": "west", "start_s": 250.0, "speed": 10.0, "size": [4.4, 1.8, 1.5]},  # oncoming
     ],
 }
+
+
+def with_lead_speed(name: str, speed: float) -> dict:
+    """FOLLOW_SPEC with its lead at another constant speed."""
+    return {**FOLLOW_SPEC, "name": name, "agents": [{**FOLLOW_SPEC["agents"][0], "speed": speed}, FOLLOW_SPEC["agents"][1]]}
+
+
+# Attacks that find nothing (IDM target 14 m/s): the lead drives away faster than the ego may, so hiding
+# it changes nothing; or the lead is slower, and the ego, blind to it, closes from 15.4 m to 7.4 m in the
+# 10 s but never reaches it.
+RUNAWAY_LEAD_SPEC = with_lead_speed("runaway_lead", 16.0)
+CLOSING_LEAD_SPEC = with_lead_speed("closing_lead", 10.5)
+
+
+def rotated(spec: dict, degrees: float) -> dict:
+    """The same scenario turned about the origin, so its roads run diagonally across the map."""
+    c, s = math.cos(math.radians(degrees)), math.sin(math.radians(degrees))
+    lanes = [{**lane, "centerline": [[c * x - s * y, s * x + c * y] for x, y in lane["centerline"]]}
+             for lane in spec["lanes"]]
+    return {**spec, "name": f"{spec['name']}_rotated", "lanes": lanes}

@@ -14,7 +14,7 @@ from advperc_ros.ros.bag import read_scenario
 def default_output(params: AttackParams, scenario_name: str) -> Path:
     """results/<params file name, else scenario>-seed<N>, numbered on when taken."""
     stem = params.source.stem if params.source is not None else scenario_name
-    base = Path("results") / f"{stem}-seed{params['seed']}"
+    base = Path("results") / f"{stem}-seed{params.seed}"
     candidate, n = base, 1
     while candidate.exists():
         n += 1

@@ -15,15 +15,15 @@ import numpy as np
 from tqdm import tqdm
 
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.planners.base import PlanningContext, load_planner
-from advperc_ros.core.rollout import RolloutConfig, RolloutResult, rollout
+from advperc_ros.core.planners.base import load_planner
+from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.heuristic import heuristic_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow
 from advperc_ros.core.search.random_search import RandomSearchConfig, random_search
 from advperc_ros.core.search.refine import refine_drops
-from advperc_ros.core.tracker import Tracker, TrackerConfig
-from advperc_ros.params import AttackParams, ParamsError
+from advperc_ros.core.tracker import Tracker
+from advperc_ros.params import AttackParams, planning_context, rollout_config, tracker_config
 
 
 EXTERNAL = "external"  # the `planner` of a report whose planner was a node of someone else's
@@ -54,17 +54,12 @@ class Stack:
     """The system under attack, built from the params: tracker + planner + rollout settings."""
 
     def __init__(self, scenario: Scenario, params: AttackParams) -> None:
+        values = params.flat()
         self.scenario = scenario
-        self.config = RolloutConfig(
-            ego_length=params["ego.length"], ego_width=params["ego.width"], stop_at_collision=params["stop_at_collision"]
-        )
-        context = PlanningContext(
-            route=scenario.route, lanes=scenario.lanes, dt=scenario.dt,
-            ego_length=self.config.ego_length, ego_width=self.config.ego_width,
-        )
-        self.tracker = Tracker(TrackerConfig(gate=params["tracker.gate"], max_age=params["tracker.max_age"]))
-        self.planner = load_planner(params["planner"], context, params.planner_params)
-        self.attacked_planner = AttackedPlanner(params["planner"])
+        self.config = rollout_config(values)
+        self.tracker = Tracker(tracker_config(values))
+        self.planner = load_planner(params.planner, planning_context(values, scenario), params.planner_params)
+        self.attacked_planner = AttackedPlanner(params.planner)
 
     def rollout(self, errors, record: bool = False) -> RolloutResult:
         return rollout(self.scenario, errors, self.tracker, self.planner, self.config, record=record)
@@ -82,7 +77,7 @@ class Rollouts(Protocol):
 def open_rollouts(scenario: Scenario, params: AttackParams, bag_path: Path, transport: Any = None) -> Iterator[Rollouts]:
     """The backend `rollout_backend` names, ready to use and shut down on exit. `transport`
     (graph backend, nodes not spawned) lets an rclpy orchestrator reach nodes over its own node."""
-    if params["rollout_backend"] != "graph":
+    if params.rollout_backend != "graph":
         yield Stack(scenario, params)
         return
     from advperc_ros.graph import GraphRollouts
@@ -97,8 +92,9 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     started = time.perf_counter()
     backend = rollouts if rollouts is not None else Stack(scenario, params)
     num_agents = scenario.agents.shape[1]
-    iterations = params["search.heuristic.iterations"]
-    budget = 1 + num_agents * (1 + 2 * iterations) + params["search.random.steps"] + 2 * params["search.refine.iterations"]
+    search = params.search
+    iterations = search.heuristic.iterations
+    budget = 1 + num_agents * (1 + 2 * iterations) + search.random.steps + 2 * search.refine.iterations
     bar = tqdm(
         total=budget, desc=scenario.name, unit="rollout", disable=not progress, file=sys.stderr, mininterval=1.0
     )
@@ -109,27 +105,23 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         bar.set_postfix(best=f"{row.best_metric:.4f}", refresh=False)
         bar.update()
 
-    problem = AttackProblem(scenario, backend.rollout, params["objective"], on_rollout=on_rollout)
+    problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=on_rollout)
     try:
         modes = heuristic_search(problem, iterations)
         heuristic_best = max(modes, key=lambda m: m.metric) if modes else None
         if heuristic_best is not None:
-            cfg = RandomSearchConfig(
-                steps=params["search.random.steps"],
-                proposals=params["search.random.proposals"],
-                max_offset=params["search.random.max_offset"],
-                yaw_std=params["search.random.yaw_std"],
-            )
-            random_search(problem, heuristic_best, np.random.default_rng(params["seed"]), cfg)
-            if params["search.refine.iterations"] > 0:
-                refine_drops(problem, problem.best, params["search.refine.iterations"])
+            cfg = RandomSearchConfig(steps=search.random.steps, proposals=search.random.proposals,
+                                     max_offset=search.random.max_offset, yaw_std=search.random.yaw_std)
+            random_search(problem, heuristic_best, np.random.default_rng(params.seed), cfg)
+            if search.refine.iterations > 0:
+                refine_drops(problem, problem.best, search.refine.iterations)
     finally:
         bar.close()
     best = problem.best
     recorded = backend.rollout(best.errors, record=True) if best is not None else None
     attacked = backend.attacked_planner
     if attacked.node is not None:
-        params = replace(params, values={**params.values, "planner": EXTERNAL}, planner_params={})
+        params = replace(params, planner=EXTERNAL, planner_params={})
     return AttackOutcome(
         scenario=scenario,
         params=params,

@@ -139,17 +139,17 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     if errors.shape != scenario.agents.shape:
         raise BagError(f"{errors_path}: field 'fn' has shape {errors.shape}, the bag {report['bag']} has {scenario.agents.shape}")
     strengths = tuple(float(s) for s in args.strengths.split(","))
-    problem = AttackProblem(scenario, Stack(scenario, params).rollout, params["objective"])
+    problem = AttackProblem(scenario, Stack(scenario, params).rollout, params.objective)
     points = robustness_curve(problem, errors, strengths, args.samples, np.random.default_rng(args.seed))
     staging = results / ".robustness.partial.csv"
     with staging.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(RobustnessPoint)])
         writer.writeheader()
         writer.writerows(asdict(p) for p in points)
-    plots.robustness(results / "robustness.png", points, params["objective"])
+    plots.robustness(results / "robustness.png", points, params.objective)
     staging.rename(results / "robustness.csv")
     for p in points:
-        print(f"strength {p.strength:5.2f}: {p.adversarial_fraction:5.2f} still collide, mean {params['objective']} {p.mean_metric:.4f}")
+        print(f"strength {p.strength:5.2f}: {p.adversarial_fraction:5.2f} still collide, mean {params.objective} {p.mean_metric:.4f}")
     return 0
 
 

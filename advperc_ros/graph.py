@@ -26,6 +26,7 @@ before the next rollout. Everything is shut down on exit (SIGTERM, then SIGKILL 
 `STOP_TIMEOUT`), and children exit by themselves if this process dies.
 """
 
+import json
 import logging
 import os
 import signal
@@ -38,13 +39,12 @@ from types import TracebackType
 from typing import Any
 
 import numpy as np
-import yaml
 
 from advperc_ros.attack import EXTERNAL, AttackedPlanner
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, nest
+from advperc_ros.params import PLANNER_PARAMS, AttackParams
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import ODOMETRY, PLAN, RULE_DIAGNOSTICS, TOPIC_TYPES, TRACKING
@@ -80,12 +80,12 @@ class GraphRollouts:
     we start are reached over a Cyclone participant of our own, recreated with them on a restart."""
 
     def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path, transport: Transport | None = None) -> None:
-        if transport is not None and params["graph.spawn_nodes"]:
+        if transport is not None and params.graph.spawn_nodes:
             raise ValueError("a transport can only be given with graph.spawn_nodes false")
         self.scenario = scenario
         self.params = params
-        self._spawn = params["graph.spawn_nodes"]
-        self._timeout = params["graph.timeout"]
+        self._spawn = params.graph.spawn_nodes
+        self._timeout = params.graph.timeout
         self._given_transport = transport
         self._transport: Any = None  # the given Transport, or a DdsTransport of ours (which we close)
         self._present: dict[str, int] = {}
@@ -94,9 +94,8 @@ class GraphRollouts:
         self._stamps = [int(s) for s in scenario.stamps_ns]
         self._next_rollout = 1
         self._workdir = tempfile.TemporaryDirectory(prefix="advperc-graph-")
-        self._params_file = Path(self._workdir.name) / "params.yaml"
-        document = {**nest(params.values), PLANNER_PARAMS: params.planner_params, "bag": str(Path(bag_path).resolve())}
-        self._params_file.write_text(yaml.safe_dump({NODE: {"ros__parameters": document}}))
+        self._params_json = json.dumps({**params.flat(), "bag": str(Path(bag_path).resolve()),
+                                        PLANNER_PARAMS: dict(params.planner_params)})
         self.processes: dict[str, subprocess.Popen] = {}
         self._received: dict[str, dict[int, Any]] = {}
         self._recording = False
@@ -134,8 +133,8 @@ class GraphRollouts:
     def _spawn_children(self) -> None:
         root = str(Path(__file__).resolve().parent.parent)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
-        flags = ["--params-file", str(self._params_file), "--domain-id", str(self.params["dds.domain_id"]),
-                 "--localhost-only", "true" if self.params["dds.localhost_only"] else "false", "--exit-with-parent"]
+        flags = ["--params-json", self._params_json, "--domain-id", str(self.params.dds.domain_id),
+                 "--localhost-only", "true" if self.params.dds.localhost_only else "false", "--exit-with-parent"]
         for name in NODES:
             with (Path(self._workdir.name) / f"{name}.log").open("ab") as output:
                 self.processes[name] = subprocess.Popen(
@@ -149,7 +148,7 @@ class GraphRollouts:
             from advperc_ros.ros.dds import DdsError, DdsTransport
 
             try:
-                self._transport = DdsTransport(self.params["dds.domain_id"], self.params["dds.localhost_only"])
+                self._transport = DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only)
             except DdsError as exc:
                 raise GraphError(str(exc)) from exc
         self._errors = self._transport.publisher(ERRORS, CONTROL_TYPE, latched=True)
@@ -166,7 +165,7 @@ class GraphRollouts:
         configures it from the same params), else an external node, named where the middleware
         tells who publishes the plans."""
         if self._spawn or PLANNER_NODE in self._present:
-            return AttackedPlanner(self.params["planner"])
+            return AttackedPlanner(self.params.planner)
         return AttackedPlanner(EXTERNAL, ", ".join(self._transport.publishers_of(PLAN)))
 
     def _on_presence(self, msg: Any) -> None:
@@ -309,7 +308,7 @@ class GraphRollouts:
                               and all(s in self._received[PLAN] for s in stamps[: self._planned_frames(done)]))
 
     def _stopped_at_violation(self, done: RolloutDone) -> bool:
-        if done.status == INCONCLUSIVE or not self.params["stop_at_collision"]:
+        if done.status == INCONCLUSIVE or not self.params.stop_at_collision:
             return False
         minimum, _ = self._received[RULE_DIAGNOSTICS][self._stamps[done.frames - 1]]
         return minimum < 0.0

@@ -1,22 +1,36 @@
-"""The orchestrator's parameters: one schema for the params file, the CLI and the ROS 2 node.
+"""The orchestrator's parameters: one typed schema for the params file, the CLI and every ROS node.
 
-A params file uses the ROS layout (`orchestrator: ros__parameters: ...`, nested mappings become
-dotted names), so the same file serves `advperc attack` and `ros2 run ... --params-file`. Types are
-as strict as ROS 2's: a YAML `1` where a float is declared is refused, and so is any unknown key.
-Everything is checked before any work starts; errors name the file and the parameter.
+`AttackParams` is a tree of frozen dataclasses (`params.search.random.steps`), validated whenever
+one is built, overrides included. Its fields are the schema: each carries its type, default,
+description and bounds, and `SCHEMA` lists them under the dotted names ROS uses
+(`search.random.steps`). A params file uses the ROS layout (`orchestrator: ros__parameters: ...`,
+nested mappings are dotted names), so the same file serves `advperc attack` and `ros2 run ...
+--params-file`. Types are as strict as ROS 2's: a YAML `1` where a float is declared is refused,
+and so is any unknown key. Errors name the file and the parameter.
 """
 
+import dataclasses
 import hashlib
 import json
+import math
 import sys
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import yaml
 
+from advperc_ros.core.planners.base import PlanningContext
+from advperc_ros.core.rollout import RolloutConfig
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.tracker import TrackerConfig
+
 NODE = "orchestrator"
 PACKAGE = "advperc_ros"
+PLANNER_PARAMS = "planner_params"  # free mapping handed to the planner's constructor
+INT64_MAX = 2**63 - 1  # a ROS integer parameter is an int64
 
 
 class ParamsError(ValueError):
@@ -25,71 +39,170 @@ class ParamsError(ValueError):
 
 @dataclass(frozen=True)
 class Param:
+    """One parameter of the schema: what `AttackParams` checks and the ROS nodes declare."""
+
     type: type
     default: Any
     description: str
     choices: tuple[str, ...] = ()
+    low: float | None = None  # smallest value allowed
+    positive: bool = False  # strictly above `low` (0 when positive)
+    high: float | None = None
+
+    def check(self, name: str, value: Any) -> Any:
+        """`value` if it fits, else a ParamsError naming `name` (no file: the caller adds it)."""
+        expected = self.type
+        if expected is float and isinstance(value, int) and not isinstance(value, bool):
+            raise ParamsError(f"parameter '{name}' must be a float (write {value}.0), got integer {value}")
+        if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
+            raise ParamsError(f"parameter '{name}' must be of type {expected.__name__}, got {type(value).__name__} {value!r}")
+        if expected is float and not math.isfinite(value):
+            raise ParamsError(f"parameter '{name}' must be a finite number, got {value}")
+        if self.choices and value not in self.choices:
+            raise ParamsError(f"parameter '{name}' must be one of {', '.join(self.choices)}, got {value!r}")
+        if self.positive and not value > 0:
+            raise ParamsError(f"parameter '{name}' must be positive, got {value}")
+        if self.low is not None and value < self.low:
+            raise ParamsError(f"parameter '{name}' must be at least {self.low:g}, got {value}")
+        if self.high is not None and value > self.high:
+            raise ParamsError(f"parameter '{name}' must be at most {self.high:g}, got {value}")
+        return value
 
 
-SCHEMA: dict[str, Param] = {
-    "bag": Param(str, None, "ground-truth rosbag2 bag to attack (directory); relative paths are tried "
-                 "against the working directory, then the params file's directory, then the package share"),
-    "planner": Param(str, "idm", "bundled planner name or a plug-in as module:Class"),
-    "objective": Param(str, "nds_t", "perception metric the search maximises", ("nds", "nds_t", "pem_ll")),
-    "seed": Param(int, 0, "seed of the random search; same params and seed give the same attack"),
-    "stop_at_collision": Param(bool, True, "end a rollout at its first rule violation"),
-    "ego.length": Param(float, 4.6, "ego box length (m)"),
-    "ego.width": Param(float, 1.9, "ego box width (m)"),
-    "tracker.gate": Param(float, 2.0, "association gate on centre distance (m)"),
-    "tracker.max_age": Param(float, 1.0, "seconds without an observation before a track is deleted"),
-    "search.heuristic.iterations": Param(int, 3, "bisection iterations for each bound (paper: 3)"),
-    "search.random.steps": Param(int, 40, "random search steps N_steps (paper: 40)"),
-    "search.random.proposals": Param(int, 100, "proposals per step N_proposal (paper: 100)"),
-    "search.random.max_offset": Param(float, 5.0, "largest position offset of a flipped segment (m)"),
-    "search.random.yaw_std": Param(float, 0.1, "yaw noise of flipped detections (rad)"),
-    "search.refine.iterations": Param(int, 4, "beyond the paper: bisection iterations re-detecting the start of "
-                                      "each dropped run of the best attack; 0 keeps the paper's search only"),
-    "rollout_backend": Param(str, "embedded", "how rollouts run: in this process (embedded) or through the node "
-                             "graph over DDS (graph); both give the same results", ("embedded", "graph")),
-    "dds.domain_id": Param(int, 0, "DDS domain id of the graph backend (0..232)"),
-    "dds.localhost_only": Param(bool, True, "graph backend: DDS discovery and traffic on this host's loopback only"),
-    "graph.timeout": Param(float, 10.0, "graph backend: seconds the player waits for a frame's plan and rule "
-                           "value before the rollout is inconclusive"),
-    "graph.spawn_nodes": Param(bool, True, "graph backend: start the five graph nodes as child processes (Cyclone "
-                               "DDS); false uses nodes already running, e.g. from launch/attack.launch.py"),
-}
-EXECUTION = ("rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes")
-"""How rollouts are executed, not what they compute: left out of the report's params and the config
-hash, so the graph and embedded backends give the same report."""
-PLANNER_PARAMS = "planner_params"  # free mapping handed to the planner's constructor
+def _param(default: Any, description: str, **bounds: Any) -> Any:
+    """A dataclass field whose metadata is its `Param` (type filled in from the annotation)."""
+    return field(default=default, metadata={"param": (description, bounds)})
+
+
+@dataclass(frozen=True)
+class EgoParams:
+    length: float = _param(4.6, "ego box length (m)", positive=True)
+    width: float = _param(1.9, "ego box width (m)", positive=True)
+
+
+@dataclass(frozen=True)
+class TrackerParams:
+    gate: float = _param(2.0, "association gate on centre distance (m)", positive=True)
+    max_age: float = _param(1.0, "seconds without an observation before a track is deleted", positive=True)
+
+
+@dataclass(frozen=True)
+class HeuristicParams:
+    iterations: int = _param(3, "bisection iterations for each bound (paper: 3)", low=0, high=64)
+
+
+@dataclass(frozen=True)
+class RandomParams:
+    steps: int = _param(40, "random search steps N_steps (paper: 40)", low=0, high=1_000_000)
+    proposals: int = _param(100, "proposals per step N_proposal (paper: 100)", low=1, high=1_000_000)
+    max_offset: float = _param(5.0, "largest position offset of a flipped segment (m)", positive=True)
+    yaw_std: float = _param(0.1, "yaw noise of flipped detections (rad)", low=0.0)
+
+
+@dataclass(frozen=True)
+class RefineParams:
+    iterations: int = _param(4, "beyond the paper: bisection iterations re-detecting the start of each dropped "
+                             "run of the best attack; 0 keeps the paper's search only", low=0, high=64)
+
+
+@dataclass(frozen=True)
+class SearchParams:
+    heuristic: HeuristicParams = HeuristicParams()
+    random: RandomParams = RandomParams()
+    refine: RefineParams = RefineParams()
+
+
+@dataclass(frozen=True)
+class DdsParams:
+    domain_id: int = _param(0, "DDS domain id of the graph backend (0..232)", low=0, high=232)
+    localhost_only: bool = _param(True, "graph backend: DDS discovery and traffic on this host's loopback only")
+
+
+@dataclass(frozen=True)
+class GraphParams:
+    timeout: float = _param(10.0, "graph backend: seconds the player waits for a frame's plan and rule value "
+                            "before the rollout is inconclusive", positive=True)
+    spawn_nodes: bool = _param(True, "graph backend: start the five graph nodes as child processes (Cyclone DDS); "
+                               "false uses nodes already running, e.g. from launch/attack.launch.py")
 
 
 @dataclass(frozen=True)
 class AttackParams:
-    values: dict[str, Any]  # every SCHEMA key, validated
-    planner_params: dict[str, Any]
-    source: Path | None
+    """Everything an attack is configured with; validated on construction."""
 
-    def __getitem__(self, name: str) -> Any:
-        return self.values[name]
+    bag: str = _param(None, "ground-truth rosbag2 bag to attack (directory); relative paths are tried against "
+                      "the working directory, then the params file's directory, then the package share")
+    planner: str = _param("idm", "bundled planner name or a plug-in as module:Class")
+    objective: str = _param("nds_t", "perception metric the search maximises", choices=("nds", "nds_t", "pem_ll"))
+    seed: int = _param(0, "seed of the random search; same params and seed give the same attack", low=0, high=INT64_MAX)
+    stop_at_collision: bool = _param(True, "end a rollout at its first rule violation")
+    ego: EgoParams = EgoParams()
+    tracker: TrackerParams = TrackerParams()
+    search: SearchParams = SearchParams()
+    rollout_backend: str = _param("embedded", "how rollouts run: in this process (embedded) or through the node graph "
+                                  "over DDS (graph); both give the same results", choices=("embedded", "graph"))
+    dds: DdsParams = DdsParams()
+    graph: GraphParams = GraphParams()
+    planner_params: Mapping[str, Any] = field(default_factory=dict)  # the planner's constructor keywords
+    source: Path | None = field(default=None, compare=False)  # the params file, when there is one
+
+    def __post_init__(self) -> None:
+        where = str(self.source) if self.source is not None else "params"
+        if self.bag is None:
+            raise ParamsError(f"{where}: parameter 'bag' is required")
+        for name, param in SCHEMA.items():
+            try:
+                param.check(name, self.get(name))
+            except ParamsError as exc:
+                raise ParamsError(f"{where}: {exc}") from None
+        object.__setattr__(self, PLANNER_PARAMS, MappingProxyType(_check_planner_params(where, self.planner_params)))
+
+    def get(self, name: str) -> Any:
+        """A parameter by its dotted name (`search.random.steps`), as ROS names it."""
+        value: Any = self
+        for part in name.split("."):
+            value = getattr(value, part)
+        return value
+
+    def flat(self) -> dict[str, Any]:
+        """Every parameter of the schema by dotted name."""
+        return {name: self.get(name) for name in SCHEMA}
 
     def with_values(self, **changes: Any) -> "AttackParams":
-        """These params with some values replaced (names with dots: pass via **{"a.b": v})."""
-        unknown = set(changes) - set(SCHEMA)
+        """These params with some replaced (dotted names: pass via **{"a.b": v}), validated again."""
+        unknown = sorted(set(changes) - set(SCHEMA) - {PLANNER_PARAMS})
         if unknown:
-            raise ParamsError(f"unknown parameter '{sorted(unknown)[0]}'")
-        return AttackParams({**self.values, **changes}, self.planner_params, self.source)
+            raise ParamsError(f"{self.source or 'params'}: unknown parameter '{unknown[0]}'")
+        return params_from_values({**self.flat(), PLANNER_PARAMS: dict(self.planner_params), **changes}, self.source)
 
     def canonical(self) -> dict[str, Any]:
         """What determines the results: every value but the EXECUTION ones, and the planner's."""
-        values = {name: value for name, value in self.values.items() if name not in EXECUTION}
-        return {**values, PLANNER_PARAMS: self.planner_params}
+        values = {name: value for name, value in self.flat().items() if name not in EXECUTION}
+        return {**values, PLANNER_PARAMS: dict(self.planner_params)}
 
     def config_hash(self) -> str:
         return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()[:16]
 
 
-def nest(flat: dict[str, Any]) -> dict[str, Any]:
+def _schema(cls: type, prefix: str = "") -> dict[str, Param]:
+    """The dotted names and `Param`s of a params dataclass tree."""
+    out: dict[str, Param] = {}
+    for f in dataclasses.fields(cls):
+        if dataclasses.is_dataclass(f.type):
+            out.update(_schema(f.type, f"{prefix}{f.name}."))
+        elif "param" in f.metadata:
+            description, bounds = f.metadata["param"]
+            out[f"{prefix}{f.name}"] = Param(f.type, f.default, description, **bounds)
+    return out
+
+
+SCHEMA: dict[str, Param] = _schema(AttackParams)
+EXECUTION = ("rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes")
+"""How rollouts are executed, not what they compute: left out of the report's params and the config
+hash, so the graph and embedded backends give the same report."""
+
+
+def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
     """Dotted parameter names back into the nested mapping of a params file."""
     out: dict[str, Any] = {}
     for name, value in flat.items():
@@ -112,43 +225,49 @@ def _flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def _check_type(where: str, name: str, value: Any, param: Param) -> Any:
-    expected = param.type
-    ok = isinstance(value, expected) and not (expected is int and isinstance(value, bool))
-    if expected is float and isinstance(value, int) and not isinstance(value, bool):
-        raise ParamsError(f"{where}: parameter '{name}' must be a float (write {value}.0), got integer {value}")
-    if not ok:
-        raise ParamsError(f"{where}: parameter '{name}' must be of type {expected.__name__}, got {type(value).__name__} {value!r}")
-    if expected is float and value != value:
-        raise ParamsError(f"{where}: parameter '{name}' is NaN")
-    if param.choices and value not in param.choices:
-        raise ParamsError(f"{where}: parameter '{name}' must be one of {', '.join(param.choices)}, got {value!r}")
-    return value
-
-
 def _check_planner_params(where: str, raw: Any) -> dict[str, Any]:
     if raw is None:
         return {}
-    if not isinstance(raw, dict):
+    if not isinstance(raw, Mapping):
         raise ParamsError(f"{where}: parameter '{PLANNER_PARAMS}' must be a mapping")
     for key, value in raw.items():
-        if not isinstance(value, (bool, int, float, str)) or (isinstance(value, float) and value != value):
+        if not isinstance(key, str):
+            raise ParamsError(f"{where}: parameter '{PLANNER_PARAMS}' has a key that is not a name: {key!r}")
+        if not isinstance(value, (bool, int, float, str)) or (isinstance(value, float) and not math.isfinite(value)):
             raise ParamsError(f"{where}: parameter '{PLANNER_PARAMS}.{key}' must be a finite scalar, got {value!r}")
     return dict(raw)
 
 
-def _check_ranges(where: str, values: dict[str, Any]) -> None:
-    """Bounds the types cannot express, for the parameters present in `values`."""
-    for name in ("search.heuristic.iterations", "search.random.steps", "search.random.proposals",
-                 "search.refine.iterations"):
-        if name in values and values[name] < 0:
-            raise ParamsError(f"{where}: parameter '{name}' must not be negative")
-    for name in ("ego.length", "ego.width", "tracker.gate", "tracker.max_age", "search.random.max_offset",
-                 "graph.timeout"):
-        if name in values and not values[name] > 0:
-            raise ParamsError(f"{where}: parameter '{name}' must be positive")
-    if "dds.domain_id" in values and not 0 <= values["dds.domain_id"] <= 232:
-        raise ParamsError(f"{where}: parameter 'dds.domain_id' must be within 0..232, got {values['dds.domain_id']}")
+def _sections(cls: type, flat: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Constructor keywords of `cls` from dotted values (absent ones keep their defaults)."""
+    kwargs: dict[str, Any] = {}
+    for f in dataclasses.fields(cls):
+        name = f"{prefix}{f.name}"
+        if name in SCHEMA:
+            if name in flat:
+                kwargs[f.name] = flat[name]
+        elif dataclasses.is_dataclass(f.type):
+            kwargs[f.name] = f.type(**_sections(f.type, flat, f"{name}."))
+    return kwargs
+
+
+def params_from_values(flat: Mapping[str, Any], source: Path | None, where: str | None = None) -> AttackParams:
+    """AttackParams from dotted values (and `planner_params`), as `AttackParams.flat()` gives them:
+    unknown names refused; errors start with `where` (default: the params file)."""
+    where = where or (str(source) if source is not None else "params")
+    if flat.get("bag") is None:
+        raise ParamsError(f"{where}: parameter 'bag' is required")
+    planner_params = _check_planner_params(where, flat.get(PLANNER_PARAMS))
+    for name in flat:
+        if name not in SCHEMA and name != PLANNER_PARAMS:
+            raise ParamsError(f"{where}: unknown parameter '{name}'")
+    for name, param in SCHEMA.items():  # types before construction: a section cannot take a wrong type
+        if name in flat:
+            try:
+                param.check(name, flat[name])
+            except ParamsError as exc:
+                raise ParamsError(f"{where}: {exc}") from None
+    return AttackParams(**_sections(AttackParams, flat), planner_params=planner_params, source=source)
 
 
 def node_values(flat: dict[str, Any], names: tuple[str, ...], where: str,
@@ -172,35 +291,24 @@ def node_values(flat: dict[str, Any], names: tuple[str, ...], where: str,
                 raise ParamsError(f"{where}: parameter '{name}' is required")
             values[name] = param.default
         else:
-            values[name] = _check_type(where, name, flat[name], param)
-    _check_ranges(where, values)
+            try:
+                values[name] = param.check(name, flat[name])
+            except ParamsError as exc:
+                raise ParamsError(f"{where}: {exc}") from None
     return values, _check_planner_params(where, planner_params)
 
 
 def parse_params(document: Any, where: str, source: Path | None = None) -> AttackParams:
+    """AttackParams from a params file's document (`orchestrator: ros__parameters: ...`)."""
     if not isinstance(document, dict) or NODE not in document:
         raise ParamsError(f"{where}: expected a top-level '{NODE}:' mapping with 'ros__parameters:'")
-    unknown_nodes = sorted(set(document) - {NODE})
+    unknown_nodes = sorted(str(name) for name in set(document) - {NODE})
     if unknown_nodes:
         raise ParamsError(f"{where}: unknown node '{unknown_nodes[0]}' (only '{NODE}' is configured here)")
     node = document[NODE]
     if not isinstance(node, dict) or not isinstance(node.get("ros__parameters"), dict) or len(node) != 1:
         raise ParamsError(f"{where}: '{NODE}' must hold exactly one mapping 'ros__parameters:'")
-    flat = _flatten(node["ros__parameters"])
-    planner_params = _check_planner_params(where, flat.pop(PLANNER_PARAMS, None))
-    for name in flat:
-        if name not in SCHEMA:
-            raise ParamsError(f"{where}: unknown parameter '{name}'")
-    values = {}
-    for name, param in SCHEMA.items():
-        if name in flat:
-            values[name] = _check_type(where, name, flat[name], param)
-        elif param.default is None:
-            raise ParamsError(f"{where}: parameter '{name}' is required")
-        else:
-            values[name] = param.default
-    _check_ranges(where, values)
-    return AttackParams(values=values, planner_params=planner_params, source=source)
+    return params_from_values(_flatten(node["ros__parameters"]), source, where)
 
 
 def load_params(path: str | Path) -> AttackParams:
@@ -209,7 +317,7 @@ def load_params(path: str | Path) -> AttackParams:
         document = yaml.safe_load(path.read_text())
     except FileNotFoundError:
         raise ParamsError(f"{path}: no such params file") from None
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ParamsError(f"{path}: cannot read params file: {exc}".replace("\n", " ")) from exc
     return parse_params(document, str(path), path)
 
@@ -246,4 +354,21 @@ def find_bag(bag: str, source: Path | None) -> Path:
 
 def resolve_bag(params: AttackParams) -> Path:
     """The bag named in the params, found by `find_bag`."""
-    return find_bag(params["bag"], params.source)
+    return find_bag(params.bag, params.source)
+
+
+# ----- what the stack is built from: one place per rule, for the embedded stack and the graph nodes ----
+# (they take dotted values, as a graph node holds only its own parameters)
+
+def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
+    return TrackerConfig(gate=values["tracker.gate"], max_age=values["tracker.max_age"])
+
+
+def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
+    return RolloutConfig(ego_length=values["ego.length"], ego_width=values["ego.width"],
+                         stop_at_collision=values["stop_at_collision"])
+
+
+def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningContext:
+    return PlanningContext(route=scenario.route, lanes=scenario.lanes, dt=scenario.dt,
+                           ego_length=values["ego.length"], ego_width=values["ego.width"])

@@ -122,7 +122,7 @@ class _Scene:
         self.outcome = outcome
         self.rollout = outcome.recorded
         self.perceived = inject(outcome.scenario.agents, outcome.best.errors)
-        self.ego_size = (outcome.params["ego.length"], outcome.params["ego.width"])
+        self.ego_size = (outcome.params.ego.length, outcome.params.ego.width)
 
     def boxes(self, k: int) -> dict[str, np.ndarray]:
         """Corners (n, 4, 2) per layer of BOX_STYLES; no tracks at the collision frame (nothing was planned)."""
@@ -237,7 +237,7 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
     ax.set_ylabel("m to its left", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.grid(alpha=0.2)
-    ax.set_title(f"{scenario.name}: attack on the {outcome.params['planner']} planner", fontsize=9)
+    ax.set_title(f"{scenario.name}: attack on the {outcome.params.planner} planner", fontsize=9)
     _legend(fig, loc="lower center", fontsize=7, handlelength=1.2, columnspacing=1.0)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     canvas = fig.canvas

@@ -125,11 +125,11 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     best = outcome.best
     report = {
         "scenario": outcome.scenario.name,
-        "bag": params["bag"],
+        "bag": params.bag,
         "bag_sha256": bags.digest(bag_path),
-        "planner": params["planner"],
-        "objective": params["objective"],
-        "seed": params["seed"],
+        "planner": params.planner,
+        "objective": params.objective,
+        "seed": params.seed,
         "collision": best is not None,
         "min_signed_distance": None,
         "collision_frame": None,
@@ -335,7 +335,7 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
         (staging / REPORT_JSON).write_text(text + "\n")
         (staging / REPORT_MD).write_text(report_markdown(report))
         write_search_log(staging / SEARCH_LOG, outcome.log)
-        plots.metric_vs_rollouts(staging / METRIC_PLOT, outcome.log, outcome.params["objective"])
+        plots.metric_vs_rollouts(staging / METRIC_PLOT, outcome.log, outcome.params.objective)
         if outcome.best is not None:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)

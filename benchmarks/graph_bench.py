@@ -134,7 +134,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                         times[backend].append(seconds)
                 median = {key: statistics.median(values) for key, values in times.items()}
                 for backend in backends:
-                    rows.append({"scenario": name, "planner": params["planner"], "backend": backend, "errors": label,
+                    rows.append({"scenario": name, "planner": params.planner, "backend": backend, "errors": label,
                                  "frames": results[backend].num_frames, "embedded_s": median["embedded"],
                                  "graph_s": median[backend], "ratio": median[backend] / median["embedded"],
                                  "max_difference": _difference(results[backend], embedded),

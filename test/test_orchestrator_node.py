@@ -18,7 +18,7 @@ def test_dotted_parameters_nest_back_into_the_params_file_layout(repo):
     nested = nest(flat)
     assert nested["search"]["random"]["steps"] == 40
     parsed = parse_params({"orchestrator": {"ros__parameters": nested}}, "node")
-    assert parsed["search.random.steps"] == 40 and parsed.planner_params == {"target_speed": 14.0}
+    assert parsed.search.random.steps == 40 and parsed.planner_params == {"target_speed": 14.0}
 
 
 def test_without_rclpy_the_node_says_how_to_proceed():

@@ -46,7 +46,7 @@ def test_every_bev_panel_holds_the_ego_and_the_collision_agent(outcome):
     scenario, rollout = outcome.scenario, outcome.recorded
     agents = scenario.agents
     _, slot = closest_approach(rollout)
-    ego_size = (outcome.params["ego.length"], outcome.params["ego.width"])
+    ego_size = (outcome.params.ego.length, outcome.params.ego.width)
     fig = plots.bev_figure(outcome)
     panels = [ax for ax in fig.axes if ax.get_title()]
     assert len(panels) == 4

@@ -17,7 +17,7 @@ SPECS: tuple[NodeSpec, ...] = tuple(m.SPEC for m in (scenario_player, error_inje
 def ros_parameters(spec: NodeSpec, params: AttackParams, bag: Path) -> dict[str, Any]:
     """The node's parameters from validated params, `bag` absolute; the planner's keyword
     arguments as `planner_params.<key>` (a ROS parameter cannot be a mapping)."""
-    values: dict[str, Any] = {name: params[name] for name in spec.params}
+    values: dict[str, Any] = {name: params.get(name) for name in spec.params}
     if "bag" in values:
         values["bag"] = str(Path(bag).resolve())
     if spec.planner_params:

@@ -56,8 +56,8 @@ def main(args: list[str] | None = None) -> int:
         output = flat.pop(OUTPUT, "")
         source = params_source(argv, flat.get("bag"))
         params = parse_params({NODE: {"ros__parameters": nest(flat)}}, str(source or f"node '{NODE}' parameters"), source)
-        node.get_logger().info(f"attacking {params['bag']} ({params['planner']}, objective {params['objective']})")
-        transport = None if params["graph.spawn_nodes"] else RclpyTransport(node)
+        node.get_logger().info(f"attacking {params.bag} ({params.planner}, objective {params.objective})")
+        transport = None if params.graph.spawn_nodes else RclpyTransport(node)
         folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport)
         node.get_logger().info(f"{json.dumps(summary(report))}; results in {folder}")
         return 0

@@ -12,7 +12,8 @@ come from the bag, as in the embedded stack; an external planner may take them f
 import sys
 from typing import Any
 
-from advperc_ros.core.planners.base import Planner, PlanningContext, load_planner
+from advperc_ros.core.planners.base import Planner, load_planner
+from advperc_ros.params import planning_context
 from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
@@ -53,9 +54,8 @@ class PlannerNode:
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> PlannerNode:
     scenario = read_scenario(values["bag"])
-    context = PlanningContext(route=scenario.route, lanes=scenario.lanes, dt=scenario.dt,
-                              ego_length=values["ego.length"], ego_width=values["ego.width"])
-    return PlannerNode(transport, load_planner(values["planner"], context, planner_params), logger)
+    planner = load_planner(values["planner"], planning_context(values, scenario), planner_params)
+    return PlannerNode(transport, planner, logger)
 
 
 SPEC = NodeSpec("planner", ("bag", "planner", "ego.length", "ego.width"), _build, planner_params=True)

@@ -16,6 +16,7 @@ The Cyclone path is taken when rclpy is missing or the arguments are our own fla
 
 import argparse
 import functools
+import json
 import logging
 import os
 import re
@@ -30,7 +31,7 @@ import numpy as np
 import yaml
 
 from advperc_ros.exits import EXIT_INPUT, EXPECTED_TYPES, INPUT_ERRORS, expected_failure
-from advperc_ros.params import SCHEMA, find_bag, load_params, node_values
+from advperc_ros.params import SCHEMA, find_bag, load_params, node_values, params_from_values
 from advperc_ros.ros import cdr
 from advperc_ros.ros.bag import GROUND_TRUTH
 from advperc_ros.ros.lockstep import CONTROL_TYPE, PRESENCE, presence_message
@@ -277,7 +278,10 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
 
     parser = argparse.ArgumentParser(
         prog=spec.name, description=f"advperc_ros graph node '{spec.name}' over Cyclone DDS (no ROS needed).")
-    parser.add_argument("--params-file", required=True, help="orchestrator params YAML (as for `advperc attack`)")
+    given = parser.add_mutually_exclusive_group(required=True)
+    given.add_argument("--params-file", help="orchestrator params YAML (as for `advperc attack`)")
+    given.add_argument("--params-json", help="validated params as AttackParams.flat() gives them, with planner_params "
+                       "(how the graph backend hands its children the params it checked)")
     parser.add_argument("--domain-id", type=int, help="DDS domain id (default: the file's dds.domain_id)")
     parser.add_argument("--localhost-only", type=_flag, help="true|false (default: the file's dds.localhost_only)")
     parser.add_argument("--exit-with-parent", action="store_true",
@@ -286,10 +290,11 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
     logging.basicConfig(level=logging.INFO, stream=sys.stderr, format=f"[{spec.name}] %(levelname)s: %(message)s")
     logger = logging.getLogger(spec.name)
     try:
-        params = load_params(options.params_file)
-        values = _resolve({name: params[name] for name in spec.params}, params.source)
-        domain_id = params["dds.domain_id"] if options.domain_id is None else options.domain_id
-        localhost_only = params["dds.localhost_only"] if options.localhost_only is None else options.localhost_only
+        params = (load_params(options.params_file) if options.params_file is not None
+                  else params_from_values(json.loads(options.params_json), None, "--params-json"))
+        values = _resolve({name: params.get(name) for name in spec.params}, params.source)
+        domain_id = params.dds.domain_id if options.domain_id is None else options.domain_id
+        localhost_only = params.dds.localhost_only if options.localhost_only is None else options.localhost_only
         transport = DdsTransport(domain_id, localhost_only)
     except (*INPUT_ERRORS, DdsError) as exc:
         logger.error(str(exc))

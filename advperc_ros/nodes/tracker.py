@@ -9,7 +9,8 @@ rollout's first stamp, exactly as the embedded rollout counts it.
 import sys
 from typing import Any
 
-from advperc_ros.core.tracker import Tracker, TrackerConfig
+from advperc_ros.core.tracker import Tracker
+from advperc_ros.params import tracker_config
 from advperc_ros.nodes.runtime import Logger, NodeSpec, RolloutClock, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros.bag import PERCEPTION, TOPIC_TYPES, TRACKING
@@ -37,7 +38,7 @@ class TrackerNode:
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> TrackerNode:
-    config = TrackerConfig(gate=values["tracker.gate"], max_age=values["tracker.max_age"])
+    config = tracker_config(values)
     return TrackerNode(transport, Tracker(config), logger)
 
 

@@ -25,7 +25,6 @@ from advperc_ros.core.search.refine import refine_drops
 from advperc_ros.core.tracker import Tracker
 from advperc_ros.params import AttackParams, planning_context, rollout_config, tracker_config
 
-
 EXTERNAL = "external"  # the `planner` of a report whose planner was a node of someone else's
 
 

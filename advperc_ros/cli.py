@@ -99,9 +99,9 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
 
 def cmd_check_typical(args: argparse.Namespace) -> int:
     from advperc_ros.attack import Stack
-    from advperc_ros.params import resolve_bag
     from advperc_ros.core.pem import PEM, default_pem
     from advperc_ros.core.typical import check_typical
+    from advperc_ros.params import resolve_bag
     from advperc_ros.ros.bag import read_scenario
 
     params = load_params(args.params)
@@ -156,8 +156,9 @@ def cmd_robustness(args: argparse.Namespace) -> int:
 def aligned(ground_truth: Path, perceived: Path, topic: str):
     """(truth, perceived, ego_xy) on the frames both bags share; the 50 m range uses /ego/odometry
     of the perceived bag, else of the ground-truth bag (latest pose at or before each frame)."""
-    from advperc_ros.ros.bag import GROUND_TRUTH, ODOMETRY, read_objects, read_topics
+    from advperc_ros.ros.bag import read_objects, read_topics
     from advperc_ros.ros.messages import odometry_to_ego, stamp_ns
+    from advperc_ros.ros.topics import GROUND_TRUTH, ODOMETRY
 
     gt_stamps, truth = read_objects(ground_truth, GROUND_TRUTH)
     pred_stamps, boxes = read_objects(perceived, topic)

@@ -47,10 +47,11 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.params import PLANNER_PARAMS, AttackParams
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.bag import ODOMETRY, PLAN, RULE_DIAGNOSTICS, TOPIC_TYPES, TRACKING
+from advperc_ros.ros.lockstep import (INCONCLUSIVE, RolloutDone, RolloutErrors, errors_message, parse_done,
+                                      parse_presence, parse_rule_diagnostics, plan_from_cdr)
+from advperc_ros.ros.topics import (CONTROL_TYPE, DONE, ERRORS, ODOMETRY, PLAN, PRESENCE, RULE_DIAGNOSTICS, TOPIC_TYPES,
+                                    TRACKING)
 from advperc_ros.ros.transport import Transport
-from advperc_ros.ros.lockstep import (CONTROL_TYPE, DONE, ERRORS, INCONCLUSIVE, PRESENCE, RolloutDone, RolloutErrors,
-                                      errors_message, parse_done, parse_presence, parse_rule_diagnostics, plan_from_cdr)
 
 NODES = ("scenario_player", "error_injector", "tracker", "planner", "rule_monitor")
 PLANNER_NODE = "planner"

@@ -22,7 +22,7 @@ from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.ros import bag as bags
-from advperc_ros.ros import cdr
+from advperc_ros.ros import cdr, topics
 from advperc_ros.ros import messages as msgs
 
 REPORT_JSON = "report.json"
@@ -231,21 +231,21 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
         bags.write_scenario_static(bag, scenario)
         for k in range(rollout.num_frames):
             ns = int(scenario.stamps_ns[k])
-            bag.write(bags.CLOCK, ns, cdr.encode_clock(ns))
-            bag.write(bags.GROUND_TRUTH, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "ground_truth"))
-            bag.write(bags.ODOMETRY, ns, msgs.ego_to_cdr(_ego(rollout.ego[k]), ns))
+            bag.write(topics.CLOCK, ns, cdr.encode_clock(ns))
+            bag.write(topics.GROUND_TRUTH, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "ground_truth"))
+            bag.write(topics.ODOMETRY, ns, msgs.ego_to_cdr(_ego(rollout.ego[k]), ns))
             distance = float(rollout.rule[k])
-            bag.write(bags.RULE, ns, cdr.encode_float64(distance))
-            bag.write(bags.RULE_DIAGNOSTICS, ns, msgs.diagnostics_cdr(
+            bag.write(topics.RULE, ns, cdr.encode_float64(distance))
+            bag.write(topics.RULE_DIAGNOSTICS, ns, msgs.diagnostics_cdr(
                 ns, "collision", "violated" if distance < 0 else "ok", {"min_signed_distance": repr(distance)},
                 level=2 if distance < 0 else 0,
             ))
-            bag.write(bags.PERCEPTION, ns, cdr.encode_objects(perceived.frame(k), ns, "perception"))
+            bag.write(topics.PERCEPTION, ns, cdr.encode_objects(perceived.frame(k), ns, "perception"))
             if k < len(rollout.tracks):
-                bag.write(bags.TRACKING, ns, cdr.encode_objects(rollout.tracks[k], ns, "tracking"))
+                bag.write(topics.TRACKING, ns, cdr.encode_objects(rollout.tracks[k], ns, "tracking"))
             if k < len(rollout.plans):
-                bag.write(bags.PLAN, ns, msgs.trajectory_cdr(rollout.plans[k], ns))
-        bag.write(bags.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
+                bag.write(topics.PLAN, ns, msgs.trajectory_cdr(rollout.plans[k], ns))
+        bag.write(topics.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
 
 
 def _hex(rgba: tuple[float, ...]) -> str:
@@ -256,15 +256,15 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
     """A Foxglove layout for an attack bag: a top-down 3D panel over `target` (map frame) with each
     layer on its own topic in its own colour (the bag's marker colours), the collision rule over time
     and the JSON summary. config/foxglove_layout.json is this layout over the origin."""
-    markers = {bags.GROUND_TRUTH: "ground_truth", bags.PERCEPTION: "perception", bags.TRACKING: "tracking",
-               bags.LANES: "lanes"}
-    topics = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
+    markers = {topics.GROUND_TRUTH: "ground_truth", topics.PERCEPTION: "perception", topics.TRACKING: "tracking",
+               topics.LANES: "lanes"}
+    layers = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
               for topic, kind in markers.items()}
-    topics[bags.ODOMETRY] = {"visible": True, "type": "arrow", "arrowScale": [4.0, 0.8, 0.8], "color": _hex(EGO_COLOR),
-                             "showCovariance": False}
-    topics[bags.PLAN] = {"visible": True, "type": "line", "lineWidth": 0.4,
-                         "gradient": [_hex(PLAN_COLOR), _hex(PLAN_COLOR[:3] + (0.3,))]}
-    topics[bags.ROUTE] = {"visible": True, "type": "line", "lineWidth": 0.15, "gradient": ["#80808080", "#80808080"]}
+    layers[topics.ODOMETRY] = {"visible": True, "type": "arrow", "arrowScale": [4.0, 0.8, 0.8], "color": _hex(EGO_COLOR),
+                               "showCovariance": False}
+    layers[topics.PLAN] = {"visible": True, "type": "line", "lineWidth": 0.4,
+                           "gradient": [_hex(PLAN_COLOR), _hex(PLAN_COLOR[:3] + (0.3,))]}
+    layers[topics.ROUTE] = {"visible": True, "type": "line", "lineWidth": 0.15, "gradient": ["#80808080", "#80808080"]}
     three_d, plot, summary = "3D!attack", "Plot!collision_rule", "RawMessages!summary"
     return {
         "configById": {
@@ -276,18 +276,18 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
                 "followTf": "map",
                 "scene": {"backgroundColor": "#202020"},
                 "transforms": {},
-                "topics": topics,
+                "topics": layers,
                 "layers": {},
                 "foxglovePanelTitle": "attack: truth white, perceived green, tracks blue, ego red, plan orange",
             },
             plot: {
-                "foxglovePanelTitle": f"{bags.RULE}: min signed distance (m), < 0 is a collision",
-                "paths": [{"value": f"{bags.RULE}.data", "enabled": True, "timestampMethod": "receiveTime",
+                "foxglovePanelTitle": f"{topics.RULE}: min signed distance (m), < 0 is a collision",
+                "paths": [{"value": f"{topics.RULE}.data", "enabled": True, "timestampMethod": "receiveTime",
                            "label": "signed distance (m)", "color": _hex(EGO_COLOR)}],
                 "showLegend": True,
                 "isSynced": True,
             },
-            summary: {"topicPath": f"{bags.SUMMARY}.data", "foxglovePanelTitle": "attack summary (report.json)"},
+            summary: {"topicPath": f"{topics.SUMMARY}.data", "foxglovePanelTitle": "attack summary (report.json)"},
         },
         "globalVariables": {},
         "userNodes": {},

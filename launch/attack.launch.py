@@ -10,7 +10,6 @@ The orchestrator reads the params file itself (only the graph settings are overr
 report is the one `ros2 run advperc_ros orchestrator` and `advperc attack` write for that file.
 """
 
-from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
@@ -19,6 +18,7 @@ from launch_ros.actions import Node
 
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 from advperc_ros.params import load_params, resolve_bag
+from launch import LaunchDescription
 
 PACKAGE = "advperc_ros"
 

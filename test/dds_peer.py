@@ -7,8 +7,8 @@ readers never matched, 3 nothing arrived; every wait is bounded by TIMEOUT_S.
 import sys
 
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.bag import PERCEPTION, SUMMARY, TOPIC_TYPES, TRACKING
 from advperc_ros.ros.dds import DdsTransport
+from advperc_ros.ros.topics import PERCEPTION, SUMMARY, TOPIC_TYPES, TRACKING
 
 
 def main(domain_id: int, timeout: float) -> int:

@@ -14,11 +14,12 @@ from advperc_ros.cli import main
 from advperc_ros.core.scenario_spec import load_scenario_spec
 from advperc_ros.results import load_errors
 from advperc_ros.ros import bag as bags
-from advperc_ros.ros.bag import open_bag_for_writing, read_topics, write_ground_truth_bag, write_scenario
 from advperc_ros.ros import messages as msgs
+from advperc_ros.ros import topics
+from advperc_ros.ros.bag import open_bag_for_writing, read_topics, write_ground_truth_bag, write_scenario
 
 SMALL_SEARCH = {"steps": 6, "proposals": 30}
-PER_FRAME_TOPICS = (bags.GROUND_TRUTH, bags.PERCEPTION, bags.ODOMETRY, bags.RULE, bags.CLOCK)
+PER_FRAME_TOPICS = (topics.GROUND_TRUTH, topics.PERCEPTION, topics.ODOMETRY, topics.RULE, topics.CLOCK)
 
 
 def write_params(path: Path, repo: Path, **overrides) -> Path:
@@ -78,14 +79,14 @@ def test_same_seed_gives_the_same_attack(attack_run):
 def test_attack_bag_decodes_with_rosbags_and_mcap_ros2(attack_run):
     out = attack_run[0]
     report = json.loads((out / "report.json").read_text())
-    topics, custom = read_topics(out / "attack", bags.TOPIC_TYPES)
+    messages, custom = read_topics(out / "attack", topics.TOPIC_TYPES)
     frames = report["collision_frame"] + 1
     for topic in PER_FRAME_TOPICS:
-        assert len(topics[topic]) == frames, topic
-    assert len(topics[bags.TRACKING]) == len(topics[bags.PLAN]) == frames - 1  # none after the collision
-    rules = [m.data for _, m in topics[bags.RULE]]
+        assert len(messages[topic]) == frames, topic
+    assert len(messages[topics.TRACKING]) == len(messages[topics.PLAN]) == frames - 1  # none after the collision
+    rules = [m.data for _, m in messages[topics.RULE]]
     assert rules[-1] == pytest.approx(report["min_signed_distance"]) and rules[-1] < 0
-    assert json.loads(topics[bags.SUMMARY][0][1].data)["nds_t"] == report["nds_t"]
+    assert json.loads(messages[topics.SUMMARY][0][1].data)["nds_t"] == report["nds_t"]
     assert custom[bags.SCENARIO_KEY] == "idm_lane_following"
 
     independent = {}
@@ -93,8 +94,8 @@ def test_attack_bag_decodes_with_rosbags_and_mcap_ros2(attack_run):
         independent.setdefault(message.channel.topic, []).append(message.ros_msg)
     for topic in PER_FRAME_TOPICS:
         assert len(independent[topic]) == frames, topic
-    assert independent[bags.RULE][-1].data == pytest.approx(rules[-1])
-    plan = independent[bags.PLAN][0]
+    assert independent[topics.RULE][-1].data == pytest.approx(rules[-1])
+    plan = independent[topics.PLAN][0]
     assert len(plan.poses) > 2 and plan.header.frame_id == "map"
 
 
@@ -134,7 +135,7 @@ def test_missing_bag(tmp_path, repo, capsys):
 def test_bag_without_ground_truth(tmp_path, repo, capsys):
     scenario = load_scenario_spec(repo / "scenarios" / "idm_lane_following.yaml")
     with open_bag_for_writing(tmp_path / "clock_only") as bag:
-        bag.write(bags.CLOCK, 0, msgs.clock(0))
+        bag.write(topics.CLOCK, 0, msgs.clock(0))
     params = write_params(tmp_path / "p.yaml", repo, bag=str(tmp_path / "clock_only"))
     err = _run_bad(["attack", str(params)], tmp_path / "out", capsys)
     assert "clock_only" in err and "/ground_truth/objects" in err

@@ -21,7 +21,8 @@ from advperc_ros.core.planners.base import Trajectory  # noqa: E402
 from advperc_ros.core.scenario import EgoState  # noqa: E402
 from advperc_ros.ros import dds, dds_types  # noqa: E402
 from advperc_ros.ros import messages as msgs  # noqa: E402
-from advperc_ros.ros.bag import LATCHED, PERCEPTION, SUMMARY, TOPIC_TYPES, TRACKING  # noqa: E402
+from advperc_ros.ros.topics import TRACKING  # noqa: E402
+from advperc_ros.ros.topics import LATCHED, PERCEPTION, SUMMARY, TOPIC_TYPES
 
 REPO = Path(__file__).resolve().parent.parent
 T0 = 1_700_000_000_123_456_789

@@ -21,16 +21,17 @@ import yaml
 
 pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; the graph backend needs it")
 
+from conftest import need_ros  # noqa: E402
+
 from advperc_ros.attack import Stack  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
 from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
 from advperc_ros.graph import GraphRollouts  # noqa: E402
-from advperc_ros.nodes.runtime import RolloutClock  # noqa: E402
 from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
-from conftest import need_ros  # noqa: E402
+from advperc_ros.ros.lockstep import RolloutClock  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 BAG = REPO / "bags" / "idm_lane_following"
@@ -328,7 +329,8 @@ def test_example_external_planner_answers_every_tracks_message(ros_domain):
 
     from advperc_ros.core.scenario import EgoState
     from advperc_ros.ros import messages as msgs
-    from advperc_ros.ros.bag import ODOMETRY, PLAN, ROUTE, TOPIC_TYPES, TRACKING, read_topics
+    from advperc_ros.ros.bag import read_topics
+    from advperc_ros.ros.topics import ODOMETRY, PLAN, ROUTE, TOPIC_TYPES, TRACKING
     from advperc_ros.ros.transport import RclpyTransport
 
     spec = importlib.util.spec_from_file_location("external_planner", REPO / "examples" / "external_planner.py")

@@ -79,11 +79,12 @@ def test_samples_follow_the_model_marginals():
 
 
 def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
+    from toy_scenarios import FOLLOW_SPEC
+
     from advperc_ros.core.errors import PerceptionErrors
     from advperc_ros.core.metrics.nds import in_range
     from advperc_ros.core.pem import default_pem, features
     from advperc_ros.core.scenario_spec import build_scenario
-    from toy_scenarios import FOLLOW_SPEC
 
     scenario = build_scenario(FOLLOW_SPEC)
     truth = scenario.agents
@@ -108,10 +109,10 @@ def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path,
     from advperc_ros.attack import Stack
     from advperc_ros.cli import main
     from advperc_ros.core.errors import PerceptionErrors, inject
-    from advperc_ros.params import load_params
-    from advperc_ros.ros import bag as bags
-    from advperc_ros.ros import messages as msgs
     from advperc_ros.core.scenario import EgoState
+    from advperc_ros.params import load_params
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros import topics
     from advperc_ros.ros.bag import open_bag_for_writing, read_scenario
 
     rng = np.random.default_rng(11)
@@ -126,9 +127,9 @@ def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path,
             with open_bag_for_writing(path) as bag:
                 for k, ns in enumerate(scenario.stamps_ns):
                     ns = int(ns)
-                    bag.write(bags.GROUND_TRUTH, ns, msgs.objects_to_markers(scenario.agents.frame(k), ns, "ground_truth"))
-                    bag.write(bags.PERCEPTION, ns, msgs.objects_to_markers(perceived.frame(k), ns, "perception"))
-                    bag.write(bags.ODOMETRY, ns, msgs.odometry(EgoState(*ego[k]), ns))
+                    bag.write(topics.GROUND_TRUTH, ns, msgs.objects_to_markers(scenario.agents.frame(k), ns, "ground_truth"))
+                    bag.write(topics.PERCEPTION, ns, msgs.objects_to_markers(perceived.frame(k), ns, "perception"))
+                    bag.write(topics.ODOMETRY, ns, msgs.odometry(EgoState(*ego[k]), ns))
             paths.append(str(path))
     output = tmp_path / "fitted.json"
     assert main(["pem", "fit", *paths, "--output", str(output)]) == 0

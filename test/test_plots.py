@@ -8,6 +8,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 from PIL import Image
+from test_cli import write_params
+from toy_scenarios import FOLLOW_SPEC, RUNAWAY_LEAD_SPEC, rotated
 
 from advperc_ros import plots
 from advperc_ros.attack import run_attack
@@ -16,8 +18,6 @@ from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.params import load_params
 from advperc_ros.results import closest_approach
 from advperc_ros.ros.bag import read_scenario
-from test_cli import write_params
-from toy_scenarios import FOLLOW_SPEC, RUNAWAY_LEAD_SPEC, rotated
 
 
 def _attack(scenario, repo, base):

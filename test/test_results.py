@@ -5,14 +5,15 @@ import json
 
 import pytest
 from rosbags.rosbag2 import Reader
+from test_cli import write_params
+from toy_scenarios import CLOSING_LEAD_SPEC, RUNAWAY_LEAD_SPEC
 
 from advperc_ros.cli import main
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.results import FOXGLOVE_LAYOUT, foxglove_layout
 from advperc_ros.ros import bag as bags
+from advperc_ros.ros import topics
 from advperc_ros.ros.bag import write_ground_truth_bag
-from test_cli import write_params
-from toy_scenarios import CLOSING_LEAD_SPEC, RUNAWAY_LEAD_SPEC
 
 
 @pytest.fixture(scope="module")
@@ -41,18 +42,18 @@ def test_every_topic_of_the_foxglove_layout_is_in_the_attack_bag(attack):
         in_bag = {connection.topic: connection.msgtype for connection in reader.connections}
     named = _layout_topics(layout)
     assert set(named) <= set(in_bag), set(named) - set(in_bag)
-    layers = (bags.GROUND_TRUTH, bags.PERCEPTION, bags.TRACKING, bags.ODOMETRY, bags.PLAN)
+    layers = (topics.GROUND_TRUTH, topics.PERCEPTION, topics.TRACKING, topics.ODOMETRY, topics.PLAN)
     three_d = layout["configById"]["3D!attack"]["topics"]
     colours = [three_d[topic].get("color") or three_d[topic]["gradient"][0] for topic in layers]
     assert len(set(colours)) == len(layers)  # each layer its own colour
-    assert named[bags.RULE].startswith("Plot!") and named[bags.SUMMARY].startswith("RawMessages!")
-    assert in_bag[bags.RULE] == "std_msgs/msg/Float64"
+    assert named[topics.RULE].startswith("Plot!") and named[topics.SUMMARY].startswith("RawMessages!")
+    assert in_bag[topics.RULE] == "std_msgs/msg/Float64"
 
 
 def test_the_layout_looks_at_the_collision(attack):
     report = json.loads((attack / "report.json").read_text())
-    topics, _ = bags.read_topics(attack / "attack", {bags.ODOMETRY: bags.TOPIC_TYPES[bags.ODOMETRY]})
-    position = topics[bags.ODOMETRY][report["collision_frame"]][1].pose.pose.position
+    messages, _ = bags.read_topics(attack / "attack", {topics.ODOMETRY: topics.TOPIC_TYPES[topics.ODOMETRY]})
+    position = messages[topics.ODOMETRY][report["collision_frame"]][1].pose.pose.position
     camera = json.loads((attack / FOXGLOVE_LAYOUT).read_text())["configById"]["3D!attack"]["cameraState"]
     assert camera["targetOffset"][:2] == pytest.approx([position.x, position.y])
 

@@ -24,11 +24,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from conftest import REPO, need_program, need_ros
 
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 from advperc_ros.params import NODE, load_params
 from advperc_ros.ros import bag as bags
-from conftest import REPO, need_program, need_ros
+from advperc_ros.ros import topics
 
 SMALL_SEARCH = {"heuristic": {"iterations": 1}, "random": {"steps": 4}, "refine": {"iterations": 0}}
 """A short search (about a dozen rollouts): what is compared is the plumbing, not the search."""
@@ -119,8 +120,8 @@ def _node_table() -> dict[str, tuple[set[str], set[str]]]:
 def test_docs_topic_table_is_the_code_s():
     """Types and QoS of the contract table are those the code uses (the live graph is checked below)."""
     for topic, (msgtype, qos) in _contract().items():
-        assert bags.TOPIC_TYPES.get(topic, "std_msgs/msg/String") == msgtype, topic
-        latched = topic in bags.LATCHED or topic in ("/attack/errors", "/attack/nodes")
+        assert topics.TOPIC_TYPES.get(topic, "std_msgs/msg/String") == msgtype, topic
+        latched = topic in topics.LATCHED or topic in ("/attack/errors", "/attack/nodes")
         assert (qos == "latched") == latched, topic
 
 
@@ -289,8 +290,8 @@ def _bag_info(path: Path) -> tuple[str, dict[str, tuple[str, int]]]:
 
 
 def _recorded(path: Path) -> dict[str, tuple[str, int]]:
-    messages, _ = bags.read_topics(path, bags.TOPIC_TYPES, raw=True)
-    return {topic: (bags.TOPIC_TYPES[topic], len(found)) for topic, found in messages.items() if found}
+    messages, _ = bags.read_topics(path, topics.TOPIC_TYPES, raw=True)
+    return {topic: (topics.TOPIC_TYPES[topic], len(found)) for topic, found in messages.items() if found}
 
 
 def test_ros2_bag_info_lists_every_topic_of_our_bags(tmp_path, ros_domain):
@@ -304,7 +305,7 @@ def test_ros2_bag_info_lists_every_topic_of_our_bags(tmp_path, ros_domain):
     for path in [*ground_truth, tmp_path / "out" / "attack"]:
         distro, topics = _bag_info(path)
         assert distro == "jazzy" and topics == _recorded(path), path
-    assert {bags.PERCEPTION, bags.TRACKING, bags.PLAN, bags.RULE} <= set(_bag_info(tmp_path / "out" / "attack")[1])
+    assert {topics.PERCEPTION, topics.TRACKING, topics.PLAN, topics.RULE} <= set(_bag_info(tmp_path / "out" / "attack")[1])
 
 
 def test_ros2_bag_play_feeds_ground_truth_the_graph_accepts(ros_domain):
@@ -328,8 +329,8 @@ def test_ros2_bag_play_feeds_ground_truth_the_graph_accepts(ros_domain):
             received[stamp] = objects
 
         transport = RclpyTransport(node)
-        transport.subscriber(bags.GROUND_TRUTH, bags.TOPIC_TYPES[bags.GROUND_TRUTH], callback=keep, raw=True)
-        player = subprocess.Popen(["ros2", "bag", "play", str(path), "--rate", "5", "--topics", bags.GROUND_TRUTH,
+        transport.subscriber(topics.GROUND_TRUTH, topics.TOPIC_TYPES[topics.GROUND_TRUTH], callback=keep, raw=True)
+        player = subprocess.Popen(["ros2", "bag", "play", str(path), "--rate", "5", "--topics", topics.GROUND_TRUTH,
                                    "--delay", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 120
         while len(received) < scenario.num_frames and time.monotonic() < deadline:

@@ -16,8 +16,8 @@ from advperc_ros.core.errors import confidence_scores
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros import cdr
-from advperc_ros.ros.bag import GROUND_TRUTH, PERCEPTION, TOPIC_TYPES
-from advperc_ros.ros.lockstep import CONTROL_TYPE, ERRORS, READY, RolloutErrors, parse_errors, ready_message
+from advperc_ros.ros.lockstep import RolloutErrors, parse_errors, ready_message
+from advperc_ros.ros.topics import CONTROL_TYPE, ERRORS, GROUND_TRUTH, PERCEPTION, READY, TOPIC_TYPES
 from advperc_ros.ros.transport import Transport
 
 

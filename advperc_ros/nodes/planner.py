@@ -13,11 +13,13 @@ import sys
 from typing import Any
 
 from advperc_ros.core.planners.base import Planner, load_planner
+from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
 from advperc_ros.params import planning_context
-from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.bag import ODOMETRY, PLAN, TOPIC_TYPES, TRACKING, read_scenario
+from advperc_ros.ros.bag import read_scenario
+from advperc_ros.ros.lockstep import StampPairs
+from advperc_ros.ros.topics import ODOMETRY, PLAN, TOPIC_TYPES, TRACKING
 from advperc_ros.ros.transport import Transport
 
 

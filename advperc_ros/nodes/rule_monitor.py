@@ -11,11 +11,11 @@ from typing import Any
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.rules import collision_distances
-from advperc_ros.nodes.runtime import Logger, NodeSpec, StampPairs, ground_truth_objects, run_node
+from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.bag import GROUND_TRUTH, ODOMETRY, RULE, RULE_DIAGNOSTICS, TOPIC_TYPES
-from advperc_ros.ros.lockstep import rule_diagnostics
+from advperc_ros.ros.lockstep import StampPairs, rule_diagnostics
+from advperc_ros.ros.topics import GROUND_TRUTH, ODOMETRY, RULE, RULE_DIAGNOSTICS, TOPIC_TYPES
 from advperc_ros.ros.transport import Transport
 
 

@@ -33,8 +33,8 @@ import yaml
 from advperc_ros.exits import EXIT_INPUT, EXPECTED_TYPES, INPUT_ERRORS, expected_failure
 from advperc_ros.params import SCHEMA, find_bag, load_params, node_values, params_from_values
 from advperc_ros.ros import cdr
-from advperc_ros.ros.bag import GROUND_TRUTH
-from advperc_ros.ros.lockstep import CONTROL_TYPE, PRESENCE, presence_message
+from advperc_ros.ros.lockstep import presence_message
+from advperc_ros.ros.topics import CONTROL_TYPE, GROUND_TRUTH, PRESENCE
 from advperc_ros.ros.transport import Transport
 
 POLL_PERIOD = 0.05  # s between `poll()` calls of a node that has one (the player's timeouts)
@@ -60,57 +60,6 @@ class NodeSpec:
     params: tuple[str, ...]
     build: Callable[[Transport, dict[str, Any], dict[str, Any], Logger], object]
     planner_params: bool = False  # declares `planner_params` too
-
-
-class RolloutClock:
-    """Tells rollouts apart from stamps alone, so a node needs no control topic and an external
-    planner can follow the same rule: an input stamped at or before the last answered stamp
-    starts a new rollout (every rollout starts again at the scenario's first stamp, and the
-    player never publishes frame k+1 before frame k is answered). Times are counted from the
-    rollout's first stamp, exactly as `Scenario.times` counts them."""
-
-    def __init__(self) -> None:
-        self._origin = 0
-        self._answered: int | None = None
-        self._fresh = True
-
-    def observe(self, stamp: int) -> bool:
-        """Call on every input; True when it begins a new rollout (inputs still pending from
-        the previous one must then be dropped)."""
-        if self._answered is not None and stamp <= self._answered:
-            self._answered = None
-            self._fresh = True
-            return True
-        return False
-
-    def answer(self, stamp: int) -> tuple[bool, float]:
-        """Call when answering the input(s) stamped `stamp`: (first answer of a rollout, so reset
-        the core object; seconds since the rollout's first stamp)."""
-        first = self._fresh
-        if first:
-            self._origin = stamp
-            self._fresh = False
-        self._answered = stamp
-        return first, (stamp - self._origin) * 1e-9
-
-
-class StampPairs:
-    """Pairs two input streams (`put(0, ...)`, `put(1, ...)`) by stamp and calls `answer(stamp,
-    first, second)` once both are in; what is still unpaired when a new rollout starts is dropped."""
-
-    def __init__(self, answer: Callable[[int, Any, Any], None]) -> None:
-        self.clock = RolloutClock()
-        self._answer = answer
-        self._pending: tuple[dict[int, Any], dict[int, Any]] = ({}, {})
-
-    def put(self, stream: int, stamp: int, value: Any) -> None:
-        if self.clock.observe(stamp):
-            for pending in self._pending:
-                pending.clear()
-        self._pending[stream][stamp] = value
-        if all(stamp in pending for pending in self._pending):
-            first, second = (pending.pop(stamp) for pending in self._pending)
-            self._answer(stamp, first, second)
 
 
 @functools.lru_cache(maxsize=GROUND_TRUTH_CACHE)

@@ -22,33 +22,8 @@ from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import Lane, Scenario, ScenarioError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.topics import CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, ROUTE, TOPIC_TYPES, depth
 
-CLOCK = "/clock"
-GROUND_TRUTH = "/ground_truth/objects"
-PERCEPTION = "/perception/objects"
-TRACKING = "/tracking/objects"
-ODOMETRY = "/ego/odometry"
-PLAN = "/planning/trajectory"
-RULE = "/rules/collision"
-RULE_DIAGNOSTICS = "/rules/diagnostics"
-LANES = "/map/lanes"
-ROUTE = "/ego/route"
-SUMMARY = "/attack/summary"
-
-TOPIC_TYPES = {
-    CLOCK: "rosgraph_msgs/msg/Clock",
-    GROUND_TRUTH: "visualization_msgs/msg/MarkerArray",
-    PERCEPTION: "visualization_msgs/msg/MarkerArray",
-    TRACKING: "visualization_msgs/msg/MarkerArray",
-    ODOMETRY: "nav_msgs/msg/Odometry",
-    PLAN: "nav_msgs/msg/Path",
-    RULE: "std_msgs/msg/Float64",
-    RULE_DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
-    LANES: "visualization_msgs/msg/MarkerArray",
-    ROUTE: "nav_msgs/msg/Path",
-    SUMMARY: "std_msgs/msg/String",
-}
-LATCHED = {LANES, ROUTE, SUMMARY}
 SCENARIO_KEY = "advperc.scenario"
 ROS_DISTRO = "jazzy"  # the message definitions come from rosbags' Jazzy typestore
 
@@ -61,7 +36,7 @@ def _qos(latched: bool) -> Qos:
     infinite = QosTime(sec=0x7FFFFFFF, nsec=0xFFFFFFFF)
     return Qos(
         history=QosHistory.KEEP_LAST,
-        depth=1 if latched else 1000,
+        depth=depth(latched),
         reliability=QosReliability.RELIABLE,
         durability=QosDurability.TRANSIENT_LOCAL if latched else QosDurability.VOLATILE,
         deadline=infinite,

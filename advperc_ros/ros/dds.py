@@ -8,7 +8,7 @@ It follows what rmw_cyclonedds puts on the wire, so these processes and real ROS
   here too) and readers accept only that: by default they would also accept XCDR2, which rosbags
   cannot decode, so a writer offering XCDR2 must fail to match visibly rather than deliver
   undecodable samples;
-- QoS is the contract's: reliable, keep-last 1000, volatile; latched topics are transient-local
+- QoS is the contract's (`topics.depth`): reliable, keep-last 1000, volatile; latched topics are transient-local
   keep-last 1, which is what ROS 2 calls latching.
 
 Messages go in as rosbags message objects (`advperc_ros.ros.messages`) or as their CDR payload
@@ -45,6 +45,7 @@ from cyclonedds.util import duration
 
 from advperc_ros.ros import dds_types
 from advperc_ros.ros.cdr import payload
+from advperc_ros.ros.topics import depth
 
 try:  # the fast path: CDR bytes straight to Cyclone (see the module docstring)
     from cyclonedds._clayer import ddspy_take as _ddspy_take
@@ -64,8 +65,6 @@ probes the indices 0..max_index on 127.0.0.1, so at most max_index + 1 processes
 domain on one host; Cyclone's default of 9 is too tight for six nodes, an orchestrator and tools."""
 MAX_PROCESSES = 32
 
-DEPTH = 1000
-LATCHED_DEPTH = 1
 _ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
 _TAKE_BATCH = 256
 _POLL_S = 0.002
@@ -89,7 +88,7 @@ def _qos(latched: bool, msgtype: str) -> Qos:
     return Qos(
         Policy.Reliability.Reliable(max_blocking_time=duration(milliseconds=100)),
         Policy.Durability.TransientLocal if latched else Policy.Durability.Volatile,
-        Policy.History.KeepLast(LATCHED_DEPTH if latched else DEPTH),
+        Policy.History.KeepLast(depth(latched)),
         Policy.DataRepresentation(use_cdrv0_representation=True),
         Policy.Userdata(data=f"typehash={dds_types.TYPESTORE.hash_rihs01(msgtype)};".encode()),
     )

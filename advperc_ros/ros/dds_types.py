@@ -28,7 +28,7 @@ from typing import Any
 from cyclonedds.idl import IdlStruct, make_idl_struct
 from cyclonedds.idl import types as idl
 
-from advperc_ros.ros.bag import TOPIC_TYPES
+from advperc_ros.ros.topics import TOPIC_TYPES
 from advperc_ros.ros.cdr import TYPESTORE, payload
 
 # rosbags Nodetype values (rosbags.interfaces.Nodetype): BASE, NAME, ARRAY, SEQUENCE

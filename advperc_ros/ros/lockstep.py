@@ -20,7 +20,9 @@ written with `repr` (exact round trip; `inf` where nothing is present).
 """
 
 import json
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -28,13 +30,8 @@ from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.bag import RULE_DIAGNOSTICS
+from advperc_ros.ros.topics import RULE_DIAGNOSTICS
 
-ERRORS = "/attack/errors"
-READY = "/attack/ready"
-DONE = "/attack/done"
-PRESENCE = "/attack/nodes"
-CONTROL_TYPE = "std_msgs/msg/String"
 RULE_STATUS = "collision"
 MIN_KEY = "min_signed_distance"
 AGENT_KEY = "agent "
@@ -132,3 +129,53 @@ def plan_from_cdr(data: bytes, first_stamp_ns: int, where: str) -> tuple[int, Tr
     stamp, poses, stamps = cdr.decode_path(data, where)
     return stamp, Trajectory(t=(stamps - np.int64(first_stamp_ns)) * 1e-9, x=poses[:, 0], y=poses[:, 1], yaw=poses[:, 2])
 
+
+class RolloutClock:
+    """Tells rollouts apart from stamps alone, so a node needs no control topic and an external
+    planner can follow the same rule: an input stamped at or before the last answered stamp
+    starts a new rollout (every rollout starts again at the scenario's first stamp, and the
+    player never publishes frame k+1 before frame k is answered). Times are counted from the
+    rollout's first stamp, exactly as `Scenario.times` counts them."""
+
+    def __init__(self) -> None:
+        self._origin = 0
+        self._answered: int | None = None
+        self._fresh = True
+
+    def observe(self, stamp: int) -> bool:
+        """Call on every input; True when it begins a new rollout (inputs still pending from
+        the previous one must then be dropped)."""
+        if self._answered is not None and stamp <= self._answered:
+            self._answered = None
+            self._fresh = True
+            return True
+        return False
+
+    def answer(self, stamp: int) -> tuple[bool, float]:
+        """Call when answering the input(s) stamped `stamp`: (first answer of a rollout, so reset
+        the core object; seconds since the rollout's first stamp)."""
+        first = self._fresh
+        if first:
+            self._origin = stamp
+            self._fresh = False
+        self._answered = stamp
+        return first, (stamp - self._origin) * 1e-9
+
+
+class StampPairs:
+    """Pairs two input streams (`put(0, ...)`, `put(1, ...)`) by stamp and calls `answer(stamp,
+    first, second)` once both are in; what is still unpaired when a new rollout starts is dropped."""
+
+    def __init__(self, answer: Callable[[int, Any, Any], None]) -> None:
+        self.clock = RolloutClock()
+        self._answer = answer
+        self._pending: tuple[dict[int, Any], dict[int, Any]] = ({}, {})
+
+    def put(self, stream: int, stamp: int, value: Any) -> None:
+        if self.clock.observe(stamp):
+            for pending in self._pending:
+                pending.clear()
+        self._pending[stream][stamp] = value
+        if all(stamp in pending for pending in self._pending):
+            first, second = (pending.pop(stamp) for pending in self._pending)
+            self._answer(stamp, first, second)

@@ -23,7 +23,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from advperc_ros.ros.cdr import TYPESTORE, payload
-from advperc_ros.ros.dds import DEPTH, LATCHED_DEPTH
+from advperc_ros.ros.topics import depth
 
 
 class Publisher(Protocol):
@@ -76,7 +76,7 @@ def _rclpy_qos(latched: bool) -> Any:
 
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
-        depth=LATCHED_DEPTH if latched else DEPTH,
+        depth=depth(latched),
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )

@@ -1,0 +1,50 @@
+"""The topic contract in one place: every topic's name, message type and QoS.
+
+docs/graph.md's topic table states the same, and test/test_ros2.py holds the live graph to it. QoS
+is one rule on every transport and in bags: reliable; volatile keep-last `DEPTH`, or latched
+(transient-local keep-last `LATCHED_DEPTH`), which is what ROS 2 calls latching.
+"""
+
+CLOCK = "/clock"
+GROUND_TRUTH = "/ground_truth/objects"
+PERCEPTION = "/perception/objects"
+TRACKING = "/tracking/objects"
+ODOMETRY = "/ego/odometry"
+PLAN = "/planning/trajectory"
+RULE = "/rules/collision"
+RULE_DIAGNOSTICS = "/rules/diagnostics"
+LANES = "/map/lanes"
+ROUTE = "/ego/route"
+SUMMARY = "/attack/summary"  # attack bags only
+
+# lockstep control (advperc_ros.ros.lockstep): std_msgs/String holding JSON
+ERRORS = "/attack/errors"
+READY = "/attack/ready"
+DONE = "/attack/done"
+PRESENCE = "/attack/nodes"
+CONTROL_TYPE = "std_msgs/msg/String"
+
+TOPIC_TYPES = {
+    CLOCK: "rosgraph_msgs/msg/Clock",
+    GROUND_TRUTH: "visualization_msgs/msg/MarkerArray",
+    PERCEPTION: "visualization_msgs/msg/MarkerArray",
+    TRACKING: "visualization_msgs/msg/MarkerArray",
+    ODOMETRY: "nav_msgs/msg/Odometry",
+    PLAN: "nav_msgs/msg/Path",
+    RULE: "std_msgs/msg/Float64",
+    RULE_DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
+    LANES: "visualization_msgs/msg/MarkerArray",
+    ROUTE: "nav_msgs/msg/Path",
+    SUMMARY: "std_msgs/msg/String",
+}
+"""The data topics: what bags hold and the graph's nodes exchange per frame."""
+CONTROL_TOPICS = (ERRORS, READY, DONE, PRESENCE)
+LATCHED = frozenset({LANES, ROUTE, SUMMARY, ERRORS, PRESENCE})
+
+DEPTH = 1000
+LATCHED_DEPTH = 1
+
+
+def depth(latched: bool) -> int:
+    """History depth of a topic's readers and writers."""
+    return LATCHED_DEPTH if latched else DEPTH

@@ -1,14 +1,79 @@
 """One attack from validated params to a results folder: what `advperc attack` and the
 orchestrator node both call, so both choose the same output folder, check it before any work,
-and write the same report."""
+run the same search and write the same report."""
 
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from advperc_ros.attack import open_rollouts, run_attack
+from tqdm import tqdm
+
+from advperc_ros.backend import EXTERNAL, Rollouts, Stack
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.pipeline import SearchConfig, budget, run_search
+from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
+from advperc_ros.core.search.random_search import RandomSearchConfig
+from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, ParamsError, resolve_bag
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
+
+
+def search_config(params: AttackParams) -> SearchConfig:
+    search = params.search
+    return SearchConfig(
+        heuristic_iterations=search.heuristic.iterations,
+        random=RandomSearchConfig(steps=search.random.steps, proposals=search.random.proposals,
+                                  max_offset=search.random.max_offset, yaw_std=search.random.yaw_std),
+        refine_iterations=search.refine.iterations,
+        seed=params.seed,
+    )
+
+
+@contextmanager
+def open_rollouts(scenario: Scenario, params: AttackParams, bag_path: Path, transport: Any = None) -> Iterator[Rollouts]:
+    """The backend `rollout_backend` names, ready to use and shut down on exit. `transport`
+    (graph backend, nodes not spawned) lets an rclpy orchestrator reach nodes over its own node."""
+    if params.rollout_backend != "graph":
+        yield Stack(scenario, params)
+        return
+    from advperc_ros.graph.rollouts import GraphRollouts
+
+    with GraphRollouts(scenario, params, bag_path, transport) as graph:
+        yield graph
+
+
+def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
+               rollouts: Rollouts | None = None) -> AttackOutcome:
+    """The whole search over `rollouts` (default: embedded), then the best attack recorded."""
+    started = time.perf_counter()
+    backend = rollouts if rollouts is not None else Stack(scenario, params)
+    config = search_config(params)
+    bar = tqdm(total=budget(config, scenario.agents.shape[1]), desc=scenario.name, unit="rollout",
+               disable=not progress, file=sys.stderr, mininterval=1.0)
+
+    def on_rollout(row: LogRow) -> None:
+        phase = "heuristic" if row.phase.heuristic else {Phase.RANDOM: "random search"}.get(row.phase, str(row.phase))
+        bar.set_description(f"{scenario.name} ({phase})", refresh=False)
+        bar.set_postfix(best=f"{row.best_metric:.4f}", refresh=False)
+        bar.update()
+
+    problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=on_rollout)
+    try:
+        result = run_search(problem, config)
+    finally:
+        bar.close()
+    recorded = backend.rollout(result.best.errors, record=True) if result.best is not None else None
+    attacked = backend.attacked_planner
+    if attacked.node is not None:
+        params = replace(params, planner=EXTERNAL, planner_params={})
+    return AttackOutcome(scenario=scenario, params=params, heuristic_best=result.heuristic, best=result.best,
+                         recorded=recorded, log=problem.log, wall_time_s=time.perf_counter() - started,
+                         planner_node=attacked.node)
 
 
 def default_output(params: AttackParams, scenario_name: str) -> Path:

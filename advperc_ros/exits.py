@@ -8,7 +8,7 @@ from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.search.problem import GroundTruthFails
-from advperc_ros.graph import GraphError
+from advperc_ros.graph.errors import GraphError
 from advperc_ros.params import ParamsError
 from advperc_ros.ros.bag import BagError
 

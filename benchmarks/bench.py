@@ -26,7 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
-from advperc_ros.attack import Stack, run_attack
+from advperc_ros.application import run_attack
+from advperc_ros.backend import Stack
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.search.problem import GroundTruthFails
 from advperc_ros.core.metrics.nds import nds

@@ -23,11 +23,11 @@ pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; th
 
 from conftest import need_ros  # noqa: E402
 
-from advperc_ros.attack import Stack  # noqa: E402
+from advperc_ros.backend import Stack  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
 from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
-from advperc_ros.graph import GraphRollouts  # noqa: E402
+from advperc_ros.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
@@ -193,8 +193,8 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
     params = load_params(params_for(tmp_path))
     stack = Stack(scenario, params)
     with GraphRollouts(scenario, params, BAG) as graph:
-        assert sorted(graph.processes) == sorted(("scenario_player", "error_injector", "tracker", "planner", "rule_monitor"))
-        assert len({p.pid for p in graph.processes.values()} | {os.getpid()}) == 6
+        assert sorted(graph.processes.running) == sorted(("scenario_player", "error_injector", "tracker", "planner", "rule_monitor"))
+        assert len({p.pid for p in graph.processes.running.values()} | {os.getpid()}) == 6
         truth = PerceptionErrors.none(*scenario.agents.shape)
         result = graph.rollout(truth)
         assert_same_rollout(result, stack.rollout(truth))
@@ -211,7 +211,7 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
         for got, want in zip(result.plans, embedded.plans):
             np.testing.assert_allclose(got.t, want.t, rtol=0, atol=TOLERANCE)
             np.testing.assert_allclose(np.stack([got.x, got.y]), np.stack([want.x, want.y]), rtol=0, atol=TOLERANCE)
-        processes = list(graph.processes.values())
+        processes = list(graph.processes.running.values())
     assert all(p.poll() is not None for p in processes)  # shut down on exit
 
 
@@ -247,7 +247,7 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
     with GraphRollouts(scenario, params, BAG) as graph:
         # killed mid-rollout: once the planner hangs at t >= 2 s, kill its process
         arm.touch()
-        planner = graph.processes["planner"]
+        planner = graph.processes.running["planner"]
         outcome = {}
         worker = threading.Thread(target=lambda: outcome.setdefault("result", graph.rollout(truth)))
         worker.start()
@@ -263,7 +263,7 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
         killed = outcome["result"]
         assert "planner process exited with code -9" in killed.inconclusive
         assert 0 < killed.num_frames < scenario.num_frames and not killed.collided
-        assert graph.processes["planner"].pid != planner.pid  # restarted
+        assert graph.processes.running["planner"].pid != planner.pid  # restarted
         assert_same_rollout(graph.rollout(truth), expected)
         # silent: the planner stops answering; the player times out after graph.timeout
         arm.touch()

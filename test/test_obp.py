@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import yaml
 
-from advperc_ros.attack import Stack
+from advperc_ros.backend import Stack
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, load_planner

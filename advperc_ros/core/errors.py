@@ -62,15 +62,29 @@ def confidence_scores(num_frames: int, num_agents: int) -> np.ndarray:
     return scores
 
 
+def _offset(x: np.ndarray, y: np.ndarray, yaw: np.ndarray, dx: np.ndarray, dy: np.ndarray,
+            dyaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The error of a detected box: its pose offset, yaw wrapped."""
+    return x + dx, y + dy, wrap_angle(yaw + dyaw)
+
+
 def inject(truth: BoxSequence, errors: PerceptionErrors) -> BoxSequence:
     """I(y, e): offset the true boxes and remove the dropped ones (whole sequences at once)."""
     if errors.shape != truth.shape:
         raise ValueError(f"error tensor shape {errors.shape} does not match ground truth {truth.shape}")
-    return replace(
-        truth,
-        valid=truth.valid & ~errors.fn,
-        x=truth.x + errors.dx,
-        y=truth.y + errors.dy,
-        yaw=wrap_angle(truth.yaw + errors.dyaw),
-        score=confidence_scores(*truth.shape),
-    )
+    x, y, yaw = _offset(truth.x, truth.y, truth.yaw, errors.dx, errors.dy, errors.dyaw)
+    return replace(truth, valid=truth.valid & ~errors.fn, x=x, y=y, yaw=yaw, score=confidence_scores(*truth.shape))
+
+
+def inject_frame(truth: dict[str, np.ndarray], frame: int, slots: np.ndarray,
+                 errors: PerceptionErrors) -> dict[str, np.ndarray]:
+    """I(y, e) for one frame, as the graph's injector node applies it: `truth` the frame's boxes
+    (1-D arrays, as `BoxSequence.frame` gives them), `slots` the error-tensor column of each. The
+    values are `inject`'s, float for float."""
+    keep = ~errors.fn[frame, slots]
+    kept = slots[keep]
+    out = {name: values[keep] for name, values in truth.items()}
+    out["x"], out["y"], out["yaw"] = _offset(out["x"], out["y"], out["yaw"], errors.dx[frame, kept],
+                                             errors.dy[frame, kept], errors.dyaw[frame, kept])
+    out["score"] = confidence_scores(*errors.shape)[frame, kept]
+    return out

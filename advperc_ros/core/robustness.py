@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.search.problem import AttackProblem
+from advperc_ros.core.search.problem import AttackProblem, Phase
 
 DEFAULT_STRENGTHS = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5)
 
@@ -42,7 +42,7 @@ def robustness_curve(
     present = problem.scenario.agents.valid
     points = []
     for strength in strengths:
-        runs = [problem.evaluate(perturb(errors, present, strength, rng), "robustness") for _ in range(samples)]
+        runs = [problem.evaluate(perturb(errors, present, strength, rng), Phase.ROBUSTNESS) for _ in range(samples)]
         conclusive = [r for r in runs if r.rollout.inconclusive is None]
         points.append(
             RobustnessPoint(

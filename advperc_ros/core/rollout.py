@@ -3,6 +3,10 @@
 Per frame k: score the collision rule for the ego at t_k, inject errors into the true boxes,
 track, plan, and move the ego along the plan to t_{k+1}. Agents never react to the ego, so a
 rollout is a pure function of (scenario, errors, stack) and is deterministic.
+
+The rules of a frame (`violates`, `after_plan`) and of what a rollout records (`recorded_frames`)
+are written once here: `rollout` below runs them in one process, the graph's scenario player and
+orchestrator (advperc_ros.nodes.scenario_player, advperc_ros.graph) run them over DDS.
 """
 
 import time
@@ -14,7 +18,7 @@ from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, Trajectory
 from advperc_ros.core.rules import collision_distances
-from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker
 
 
@@ -62,6 +66,44 @@ class RolloutResult:
         return self.inconclusive is None and self.min_signed_distance < 0.0
 
 
+def violates(rule_value: float, stop_at_collision: bool) -> bool:
+    """Whether the rollout ends at a frame whose rule value is `rule_value` (before planning it)."""
+    return stop_at_collision and rule_value < 0.0
+
+
+@dataclass(frozen=True)
+class AfterPlan:
+    """What follows frame k's plan: the ego at t_{k+1}, or the end of the rollout (the last frame
+    was planned: done; or the plan cannot be followed: inconclusive, and why)."""
+
+    ego: EgoState | None = None
+    inconclusive: str | None = None
+
+    @property
+    def done(self) -> bool:
+        return self.ego is None
+
+
+def after_plan(plan: Trajectory, k: int, times: np.ndarray) -> AfterPlan:
+    """Move the ego along frame k's plan to t_{k+1}; after the last frame there is nothing to follow."""
+    if k + 1 == len(times):
+        return AfterPlan()
+    if not len(plan.t):
+        return AfterPlan(inconclusive=f"frame {k}: the planner answered with an empty plan (it failed; see its log)")
+    try:
+        return AfterPlan(ego=follow_plan(plan, float(times[k + 1])))
+    except PlanError as exc:
+        return AfterPlan(inconclusive=f"frame {k}: {exc}")
+
+
+def recorded_frames(frames: int, stopped_at_violation: bool, inconclusive: bool) -> tuple[int, int]:
+    """(frames whose tracks, frames whose plan) a recorded rollout of `frames` frames keeps: no
+    tracks or plan at a frame that ended it by a violation (it is not planned), no plan at the
+    frame that made it inconclusive."""
+    tracked = frames - 1 if stopped_at_violation else frames
+    return tracked, tracked - (1 if inconclusive else 0)
+
+
 def rollout(
     scenario: Scenario,
     errors: PerceptionErrors,
@@ -92,7 +134,7 @@ def rollout(
         started = clock()
         distances[k] = collision_distances(ego, config.ego_length, config.ego_width, agents, k)
         stage_times["rule"] += clock() - started
-        if config.stop_at_collision and distances[k].min(initial=np.inf) < 0.0:
+        if violates(distances[k].min(initial=np.inf), config.stop_at_collision):
             last = k
             break
         started = clock()
@@ -101,12 +143,14 @@ def rollout(
         started = clock()
         try:
             plan = planner.plan(float(times[k]), ego, tracks)
-            if k + 1 < num_frames:
-                ego = follow_plan(plan, float(times[k + 1]))
-        except PlanError as exc:
-            inconclusive, last = f"frame {k}: {exc}", k
         except Exception as exc:  # a plug-in planner that crashes gives no verdict, not a pass
             inconclusive, last = f"frame {k}: planner raised {type(exc).__name__}: {exc}", k
+        else:
+            following = after_plan(plan, k, times)
+            if following.inconclusive is not None:
+                inconclusive, last = following.inconclusive, k
+            elif not following.done:
+                ego = following.ego
         stage_times["planner"] += clock() - started
         if record:
             tracks_log.append(tracks)

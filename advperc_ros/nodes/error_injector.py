@@ -4,7 +4,7 @@ It holds the error tensor of the current rollout (latched /attack/errors, acknow
 /attack/ready so the player starts frame 0 only once the tensor is here) and turns each
 /ground_truth/objects frame into /perception/objects with the same stamp: offsets added, dropped
 agents removed, confidences from the fixed scheme of `core.errors` (so the values are those of
-`core.errors.inject`, float for float). Stateless between frames: nothing to reset.
+`core.errors.inject`, float for float: `core.errors.inject_frame`). Stateless between frames: nothing to reset.
 """
 
 import sys
@@ -12,28 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.core.errors import confidence_scores
-from advperc_ros.core.geometry import wrap_angle
+from advperc_ros.core.errors import inject_frame
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros.lockstep import RolloutErrors, parse_errors, ready_message
 from advperc_ros.ros.topics import CONTROL_TYPE, ERRORS, GROUND_TRUTH, PERCEPTION, READY, TOPIC_TYPES
 from advperc_ros.ros.transport import Transport
-
-
-def perceive(truth: dict[str, np.ndarray], frame: int, slots: np.ndarray, rollout: RolloutErrors,
-             scores: np.ndarray) -> dict[str, np.ndarray]:
-    """I(y, e) for one frame: `truth` as decoded from the message, `slots` the error-tensor column
-    of each of its agents."""
-    e = rollout.errors
-    keep = ~e.fn[frame, slots]
-    kept = slots[keep]
-    out = {name: values[keep] for name, values in truth.items()}
-    out["x"] = out["x"] + e.dx[frame, kept]
-    out["y"] = out["y"] + e.dy[frame, kept]
-    out["yaw"] = wrap_angle(out["yaw"] + e.dyaw[frame, kept])
-    out["score"] = scores[frame, kept]
-    return out
 
 
 class ErrorInjector:
@@ -42,7 +26,6 @@ class ErrorInjector:
         self._rollout: RolloutErrors | None = None
         self._slots: dict[int, int] = {}
         self._frames: dict[int, int] = {}
-        self._scores = np.zeros((0, 0))
         self._perception = transport.publisher(PERCEPTION, TOPIC_TYPES[PERCEPTION])
         self._ready = transport.publisher(READY, CONTROL_TYPE)
         transport.subscriber(ERRORS, CONTROL_TYPE, latched=True, callback=self.on_errors)
@@ -53,7 +36,6 @@ class ErrorInjector:
         self._rollout = rollout
         self._slots = {int(agent): j for j, agent in enumerate(rollout.agent_ids)}
         self._frames = {int(stamp): k for k, stamp in enumerate(rollout.stamps_ns)}
-        self._scores = confidence_scores(*rollout.errors.shape)
         self._ready.publish(ready_message(rollout.rollout))
 
     def on_ground_truth(self, data: bytes) -> None:
@@ -67,7 +49,7 @@ class ErrorInjector:
             self._log.error(f"{GROUND_TRUTH}: agents {unknown} at stamp {stamp} are not in the error tensor; frame dropped")
             return
         slots = np.array([self._slots[int(i)] for i in truth["ids"]], dtype=np.int64)
-        perceived = perceive(truth, self._frames[stamp], slots, self._rollout, self._scores)
+        perceived = inject_frame(truth, self._frames[stamp], slots, self._rollout.errors)
         self._perception.publish(cdr.encode_objects(perceived, stamp, "perception"))
 
 

@@ -9,7 +9,7 @@ On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lo
    frame, even when the rollout ends there, leaves no answer in flight when it ends;
 3. exactly as `core.rollout`: stop at a rule violation if `stop_at_collision`; an empty plan (the
    planner failed) or one that does not cover t_{k+1} makes the rollout inconclusive; else move the
-   ego along the plan (`core.ego_motion.follow_plan`) and publish frame k+1;
+   ego along the plan (`core.rollout.after_plan`, the embedded rollout's rule) and publish frame k+1;
 4. publish /attack/done. If the rule value or plan of a frame does not come within `graph.timeout`
    seconds the rollout is inconclusive (`timeout: true`), never a pass or a failure.
 
@@ -23,13 +23,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.core.rollout import after_plan, violates
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import read_scenario, read_topics
-from advperc_ros.ros.lockstep import (INCONCLUSIVE, OK, RolloutDone, done_message, parse_ready, parse_rule_diagnostics,
+from advperc_ros.ros.lockstep import (RolloutDone, Status, done_message, parse_ready, parse_rule_diagnostics,
                                       plan_from_cdr)
 from advperc_ros.ros.topics import (CLOCK, CONTROL_TYPE, DONE, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, PLAN, READY,
                                     ROUTE, RULE_DIAGNOSTICS, TOPIC_TYPES)
@@ -84,7 +84,7 @@ class ScenarioPlayer:
     def on_ready(self, msg: Any) -> None:
         rollout = parse_ready(msg)
         if self._run is not None:
-            self._finish(INCONCLUSIVE, f"frame {self._run.frame}: superseded by rollout {rollout}", timeout=True)
+            self._finish(Status.INCONCLUSIVE, f"frame {self._run.frame}: superseded by rollout {rollout}", timeout=True)
         self._run = _Run(rollout, 0, 0.0)
         self._publish_frame(0, self._start)
 
@@ -109,19 +109,16 @@ class ScenarioPlayer:
         if run.rule is None or run.plan is None:
             return
         k = run.frame
-        if self._stop_at_collision and run.rule < 0.0:
-            self._finish(OK)
-        elif not len(run.plan.t):
-            self._finish(INCONCLUSIVE, f"frame {k}: the planner answered with an empty plan (it failed; see its log)")
-        elif k + 1 == self.scenario.num_frames:
-            self._finish(OK)
+        if violates(run.rule, self._stop_at_collision):
+            self._finish(Status.OK)
+            return
+        following = after_plan(run.plan, k, self.scenario.times)
+        if following.inconclusive is not None:
+            self._finish(Status.INCONCLUSIVE, following.inconclusive)
+        elif following.done:
+            self._finish(Status.OK)
         else:
-            try:
-                ego = follow_plan(run.plan, float(self.scenario.times[k + 1]))
-            except PlanError as exc:
-                self._finish(INCONCLUSIVE, f"frame {k}: {exc}")
-            else:
-                self._publish_frame(k + 1, msgs.ego_to_cdr(ego, self._stamp(k + 1)))
+            self._publish_frame(k + 1, msgs.ego_to_cdr(following.ego, self._stamp(k + 1)))
 
     def poll(self) -> None:
         """Called periodically: a frame unanswered past its deadline ends the rollout."""
@@ -129,13 +126,13 @@ class ScenarioPlayer:
         if run is None or time.monotonic() < run.deadline:
             return
         missing = " and ".join(what for what, got in (("rule value", run.rule), ("plan", run.plan)) if got is None)
-        self._finish(INCONCLUSIVE, f"frame {run.frame}: no {missing} stamped {self._stamp(run.frame)} within "
+        self._finish(Status.INCONCLUSIVE, f"frame {run.frame}: no {missing} stamped {self._stamp(run.frame)} within "
                                    f"{self._timeout:g} s (a node is dead or silent)", timeout=True)
 
-    def _finish(self, status: str, reason: str = "", timeout: bool = False) -> None:
+    def _finish(self, status: Status, reason: str = "", timeout: bool = False) -> None:
         run = self._run
         done = RolloutDone(run.rollout, run.frame + 1, status, reason, timeout)
-        (self._log.info if status == OK else self._log.warning)(
+        (self._log.info if status == Status.OK else self._log.warning)(
             f"rollout {run.rollout}: {done.frames} frames, {status}" + (f": {reason}" if reason else ""))
         self._run = None
         self._done.publish(done_message(done))

@@ -22,6 +22,7 @@ written with `repr` (exact round trip; `inf` where nothing is present).
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
+from enum import Enum
 from typing import Any
 
 import numpy as np
@@ -35,8 +36,17 @@ from advperc_ros.ros.topics import RULE_DIAGNOSTICS
 RULE_STATUS = "collision"
 MIN_KEY = "min_signed_distance"
 AGENT_KEY = "agent "
-OK = "ok"
-INCONCLUSIVE = "inconclusive"
+
+
+class Status(str, Enum):
+    """A rollout's verdict in /attack/done: it ran to its end (ok), or has none (inconclusive)."""
+
+    OK = "ok"
+    INCONCLUSIVE = "inconclusive"
+
+    def __str__(self) -> str:
+        return self.value
+
 
 
 @dataclass(frozen=True)
@@ -53,7 +63,7 @@ class RolloutErrors:
 class RolloutDone:
     rollout: int
     frames: int
-    status: str
+    status: Status
     reason: str
     timeout: bool
 
@@ -95,13 +105,13 @@ def parse_presence(msg) -> tuple[str, int]:
 
 
 def done_message(done: RolloutDone):
-    return msgs.string(json.dumps({"rollout": done.rollout, "frames": done.frames, "status": done.status,
+    return msgs.string(json.dumps({"rollout": done.rollout, "frames": done.frames, "status": done.status.value,
                                    "reason": done.reason, "timeout": done.timeout}))
 
 
 def parse_done(msg) -> RolloutDone:
     data = json.loads(msg.data)
-    return RolloutDone(int(data["rollout"]), int(data["frames"]), str(data["status"]), str(data["reason"]),
+    return RolloutDone(int(data["rollout"]), int(data["frames"]), Status(data["status"]), str(data["reason"]),
                        bool(data["timeout"]))
 
 

@@ -8,7 +8,7 @@ only on a definite verdict: an inconclusive rollout ends that bisection where it
 from collections.abc import Callable
 
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, GroundTruthFails
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, GroundTruthFails, Phase
 
 
 def bisect(
@@ -16,7 +16,7 @@ def bisect(
     fails: int,
     passes: int,
     errors_at: Callable[[int], PerceptionErrors],
-    phase: str,
+    phase: Phase,
     agent: int,
     iterations: int,
     failing: Evaluation,
@@ -41,7 +41,7 @@ def heuristic_search(problem: AttackProblem, iterations: int = 3) -> list[Evalua
     scenario = problem.scenario
     num_frames, num_agents = scenario.agents.shape
     none = PerceptionErrors.none(num_frames, num_agents)
-    truth = problem.evaluate(none, "ground_truth")
+    truth = problem.evaluate(none, Phase.GROUND_TRUTH)
     if truth.rollout.inconclusive:
         raise GroundTruthFails(f"the ground-truth rollout is inconclusive: {truth.rollout.inconclusive}")
     if truth.adversarial:
@@ -52,18 +52,18 @@ def heuristic_search(problem: AttackProblem, iterations: int = 3) -> list[Evalua
     failure_modes = []
     for j in range(num_agents):
         agent = int(scenario.agents.ids[scenario.agents.valid[:, j].argmax(), j])
-        failing = problem.evaluate(none.with_drop(j, 0, num_frames - 1), "heuristic_drop", agent)
+        failing = problem.evaluate(none.with_drop(j, 0, num_frames - 1), Phase.HEURISTIC_DROP, agent)
         if not failing.adversarial:
             continue
         # latest start: dropping [start, end] fails, dropping nothing (start = T) passes
         start, failing = bisect(
-            problem, 0, num_frames, lambda mid: none.with_drop(j, mid, num_frames - 1), "heuristic_start", agent,
+            problem, 0, num_frames, lambda mid: none.with_drop(j, mid, num_frames - 1), Phase.HEURISTIC_START, agent,
             iterations, failing,
         )
         # earliest end: frames past the collision cannot matter, so the failing end starts there
         _, failing = bisect(
             problem, min(num_frames, failing.rollout.num_frames) - 1, start - 1,
-            lambda mid: none.with_drop(j, start, mid), "heuristic_end", agent, iterations, failing,
+            lambda mid: none.with_drop(j, start, mid), Phase.HEURISTIC_END, agent, iterations, failing,
         )
         failure_modes.append(failing)
     return failure_modes

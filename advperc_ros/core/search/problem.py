@@ -2,6 +2,7 @@
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from enum import Enum
 
 import numpy as np
 
@@ -12,6 +13,25 @@ from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
 
 OBJECTIVES = ("nds", "nds_t", "pem_ll")
+
+
+class Phase(str, Enum):
+    """Which step of the search a rollout belongs to (the `phase` column of search_log.csv)."""
+
+    GROUND_TRUTH = "ground_truth"
+    HEURISTIC_DROP = "heuristic_drop"  # Algorithm 1: one agent's whole track dropped
+    HEURISTIC_START = "heuristic_start"  # Algorithm 1: bisecting the drop's latest start
+    HEURISTIC_END = "heuristic_end"  # Algorithm 1: bisecting its earliest end
+    RANDOM = "random"  # Algorithm 2
+    REFINE = "refine"  # beyond the paper: re-detecting the start of dropped runs
+    ROBUSTNESS = "robustness"  # perturbations of a found attack (paper figure 5)
+
+    def __str__(self) -> str:
+        return self.value
+
+    @property
+    def heuristic(self) -> bool:
+        return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END)
 
 
 class GroundTruthFails(RuntimeError):
@@ -35,7 +55,7 @@ class Evaluation:
 @dataclass
 class LogRow:
     rollout: int
-    phase: str
+    phase: Phase
     agent: int  # agent id the step concerns, -1 for none
     metric: float
     nds: float
@@ -80,7 +100,7 @@ class AttackProblem:
         scores = self.scores(errors, reference.num_frames, reference.ego_xy, self._reference_phi)
         return getattr(scores, self.objective)
 
-    def evaluate(self, errors: PerceptionErrors, phase: str, agent: int = -1) -> Evaluation:
+    def evaluate(self, errors: PerceptionErrors, phase: Phase, agent: int = -1) -> Evaluation:
         """Roll out errors, score them on that rollout, log the rollout."""
         result = self.run_rollout(errors)
         scores = self.scores(errors, result.num_frames, result.ego_xy)
@@ -98,7 +118,7 @@ class AttackProblem:
             collided=result.collided,
             inconclusive=result.inconclusive or "",
             planner_failures=result.planner_failures,
-            accepted=evaluation.adversarial and phase != "ground_truth",
+            accepted=evaluation.adversarial and phase != Phase.GROUND_TRUTH,
             best_metric=self.best.metric if self.best is not None else float("nan"),
         )
         self.log.append(row)

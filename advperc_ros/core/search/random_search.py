@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.search.problem import AttackProblem, Evaluation
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ def random_search(
         improving = [p for p in proposals if p is not None and problem.metric(p, current.rollout) > alpha]
         if not improving:
             continue
-        trial = problem.evaluate(improving[rng.integers(len(improving))], "random")
+        trial = problem.evaluate(improving[rng.integers(len(improving))], Phase.RANDOM)
         if trial.adversarial:
             current = trial
     return current

@@ -11,7 +11,7 @@ where the remaining gains are.
 import numpy as np
 
 from advperc_ros.core.search.heuristic import bisect
-from advperc_ros.core.search.problem import AttackProblem, Evaluation
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 
 
 def dropped_runs(fn: np.ndarray) -> list[tuple[int, int, int]]:
@@ -37,7 +37,7 @@ def refine_drops(problem: AttackProblem, best: Evaluation, iterations: int = 4) 
             out.dyaw[first : first + count, j] = 0.0
             return out
 
-        count, failing = bisect(problem, 0, last - first + 1, restored, "refine", agent, iterations, best)
+        count, failing = bisect(problem, 0, last - first + 1, restored, Phase.REFINE, agent, iterations, best)
         if count > 0 and failing.metric > best.metric:
             best = failing
     return best

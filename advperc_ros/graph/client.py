@@ -1,0 +1,110 @@
+"""The orchestrator's side of the lockstep protocol (docs/graph.md): send a rollout's errors,
+gather what the graph publishes until the player's /attack/done and everything it implies are in."""
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.graph.assembly import PER_FRAME, RECORDED, complete
+from advperc_ros.graph.errors import RolloutFault
+from advperc_ros.ros import cdr
+from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.lockstep import (RolloutDone, RolloutErrors, errors_message, parse_done, parse_presence,
+                                      parse_rule_diagnostics, plan_from_cdr)
+from advperc_ros.ros.topics import CONTROL_TYPE, DONE, ERRORS, ODOMETRY, PRESENCE, RULE_DIAGNOSTICS, TOPIC_TYPES, TRACKING
+from advperc_ros.ros.transport import Transport
+
+SPIN = 0.05  # s per transport spin while waiting; per-frame topics are taken at least this often
+SETTLE = 0.001  # s per spin once /attack/done is in but per-frame messages are still due
+
+
+class LockstepClient:
+    """Over one transport: the /attack/errors writer, readers of /attack/done, /attack/nodes and the
+    per-frame topics a result needs (tracks and plans too once `record_too` was called)."""
+
+    def __init__(self, transport: Transport, agent_ids: np.ndarray, stamps_ns: np.ndarray, stop_at_collision: bool) -> None:
+        self.transport = transport
+        self.present: dict[str, int] = {}  # node name -> pid, from /attack/nodes
+        self.received: dict[str, dict[int, Any]] = {}  # topic -> stamp -> decoded value
+        self._agent_ids = agent_ids
+        self._stamps_ns = stamps_ns
+        self._stamps = [int(s) for s in stamps_ns]
+        self._stop_at_collision = stop_at_collision
+        self._done: list[RolloutDone] = []
+        self._next_rollout = 1
+        self.errors = transport.publisher(ERRORS, CONTROL_TYPE, latched=True)
+        for topic in PER_FRAME:
+            self._subscribe(topic)
+        transport.subscriber(DONE, CONTROL_TYPE, callback=lambda msg: self._done.append(parse_done(msg)))
+        transport.subscriber(PRESENCE, CONTROL_TYPE, latched=True, callback=self._on_presence)
+
+    @property
+    def recording(self) -> bool:
+        return all(topic in self.received for topic in RECORDED)
+
+    def record_too(self) -> None:
+        """Subscribe to tracks and plans, which only recorded rollouts need (decoding them every
+        frame would slow every rollout)."""
+        for topic in RECORDED:
+            self._subscribe(topic)
+
+    def _on_presence(self, msg: Any) -> None:
+        name, pid = parse_presence(msg)
+        self.present[name] = pid
+
+    def _subscribe(self, topic: str) -> None:
+        """Keep what `topic` delivers (raw) by stamp, decoded as the result needs it. Per-frame
+        messages are only read once the rollout is done, so they do not wake the spin (a wake-up
+        per message would compete for the CPU with the nodes in every frame)."""
+        received: dict[int, Any] = {}
+        self.received[topic] = received
+
+        def keep(data: bytes) -> None:
+            stamp, value = self._decode(topic, data)
+            received[stamp] = value
+
+        self.transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=True, wake=False)
+
+    def _decode(self, topic: str, data: bytes) -> tuple[int | None, Any]:
+        """(stamp, value) of a payload: EgoState, (minimum, distance per agent id), tracks, or plan."""
+        if topic == ODOMETRY:
+            return msgs.ego_from_cdr(data, ODOMETRY)
+        if topic == RULE_DIAGNOSTICS:
+            stamp, minimum, per_agent = parse_rule_diagnostics(data)
+            return stamp, (minimum, per_agent)
+        if topic == TRACKING:
+            return cdr.decode_objects(data, TRACKING)
+        return plan_from_cdr(data, self._stamps[0], topic)
+
+    def send(self, errors: PerceptionErrors) -> int:
+        """Publish a rollout's errors under a fresh rollout id; forget the previous rollout's messages."""
+        rollout = self._next_rollout
+        self._next_rollout += 1
+        for received in self.received.values():
+            received.clear()
+        self._done.clear()
+        self.errors.publish(errors_message(RolloutErrors(rollout, errors, self._agent_ids, self._stamps_ns)))
+        return rollout
+
+    def collect(self, rollout: int, stall: float, record: bool, dead: Callable[[], str | None]) -> RolloutDone:
+        """Spin until the player's /attack/done for `rollout` and every message it implies are in;
+        a RolloutFault when a node died (`dead()` says which), the player timed out, or nothing
+        came for `stall` seconds."""
+        idle_since = time.monotonic()
+        done = None
+        while True:
+            if self.transport.spin_once(SPIN if done is None else SETTLE):
+                idle_since = time.monotonic()
+            death = dead()
+            if death is not None:
+                raise RolloutFault(death)
+            done = next((d for d in self._done if d.rollout == rollout), None)
+            if done is not None and done.timeout:
+                raise RolloutFault(done.reason)
+            if done is not None and complete(self.received, self._stamps, done, record, self._stop_at_collision):
+                return done
+            if time.monotonic() - idle_since > stall:
+                raise RolloutFault(f"no message from the graph for {stall:g} s (player, injector or rule monitor dead or silent)")

@@ -1,0 +1,192 @@
+"""The graph backend the search uses: every rollout through the node graph, the nodes separate processes.
+
+`GraphRollouts(scenario, params, bag_path)` starts scenario_player, error_injector, tracker,
+planner and rule_monitor as child processes speaking Cyclone DDS on `dds.domain_id` (loopback
+only unless `dds.localhost_only` is false), or, with `graph.spawn_nodes: false`, uses nodes that
+already run (launch/attack.launch.py, an external planner). `rollout(errors)` then returns the
+same RolloutResult the embedded `Stack.rollout` returns, so `run_attack` uses it unchanged:
+
+- a rollout is published on /attack/errors (latched) with a fresh rollout id; the injector
+  acknowledges it to the player, which runs it in lockstep and reports /attack/done;
+- the ego trajectory is read from /ego/odometry, the per-agent signed distances from
+  /rules/diagnostics, the verdict (ok or inconclusive, and why) from /attack/done; recorded
+  rollouts also keep /tracking/objects and /planning/trajectory.
+
+Readiness: every node we started must have announced itself on the latched /attack/nodes, and
+the /attack/errors writer must match a reader (writer-side discovery; builtin-topic readers are
+never used, they crash cyclonedds 11.0.1). Then a ground-truth warm-up rollout must complete: it
+exercises every edge of the lockstep, so no first message of a real rollout can be lost to
+discovery between two nodes. A warm-up that stalls is re-sent under a new id (the player drops
+the stalled one) until `STARTUP_TIMEOUT`.
+
+Faults: a child process that exits, a rollout the player reports as timed out, or a graph silent
+for longer than `graph.timeout` + `GRACE` makes that rollout inconclusive with one error log line
+saying which, and the children are restarted (fresh processes hold no state or stale answers)
+before the next rollout. Everything is shut down on exit (SIGTERM, then SIGKILL after
+`STOP_TIMEOUT`), and children exit by themselves if this process dies.
+"""
+
+import json
+import logging
+import time
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from advperc_ros.backend import EXTERNAL, AttackedPlanner
+from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.graph.assembly import assemble, frames_in, kept_frames
+from advperc_ros.graph.client import SPIN, LockstepClient
+from advperc_ros.graph.errors import GraphError, RolloutFault
+from advperc_ros.graph.processes import NodeProcesses
+from advperc_ros.params import PLANNER_PARAMS, AttackParams
+from advperc_ros.ros.topics import ERRORS, PLAN
+from advperc_ros.ros.transport import Transport
+
+PLANNER_NODE = "planner"
+STARTUP_TIMEOUT = 60.0  # s for the children to start, discover each other and pass the warm-up
+WARMUP_STALL = 0.5  # s without progress after which a warm-up rollout is first re-sent
+GRACE = 5.0  # s beyond graph.timeout before a silent graph is declared dead
+
+log = logging.getLogger("advperc_ros.graph")
+
+
+class GraphRollouts:
+    """Rollouts through the node graph; a context manager that owns the node processes it starts.
+    `transport` (an rclpy node's `RclpyTransport`) is for `graph.spawn_nodes: false` only: nodes
+    we start are reached over a Cyclone participant of our own, recreated with them on a restart."""
+
+    def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path, transport: Transport | None = None) -> None:
+        if transport is not None and params.graph.spawn_nodes:
+            raise ValueError("a transport can only be given with graph.spawn_nodes false")
+        self.scenario = scenario
+        self.params = params
+        self._given_transport = transport
+        agents = scenario.agents
+        self._agent_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]
+        self._slots = {int(agent): j for j, agent in enumerate(self._agent_ids)}
+        self._stamps = [int(s) for s in scenario.stamps_ns]
+        params_json = json.dumps({**params.flat(), "bag": str(Path(bag_path).resolve()),
+                                  PLANNER_PARAMS: dict(params.planner_params)})
+        self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only)
+        self._client: LockstepClient | None = None
+        self._recording = False
+        try:
+            self._start()
+        except BaseException:
+            self.close()
+            raise
+
+    # -- lifecycle -------------------------------------------------------------------------------
+
+    def _start(self) -> None:
+        deadline = time.monotonic() + STARTUP_TIMEOUT
+        if self.params.graph.spawn_nodes:
+            self.processes.start()
+        self._client = LockstepClient(self._transport(), self._agent_ids, self.scenario.stamps_ns,
+                                      self.params.stop_at_collision)
+        if self._recording:
+            self._client.record_too()
+        while self._missing():
+            dead = self.processes.dead()
+            if dead is not None:
+                raise GraphError(dead)
+            if time.monotonic() > deadline:
+                raise GraphError(f"not up within {STARTUP_TIMEOUT:g} s: {', '.join(self._missing())}")
+            self._client.transport.spin_once(SPIN)
+        self._warm_up(deadline)
+
+    def _transport(self) -> Any:
+        """The given transport, or a Cyclone participant of our own (closed with the graph)."""
+        if self._given_transport is not None:
+            return self._given_transport
+        from advperc_ros.ros.dds import DdsError, DdsTransport
+
+        try:
+            return DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only)
+        except DdsError as exc:
+            raise GraphError(str(exc)) from exc
+
+    def _missing(self) -> list[str]:
+        """What the graph still lacks: a node we started that has not announced itself with its
+        pid on /attack/nodes, or (writer-side discovery) an injector matching /attack/errors."""
+        present = self._client.present
+        missing = [name for name, process in self.processes.running.items() if present.get(name) != process.pid]
+        if self._client.errors.matched_count() < 1:
+            missing.append(f"a subscriber of {ERRORS} (the error_injector)")
+        return missing
+
+    @property
+    def attacked_planner(self) -> AttackedPlanner:
+        """Our planner node (started by us, or announced on /attack/nodes: the launch file
+        configures it from the same params), else an external node, named where the middleware
+        tells who publishes the plans."""
+        if self.params.graph.spawn_nodes or PLANNER_NODE in self._client.present:
+            return AttackedPlanner(self.params.planner)
+        return AttackedPlanner(EXTERNAL, ", ".join(self._client.transport.publishers_of(PLAN)))
+
+    def _warm_up(self, deadline: float) -> None:
+        """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
+        allowed doubling each time (a lost first message costs little, a slow planner still passes)."""
+        none = PerceptionErrors.none(*self.scenario.agents.shape)
+        stall = WARMUP_STALL
+        while True:
+            rollout = self._client.send(none)
+            try:
+                self._client.collect(rollout, stall, self._recording, self.processes.dead)
+                return
+            except RolloutFault as fault:
+                if self.processes.dead() is not None or time.monotonic() > deadline:
+                    raise GraphError(f"the graph did not complete a warm-up rollout: {fault}") from None
+            stall *= 2
+
+    def _restart(self) -> None:
+        """Fresh node processes and a fresh participant (the old latched /attack/errors goes with
+        it); nodes we did not start are left as they are."""
+        if self.params.graph.spawn_nodes:
+            self.processes.stop(kill=True)
+            self._client.transport.close()
+            self._start()
+
+    def close(self) -> None:
+        """Stop the children (SIGTERM, then SIGKILL) and the transport; idempotent."""
+        self.processes.close()
+        if self._client is not None and self._given_transport is None:
+            self._client.transport.close()
+        self._client = None
+
+    def __enter__(self) -> "GraphRollouts":
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 traceback: TracebackType | None) -> None:
+        self.close()
+
+    # -- rollouts --------------------------------------------------------------------------------
+
+    def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult:
+        if record and not self._recording:
+            self._recording = True
+            self._client.record_too()
+            self._warm_up(time.monotonic() + STARTUP_TIMEOUT)  # proves the new subscriptions
+        client = self._client
+        rollout = client.send(errors)
+        try:
+            done = client.collect(rollout, self.params.graph.timeout + GRACE, record, self.processes.dead)
+        except RolloutFault as fault:
+            log.error(f"rollout {rollout} inconclusive: {fault}; "
+                      + ("restarting the graph nodes" if self.params.graph.spawn_nodes else "going on with the running nodes"))
+            result = assemble(client.received, self._stamps, self._slots, frames_in(client.received, self._stamps),
+                              f"graph failure in rollout {rollout}: {fault}", None)
+            if record:  # the attack bag is still written, without tracks and plans
+                result.tracks, result.plans = [], []
+            self._restart()
+            return result
+        if done.reason:
+            log.warning(f"rollout {rollout} {done.status}: {done.reason}")
+        recorded = kept_frames(client.received, self._stamps, done, self.params.stop_at_collision) if record else None
+        return assemble(client.received, self._stamps, self._slots, done.frames, done.reason or None, recorded)

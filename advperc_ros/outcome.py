@@ -1,0 +1,21 @@
+"""What an attack comes to: the search's result and log, and the best attack recorded; what the
+results folder, its pictures and the report are written from."""
+
+from dataclasses import dataclass
+
+from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.problem import Evaluation, LogRow
+from advperc_ros.params import AttackParams
+
+
+@dataclass(frozen=True)
+class AttackOutcome:
+    scenario: Scenario
+    params: AttackParams  # as run: `planner` is EXTERNAL when an external node planned
+    heuristic_best: Evaluation | None  # None when no agent is influential
+    best: Evaluation | None  # best adversarial evaluation of the whole search
+    recorded: RolloutResult | None  # the best attack rolled out again with tracks and plans kept
+    log: list[LogRow]
+    wall_time_s: float
+    planner_node: str | None = None  # the external planner node, when one planned

@@ -1,0 +1,97 @@
+"""The code's shape, checked: no import cycle, dependencies pointing one way, node names in one place.
+
+Every import counts, including those inside functions (a lazy import is still a dependency);
+only `if TYPE_CHECKING:` blocks are left out. Run `python -m pytest test/test_architecture.py -q`.
+"""
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+from conftest import REPO
+
+PACKAGE = REPO / "advperc_ros"
+
+
+def _module(path: Path) -> str:
+    parts = path.relative_to(REPO).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _imports(path: Path) -> set[str]:
+    """advperc_ros modules `path` imports (a `from X import y` counts X.y when that is a module)."""
+    tree = ast.parse(path.read_text())
+    skipped = {id(node) for guard in ast.walk(tree) if isinstance(guard, ast.If)
+               and "TYPE_CHECKING" in ast.unparse(guard.test) for node in ast.walk(guard)}
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+            found |= {f"{node.module}.{alias.name}" for alias in node.names}
+    return {name for name in found if name.startswith("advperc_ros")}
+
+
+@pytest.fixture(scope="module")
+def graph() -> dict[str, set[str]]:
+    modules = {_module(path): path for path in PACKAGE.rglob("*.py")}
+    return {name: {i for i in _imports(path) if i in modules and i != name} for name, path in modules.items()}
+
+
+def test_no_import_cycle(graph):
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(module: str) -> None:
+        state[module] = 1
+        stack.append(module)
+        for target in sorted(graph[module]):
+            if state.get(target) == 1:
+                cycle = stack[stack.index(target):] + [target]
+                raise AssertionError("import cycle: " + " -> ".join(cycle))
+            if target not in state:
+                visit(target)
+        stack.pop()
+        state[module] = 2
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module)
+
+
+def _layer(module: str) -> str:
+    parts = module.split(".")
+    return parts[1] if len(parts) > 1 else ""
+
+
+@pytest.mark.parametrize("layer, may_import", [
+    ("core", {"core"}),
+    ("importers", {"core", "importers"}),
+    ("ros", {"core", "ros"}),
+])
+def test_lower_layers_import_only_below_them(graph, layer, may_import):
+    for module, targets in graph.items():
+        if _layer(module) == layer:
+            above = sorted(t for t in targets if _layer(t) not in may_import and t != "advperc_ros")
+            assert not above, f"{module} imports {above}"
+
+
+def test_nothing_imports_the_cli_and_graph_nodes_stay_below_the_application(graph):
+    for module, targets in graph.items():
+        assert "advperc_ros.cli" not in targets, f"{module} imports the CLI"
+        if _layer(module) == "nodes" and module != "advperc_ros.nodes.orchestrator":
+            # the orchestrator is an entry point like the CLI; the five graph nodes are not
+            assert not targets & {"advperc_ros.application", "advperc_ros.results", "advperc_ros.backend"}, module
+
+
+def test_node_executables_are_listed_once(repo):
+    """setup.py's console scripts are the orchestrator and the graph nodes of nodes.graph_nodes."""
+    from advperc_ros.nodes.graph_nodes import SPECS
+
+    listed = re.search(r"^NODES = \(([^)]*)\)", (repo / "setup.py").read_text(), flags=re.M).group(1)
+    assert tuple(re.findall(r'"(\w+)"', listed)) == ("orchestrator", *(spec.name for spec in SPECS))

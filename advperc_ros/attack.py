@@ -15,7 +15,8 @@ import numpy as np
 from tqdm import tqdm
 
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.planners.base import PlanningContext, load_planner
+from advperc_ros.core.planners.base import PlanningContext
+from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.heuristic import heuristic_search

@@ -1,14 +1,19 @@
 """The IDM path-following planner (DESIGN.md section 8) and the planner plug-in loader."""
 
+import ast
+import subprocess
+import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, Trajectory, load_planner
+from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, Trajectory
 from advperc_ros.core.planners.idm import IDMConfig, IDMPlanner
+from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario import EgoState
 
 DT = 0.1
@@ -238,6 +243,41 @@ def test_replan_period_holds_previous_plan_and_reset_clears_it():
 
 
 # ---------------------------------------------------------------- loading
+
+IMPORTED_BY = """
+import sys
+import advperc_ros.core.planners.{module}
+print(" ".join(sorted(m for m in ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp", "casadi")
+                      if m in sys.modules)))
+"""
+
+
+@pytest.mark.parametrize("module", ["base", "registry"])
+def test_interface_and_registry_import_no_planner(module):
+    """The interface and the registry import no implementation: no import circle, and IDM users
+    never load CasADi. A fresh interpreter, since this one has imported everything."""
+    out = subprocess.run([sys.executable, "-c", IMPORTED_BY.format(module=module)], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == ""
+
+
+def test_interface_module_imports_nothing_of_the_planners_package():
+    """base.py is imported by every planner, so it imports none of the package, not even inside a
+    function (the old load_planner did, which closed an import circle)."""
+    import advperc_ros.core.planners.base as base
+
+    tree = ast.parse(Path(base.__file__).read_text())
+    imported = [node.module if isinstance(node, ast.ImportFrom) else alias.name
+                for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
+                for alias in node.names]
+    assert not [name for name in imported if name.startswith("advperc_ros.core.planners")]
+
+
+@pytest.mark.parametrize("module", ["idm", "obp"])
+def test_each_planner_imports_on_its_own(module):
+    """A planner module imported first, before anything else of the package, imports cleanly."""
+    subprocess.run([sys.executable, "-c", f"import advperc_ros.core.planners.{module}"], check=True)
+
 
 def test_load_bundled_idm_with_params():
     planner = load_planner("idm", CONTEXT, {"target_speed": 7.0})

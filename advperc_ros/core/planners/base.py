@@ -1,12 +1,12 @@
 """What every planner shares: the trajectory it returns, what it knows of the road, the protocol.
 
 A team plugs in its own planner as any class with this protocol, named `module:Class` in the
-params file; it is constructed as `Class(context, **params)`.
+params file; `registry.load_planner` constructs it as `Class(context, **params)`. This module is
+the interface only: it imports no planner, so any module may import it.
 """
 
-import importlib
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -48,28 +48,3 @@ class Planner(Protocol):
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
         """Answer the tracks at time t (dict of 1-D arrays: ids, x, y, yaw, vx, vy, length, width,
         height) with a plan starting at t."""
-
-
-def load_planner(name: str, context: PlanningContext, params: dict[str, Any]) -> Planner:
-    """Build a bundled planner by name, or a plug-in given as `module:Class`."""
-    from advperc_ros.core.planners.idm import IDMPlanner
-    from advperc_ros.core.planners.obp import OBPPlanner
-
-    bundled = {"idm": IDMPlanner, "obp": OBPPlanner}
-    if name in bundled:
-        cls = bundled[name]
-    elif ":" in name:
-        module_name, _, class_name = name.partition(":")
-        try:
-            cls = getattr(importlib.import_module(module_name), class_name)
-        except (ImportError, AttributeError) as exc:
-            raise PlannerError(f"planner '{name}' cannot be imported: {exc}") from exc
-    else:
-        raise PlannerError(f"unknown planner '{name}' (bundled: {', '.join(sorted(bundled))}; or module:Class)")
-    try:
-        planner = cls(context, **params)
-    except TypeError as exc:
-        raise PlannerError(f"planner '{name}' rejected its parameters: {exc}") from exc
-    if not isinstance(planner, Planner):
-        raise PlannerError(f"planner '{name}' lacks the planner protocol (reset() and plan(t, ego, tracks))")
-    return planner

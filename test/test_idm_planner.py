@@ -301,9 +301,34 @@ def test_load_missing_module_or_class(tmp_path, monkeypatch):
         load_planner("empty_planner_mod:Missing", CONTEXT, {})
 
 
-def test_load_rejects_bad_params():
-    with pytest.raises(PlannerError, match="idm"):
-        load_planner("idm", CONTEXT, {"no_such_param": 1.0})
+@pytest.mark.parametrize("params, name", [
+    ({"no_such_param": 1.0}, "no_such_param"),
+    ({"target_speed": -1.0}, "target_speed"),
+    ({"target_speed": "fast"}, "target_speed"),
+    ({"max_decel": 0.0}, "max_decel"),
+    ({"horizon": 0.0}, "horizon"),
+    ({"horizon": float("inf")}, "horizon"),
+    ({"headway": -0.5}, "headway"),
+    ({"replan_period": -0.1}, "replan_period"),
+    ({"min_gap": True}, "min_gap"),
+])
+def test_load_refuses_bad_params_in_one_line_naming_planner_and_parameter(params, name):
+    with pytest.raises(PlannerError) as refused:
+        load_planner("idm", CONTEXT, params)
+    message = str(refused.value)
+    assert "'idm'" in message and f"'{name}'" in message and "\n" not in message
+
+
+def test_out_of_range_is_a_value_error_of_the_planner_itself():
+    with pytest.raises(ValueError, match="'target_speed'"):
+        IDMPlanner(CONTEXT, target_speed=-1.0)
+    with pytest.raises(ValueError, match="'exponent'"):
+        IDMConfig(exponent=0.0)
+
+
+def test_params_file_integers_are_floats():
+    target_speed = load_planner("idm", CONTEXT, {"target_speed": 14}).config.target_speed
+    assert target_speed == 14.0 and isinstance(target_speed, float)
 
 
 PLUGIN_SOURCE = textwrap.dedent(

@@ -229,12 +229,30 @@ def test_loaded_by_name_with_params_file_values(scenario, params):
     assert isinstance(planner, OBPPlanner) and isinstance(planner, Planner)
     assert planner.config.horizon == 5.0 and isinstance(planner.config.horizon, float)
     assert planner.config.target_speed == 10.0
-    with pytest.raises(PlannerError, match="obp"):
-        load_planner("obp", _context(scenario), {"no_such_param": 1.0})
-    with pytest.raises(PlannerError, match="target_speed"):
-        load_planner("obp", _context(scenario), {"target_speed": "fast"})
-    with pytest.raises(PlannerError, match="horizon"):
-        load_planner("obp", _context(scenario), {"horizon": 0.0})
+
+
+@pytest.mark.parametrize("params, name", [
+    ({"no_such_param": 1.0}, "no_such_param"),
+    ({"target_speed": "fast"}, "target_speed"),
+    ({"horizon": 0.0}, "horizon"),
+    ({"step": -0.3}, "step"),
+    ({"safety_margin": -0.1}, "safety_margin"),
+    ({"max_cpu_time": float("inf")}, "max_cpu_time"),
+    ({"max_obstacles": 2.5}, "max_obstacles"),
+    ({"max_iterations": 0}, "max_iterations"),
+    ({"max_steer": 2.0}, "max_steer"),
+    ({"single_stage": 1}, "single_stage"),
+])
+def test_load_refuses_bad_params_in_one_line_naming_planner_and_parameter(scenario, params, name):
+    with pytest.raises(PlannerError) as refused:
+        load_planner("obp", _context(scenario), params)
+    message = str(refused.value)
+    assert "'obp'" in message and f"'{name}'" in message and "\n" not in message
+
+
+def test_out_of_range_is_a_value_error_of_the_planner_itself(scenario):
+    with pytest.raises(ValueError, match="'horizon'"):
+        OBPPlanner(_context(scenario), horizon=0.0)
 
 
 def test_replan_period_holds_the_plan(scenario):

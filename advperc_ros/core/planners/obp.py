@@ -18,7 +18,7 @@ emergency braking along the previous path; failures are counted in `failures`, n
 
 import math
 import time
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from itertools import product
 
 import casadi as ca
@@ -27,6 +27,7 @@ from scipy.sparse import csc_matrix
 
 from advperc_ros.core.geometry import Polyline, box_corners, signed_box_distance, wrap_angle
 from advperc_ros.core.planners.base import PlanningContext, Trajectory
+from advperc_ros.core.planners.parameters import check_ranges, config_from_params
 from advperc_ros.core.scenario import EgoState
 
 
@@ -47,6 +48,14 @@ class OBPConfig:
     max_iterations: int = 60  # IPOPT iteration limit (the deterministic limit)
     max_cpu_time: float = 1.0  # s, IPOPT CPU-time safety net, far above a normal solve
     single_stage: bool = False  # skip stage 1: the NLP alone, warm-started on a straight line
+
+    def __post_init__(self) -> None:
+        check_ranges(self, positive=("target_speed", "max_accel", "max_decel", "max_steer", "max_steer_rate",
+                                     "max_jerk", "horizon", "step", "wheelbase", "max_obstacles", "max_iterations",
+                                     "max_cpu_time"),
+                     non_negative=("safety_margin", "replan_period"))
+        if self.max_steer >= math.pi / 2:
+            raise ValueError(f"parameter 'max_steer' must be below pi/2 (a front wheel angle), got {self.max_steer!r}")
 
 
 # Internal constants (documented in docs/obp.md).
@@ -125,36 +134,10 @@ class _Reference:
     label: str
 
 
-def _coerce(params: dict) -> dict:
-    """Planner params from a params file: numbers for numbers (a YAML 10 is fine), bools for bools."""
-    kinds = {f.name: f.type for f in fields(OBPConfig)}
-    out = {}
-    for name, value in params.items():
-        if name not in kinds:
-            raise TypeError(f"unexpected parameter '{name}'")
-        kind = kinds[name]
-        if kind is bool:
-            if not isinstance(value, bool):
-                raise TypeError(f"parameter '{name}' must be true or false, got {value!r}")
-        elif isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise TypeError(f"parameter '{name}' must be a number, got {value!r}")
-        elif kind is int and float(value) != int(value):
-            raise TypeError(f"parameter '{name}' must be an integer, got {value!r}")
-        out[name] = kind(value)
-    return out
-
-
 class OBPPlanner:
     def __init__(self, context: PlanningContext, **params) -> None:
         self.context = context
-        self.config = cfg = OBPConfig(**_coerce(params))
-        positive = ("target_speed", "max_accel", "max_decel", "max_steer", "max_steer_rate", "max_jerk", "horizon",
-                    "step", "wheelbase", "max_obstacles", "max_iterations", "max_cpu_time")
-        for name in positive:
-            if not getattr(cfg, name) > 0:
-                raise TypeError(f"parameter '{name}' must be positive")
-        if cfg.safety_margin < 0 or cfg.replan_period < 0:
-            raise TypeError("parameters 'safety_margin' and 'replan_period' must not be negative")
+        self.config = cfg = config_from_params(OBPConfig, params)
         dt = context.dt
         self.substeps = max(1, int(round(cfg.step / dt)))
         self.h = self.substeps * dt  # the NLP step actually used

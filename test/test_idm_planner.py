@@ -11,7 +11,7 @@ import pytest
 
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, Trajectory
+from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, Trajectory, planner_stats
 from advperc_ros.core.planners.idm import IDMConfig, IDMPlanner
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario import EgoState
@@ -284,6 +284,7 @@ def test_load_bundled_idm_with_params():
     assert isinstance(planner, IDMPlanner)
     assert planner.config.target_speed == 7.0
     assert isinstance(planner, Planner)
+    assert planner_stats(planner) is None  # it cannot fail: the search log leaves the column empty
 
 
 @pytest.mark.parametrize("name", ["nosuch", "obp_typo"])
@@ -365,6 +366,7 @@ def test_load_plugin_module_class(tmp_path, monkeypatch):
     assert planner.speed == 2.5
     plan = planner.plan(1.0, EgoState(3.0, 0.0, 0.0, 0.0), NO_TRACKS)
     assert follow_plan(plan, 1.1).v == pytest.approx(2.5)
+    assert planner_stats(planner) is None  # stats() is optional
     with pytest.raises(PlannerError, match="creep_plugin_mod:NotAPlanner"):
         load_planner("creep_plugin_mod:NotAPlanner", CONTEXT, {})
     with pytest.raises(PlannerError, match="creep_plugin_mod:CreepPlanner"):

@@ -9,7 +9,7 @@ import yaml
 from advperc_ros.attack import Stack
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext
+from advperc_ros.core.planners.base import Planner, PlannerError, PlannerStats, PlanningContext, planner_stats
 from advperc_ros.core.planners.obp import OBPPlanner, ellipse_axes
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario_spec import build_scenario
@@ -174,8 +174,11 @@ def test_failures_of_a_rollout_reach_the_search_log(scenario, params):
     problem = AttackProblem(scenario, starved.rollout, "nds_t")
     evaluation = problem.evaluate(PerceptionErrors.none(*scenario.agents.shape), "ground_truth")
     row = problem.log[-1]
-    assert row.planner_failures == evaluation.rollout.planner_failures == starved.planner.failures > 0
-    assert sum(starved.planner.fallbacks.values()) == row.planner_failures
+    stats = starved.planner.stats()
+    assert row.planner_failures == evaluation.rollout.planner_failures == stats.failures > 0
+    assert stats.failures == starved.planner.failures == sum(starved.planner.fallbacks.values())
+    assert len(stats.solve_times) == evaluation.rollout.num_frames  # a call per frame: replan_period 0, no collision
+    assert planner_stats(starved.planner) == stats
 
 
 def test_failed_solve_uses_previous_plan_shifted_when_it_is_still_safe(scenario):
@@ -206,8 +209,10 @@ def test_failed_solve_brakes_along_previous_path_when_the_shifted_plan_would_col
     assert v[-1] == pytest.approx(0.0, abs=1e-9)
     # along the previous path (straight along the lane here)
     np.testing.assert_allclose(plan.y, ego.y, atol=1e-3)
+    assert planner.stats().failures == 1 and len(planner.stats().solve_times) == 2
     planner.reset()
     assert planner.failures == 0 and planner.fallbacks == {"shifted": 0, "braking": 0}
+    assert planner.stats() == PlannerStats(failures=0, solve_times=())
 
 
 # ---------------------------------------------------------------- (f) determinism

@@ -12,7 +12,7 @@ import numpy as np
 
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
-from advperc_ros.core.planners.base import Planner, Trajectory
+from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
 from advperc_ros.core.rules import collision_distances
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker
@@ -36,8 +36,8 @@ class RolloutResult:
     tracks: list[dict[str, np.ndarray]] | None = None  # per frame, when recorded
     plans: list[Trajectory] | None = None  # per frame, when recorded
     stage_times: dict[str, float] = field(default_factory=dict, repr=False)  # s per stage, for benchmarks
-    # failed solves the planner answered with its fallback (a planner's `failures` counter, reset per
-    # rollout); None when not known, as for a planner in another process
+    # failed solves the planner answered with its fallback (its stats() of this rollout); None when
+    # not known: a planner without stats(), or one in another process
     planner_failures: int | None = None
 
     @property
@@ -114,6 +114,7 @@ def rollout(
                 plans_log.append(plan)
         if inconclusive is not None:
             break
+    stats = planner_stats(planner)
     return RolloutResult(
         ego=ego_states[: last + 1],
         distances=distances[: last + 1],
@@ -121,5 +122,5 @@ def rollout(
         tracks=tracks_log if record else None,
         plans=plans_log if record else None,
         stage_times=stage_times,
-        planner_failures=getattr(planner, "failures", None),
+        planner_failures=None if stats is None else stats.failures,
     )

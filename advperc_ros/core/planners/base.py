@@ -1,7 +1,8 @@
 """What every planner shares: the trajectory it returns, what it knows of the road, the protocol.
 
 A team plugs in its own planner as any class with this protocol, named `module:Class` in the
-params file; `registry.load_planner` constructs it as `Class(context, **params)`. This module is
+params file; `registry.load_planner` constructs it as `Class(context, **params)`. A planner may
+also report statistics of the current rollout (`stats()`); one without still works. This module is
 the interface only: it imports no planner, so any module may import it.
 """
 
@@ -48,3 +49,25 @@ class Planner(Protocol):
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
         """Answer the tracks at time t (dict of 1-D arrays: ids, x, y, yaw, vx, vy, length, width,
         height) with a plan starting at t."""
+
+
+@dataclass(frozen=True)
+class PlannerStats:
+    """What a planner reports of the current rollout (since its last reset()): the search log shows
+    the failures, benchmarks the solve times."""
+
+    failures: int  # planning calls whose solve failed and that a fallback answered
+    solve_times: tuple[float, ...]  # s, wall time of every planning call that planned (not held a plan)
+
+
+@runtime_checkable
+class ReportsStats(Protocol):
+    """The optional part of the protocol."""
+
+    def stats(self) -> PlannerStats:
+        """Statistics of the current rollout."""
+
+
+def planner_stats(planner: Planner) -> PlannerStats | None:
+    """The planner's statistics of the current rollout, or None if it keeps none."""
+    return planner.stats() if isinstance(planner, ReportsStats) else None

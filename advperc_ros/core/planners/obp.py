@@ -26,7 +26,7 @@ import numpy as np
 from scipy.sparse import csc_matrix
 
 from advperc_ros.core.geometry import Polyline, box_corners, signed_box_distance, wrap_angle
-from advperc_ros.core.planners.base import PlanningContext, Trajectory
+from advperc_ros.core.planners.base import PlannerStats, PlanningContext, Trajectory
 from advperc_ros.core.planners.parameters import check_ranges, config_from_params
 from advperc_ros.core.scenario import EgoState
 
@@ -158,6 +158,9 @@ class OBPPlanner:
         self.fallbacks = {"shifted": 0, "braking": 0}  # which fallback answered them
         self.solve_times: list[float] = []  # s per planning call, for benchmarks
         self.last_class = ""  # the manoeuvre class stage 1 chose last
+
+    def stats(self) -> PlannerStats:
+        return PlannerStats(failures=self.failures, solve_times=tuple(self.solve_times))
 
     # ------------------------------------------------------------------ road
     def _build_road_table(self) -> None:

@@ -10,7 +10,8 @@ from advperc_ros.attack import Stack
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Planner, PlannerError, PlannerStats, PlanningContext, planner_stats
-from advperc_ros.core.planners.obp import OBPPlanner, ellipse_axes
+from advperc_ros.core.planners.obp import OBPPlanner
+from advperc_ros.core.planners.obp.prediction import ellipse_axes
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors

@@ -12,6 +12,7 @@ from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.planners.obp.config import (CONSTRAINT_TOL, FEASIBLE_ENOUGH, IPOPT_OPTIONS, SUCCESS, W_ACCEL,
                                                   W_HEADING, W_JERK, W_LATERAL, W_SPEED, W_STEER, W_STEER_RATE, Setup)
+from advperc_ros.core.planners.obp.dynamics import NUMERIC, SYMBOLIC, bicycle_rk4
 from advperc_ros.core.planners.obp.prediction import Obstacle
 from advperc_ros.core.planners.obp.stage1 import Reference
 from advperc_ros.core.scenario import EgoState
@@ -22,15 +23,8 @@ class Stage2:
         self.setup = setup
         cfg, N, h, M, dt = setup.config, setup.N, setup.h, setup.config.max_obstacles, setup.context.dt
         xs, us = ca.SX.sym("x", 4), ca.SX.sym("u", 2)  # state x, y, yaw, v; controls accel, steer
-        rhs = ca.vertcat(xs[3] * ca.cos(xs[2]), xs[3] * ca.sin(xs[2]), xs[3] * ca.tan(us[1]) / cfg.wheelbase, us[0])
-        f = ca.Function("f", [xs, us], [rhs])
-        xk = xs
-        for _ in range(setup.substeps):  # RK4 substeps of one frame period each: the plan's poses
-            k1 = f(xk, us)
-            k2 = f(xk + 0.5 * dt * k1, us)
-            k3 = f(xk + 0.5 * dt * k2, us)
-            k4 = f(xk + dt * k3, us)
-            xk = xk + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        # RK4 substeps of one frame period each, as `resample` takes the plan's poses between nodes
+        xk = bicycle_rk4(xs, us[0], us[1], dt, cfg.wheelbase, setup.substeps, SYMBOLIC)[-1]
         step = ca.Function("step", [xs, us], [xk])
 
         X = ca.SX.sym("X", 4, N + 1)
@@ -149,23 +143,11 @@ class Stage2:
 
 def resample(setup: Setup, t: float, X: np.ndarray, U: np.ndarray) -> Trajectory:
     """Poses every frame period: the NLP's own RK4 substeps from each node."""
-    dt, L = setup.context.dt, setup.config.wheelbase
+    dt, wheelbase = setup.context.dt, setup.config.wheelbase
     states = [X[:, 0]]
     for k in range(setup.N):
-        z = X[:, k].copy()
-        accel, tan_steer = float(U[0, k]), math.tan(float(U[1, k]))
-
-        def f(q: np.ndarray) -> np.ndarray:
-            return np.array([q[3] * math.cos(q[2]), q[3] * math.sin(q[2]), q[3] * tan_steer / L, accel])
-
-        for _ in range(setup.substeps - 1):
-            k1 = f(z)
-            k2 = f(z + 0.5 * dt * k1)
-            k3 = f(z + 0.5 * dt * k2)
-            k4 = f(z + dt * k3)
-            z = z + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-            states.append(z)
-        states.append(X[:, k + 1])
+        states += bicycle_rk4(X[:, k], float(U[0, k]), float(U[1, k]), dt, wheelbase, setup.substeps - 1, NUMERIC)
+        states.append(X[:, k + 1])  # the NLP's node: its last substep
     S = np.array(states)
     return Trajectory(t=t + dt * np.arange(len(S)), x=S[:, 0].copy(), y=S[:, 1].copy(),
                       yaw=np.asarray(wrap_angle(S[:, 2]), dtype=float))

@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 
+import casadi as ca
 import numpy as np
 import pytest
 import yaml
@@ -11,6 +12,7 @@ from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Planner, PlannerError, PlannerStats, PlanningContext, planner_stats
 from advperc_ros.core.planners.obp import OBPPlanner
+from advperc_ros.core.planners.obp.dynamics import NUMERIC, SYMBOLIC, bicycle_rk4
 from advperc_ros.core.planners.obp.prediction import ellipse_axes
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario_spec import build_scenario
@@ -267,6 +269,25 @@ def test_replan_period_holds_the_plan(scenario):
     first = planner.plan(0.0, ego, _tracks())
     assert planner.plan(0.3, follow_plan(first, 0.3), _tracks()) is first
     assert planner.plan(0.5, follow_plan(first, 0.5), _tracks()) is not first
+
+
+def test_the_nlp_and_the_plan_integrate_one_bicycle_model():
+    """The NLP's dynamics (CasADi symbols) and the plan's poses between its nodes (floats) come from
+    the same bicycle_rk4, so the plan is the NLP's own trajectory (bit for bit on the development
+    machine; a tolerance far below any physical effect elsewhere)."""
+    xs, us = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    symbolic = ca.Function("substeps", [xs, us], bicycle_rk4(xs, us[0], us[1], 0.1, 2.7, 3, SYMBOLIC))
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        state, (accel, steer) = rng.normal(size=4) * [20.0, 20.0, 2.0, 8.0], rng.normal(size=2) * [2.0, 0.3]
+        numeric = bicycle_rk4(state, float(accel), float(steer), 0.1, 2.7, 3, NUMERIC)
+        for a, b in zip(symbolic(state, [accel, steer]), numeric, strict=True):
+            np.testing.assert_allclose(np.asarray(a).ravel(), b, rtol=0.0, atol=1e-12)
+
+
+def test_nlp_size_with_the_defaults(stack):
+    """As docs/obp.md states it: 124 variables, 340 constraints, 287 parameters."""
+    assert stack.planner.nlp.size == {"variables": 124, "constraints": 340, "parameters": 287}
 
 
 def test_ellipses_contain_the_inflated_box():

@@ -287,7 +287,7 @@ def test_the_nlp_and_the_plan_integrate_one_bicycle_model():
 
 def test_nlp_size_with_the_defaults(stack):
     """As docs/obp.md states it: 124 variables, 340 constraints, 287 parameters."""
-    assert stack.planner.nlp.size == {"variables": 124, "constraints": 340, "parameters": 287}
+    assert stack.planner.stage2.size == {"variables": 124, "constraints": 340, "parameters": 287}
 
 
 def test_ellipses_contain_the_inflated_box():

@@ -10,7 +10,6 @@ fallback.py   the plan that answers a failed solve
 planner.py    OBPPlanner: the planner protocol over the above
 """
 
-from advperc_ros.core.planners.obp.config import OBPConfig
 from advperc_ros.core.planners.obp.planner import OBPPlanner
 
-__all__ = ["OBPConfig", "OBPPlanner"]
+__all__ = ["OBPPlanner"]

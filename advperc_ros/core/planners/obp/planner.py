@@ -23,7 +23,7 @@ class OBPPlanner:
         self.config = config_from_params(OBPConfig, params)
         self.setup = Setup.build(self.config, context)
         self.stage1 = Stage1(self.setup)
-        self.nlp = Stage2(self.setup)
+        self.stage2 = Stage2(self.setup)
         self.reset()
 
     def reset(self) -> None:
@@ -31,11 +31,11 @@ class OBPPlanner:
         self._last_controls: tuple[float, np.ndarray] | None = None  # (plan time, U (2, N)) of the last solve
         self.failures = 0  # failed NLP solves since the last reset (one rollout)
         self.fallbacks = dict.fromkeys(FALLBACKS, 0)  # which fallback answered them
-        self.solve_times: list[float] = []  # s per planning call, for benchmarks
+        self._solve_times: list[float] = []  # s per planning call, for benchmarks (stats())
         self.last_class = ""  # the manoeuvre class stage 1 chose last
 
     def stats(self) -> PlannerStats:
-        return PlannerStats(failures=self.failures, solve_times=tuple(self.solve_times))
+        return PlannerStats(failures=self.failures, solve_times=tuple(self._solve_times))
 
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
         cfg, setup = self.config, self.setup
@@ -54,7 +54,7 @@ class OBPPlanner:
                 ref = straight_reference(setup, s0, d0, v0, 0.0, "no-class")
         self.last_class = ref.label
         try:
-            ok, X, U = self.nlp.solve(ego, ref, obstacles, self._controls_at(t))
+            ok, X, U = self.stage2.solve(ego, ref, obstacles, self._controls_at(t))
         except RuntimeError:  # CasADi reports an IPOPT error: a failed solve like any other
             ok = False
         if ok:
@@ -66,7 +66,7 @@ class OBPPlanner:
             self.fallbacks[kind] += 1
             self._last_controls = None
         self._last = plan
-        self.solve_times.append(time.perf_counter() - started)
+        self._solve_times.append(time.perf_counter() - started)
         return plan
 
     def _controls_at(self, t: float) -> np.ndarray | None:

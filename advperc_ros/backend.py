@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from typing import Protocol
 
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.planners.base import load_planner
+from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker

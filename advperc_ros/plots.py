@@ -15,11 +15,10 @@ from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from advperc_ros.outcome import AttackOutcome  # noqa: E402
 from advperc_ros.core.errors import inject  # noqa: E402
 from advperc_ros.core.geometry import box_corners  # noqa: E402
 from advperc_ros.core.search.problem import LogRow  # noqa: E402
-from advperc_ros.results import closest_approach  # noqa: E402
+from advperc_ros.outcome import AttackOutcome  # noqa: E402
 
 METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
 # one style per layer, shared by the bird's-eye view and the animation (the bag's colours where it has them)
@@ -168,7 +167,7 @@ def bev_figure(outcome: AttackOutcome, seconds_before: float = 3.0, panels: int 
     last = scene.rollout.num_frames - 1
     first = max(0, last - int(round(seconds_before / scenario.dt)))
     frames = np.unique(np.linspace(first, last, panels).round().astype(int))
-    _, slot = closest_approach(scene.rollout)
+    _, slot = scene.rollout.closest_approach()
     boxes = [scene.involved(k, slot) for k in frames]
     lows, highs = np.array([b.min(axis=0) for b in boxes]), np.array([b.max(axis=0) for b in boxes])
     half = max(MIN_HALF_WIDTH, ((highs - lows).max() / 2.0) + MARGIN)
@@ -243,7 +242,7 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
     canvas = fig.canvas
     canvas.draw()
     background = canvas.copy_from_bbox(fig.bbox)
-    _, slot = closest_approach(scene.rollout)
+    _, slot = scene.rollout.closest_approach()
     agent = int(scenario.agents.ids[:, slot][scenario.agents.valid[:, slot]][0])
     last = scene.rollout.num_frames - 1
     images = []

@@ -16,11 +16,10 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros import __version__
-from advperc_ros.outcome import AttackOutcome
 from advperc_ros.core.errors import PerceptionErrors, inject
-from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
+from advperc_ros.outcome import AttackOutcome
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr, topics
 from advperc_ros.ros import messages as msgs
@@ -58,12 +57,6 @@ def _rounded(name: str, value):
 
 def _scores(evaluation: Evaluation) -> dict:
     return {k: _rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
-
-
-def closest_approach(rollout: RolloutResult) -> tuple[int, int]:
-    """(frame, agent slot) of the rollout's smallest signed distance: the collision, when there is one."""
-    frame = int(np.argmin(rollout.rule))
-    return frame, int(np.argmin(rollout.distances[frame]))
 
 
 def _ids(ids: list[int], shown: int = 10) -> str:
@@ -139,7 +132,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         report["planner_node"] = outcome.planner_node
     if best is not None:
         rollout = outcome.recorded
-        frame, slot = closest_approach(rollout)
+        frame, slot = rollout.closest_approach()
         report.update(
             min_signed_distance=_rounded("min_signed_distance", rollout.min_signed_distance),
             collision_frame=frame,
@@ -339,7 +332,7 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
         if outcome.best is not None:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
-            frame, _ = closest_approach(outcome.recorded)
+            frame, _ = outcome.recorded.closest_approach()
             write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.recorded.ego[frame, :2])))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
             plots.attack_animation(staging / ANIMATION, outcome)

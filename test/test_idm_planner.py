@@ -1,14 +1,19 @@
 """The IDM path-following planner (DESIGN.md section 8) and the planner plug-in loader."""
 
+import ast
+import subprocess
+import sys
 import textwrap
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, Trajectory, load_planner
+from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, Trajectory, planner_stats
 from advperc_ros.core.planners.idm import IDMConfig, IDMPlanner
+from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario import EgoState
 
 DT = 0.1
@@ -239,11 +244,47 @@ def test_replan_period_holds_previous_plan_and_reset_clears_it():
 
 # ---------------------------------------------------------------- loading
 
+IMPORTED_BY = """
+import sys
+import advperc_ros.core.planners.{module}
+print(" ".join(sorted(m for m in ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp", "casadi")
+                      if m in sys.modules)))
+"""
+
+
+@pytest.mark.parametrize("module", ["base", "registry"])
+def test_interface_and_registry_import_no_planner(module):
+    """The interface and the registry import no implementation: no import circle, and IDM users
+    never load CasADi. A fresh interpreter, since this one has imported everything."""
+    out = subprocess.run([sys.executable, "-c", IMPORTED_BY.format(module=module)], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == ""
+
+
+def test_interface_module_imports_nothing_of_the_planners_package():
+    """base.py is imported by every planner, so it imports none of the package, not even inside a
+    function (the old load_planner did, which closed an import circle)."""
+    import advperc_ros.core.planners.base as base
+
+    tree = ast.parse(Path(base.__file__).read_text())
+    imported = [node.module if isinstance(node, ast.ImportFrom) else alias.name
+                for node in ast.walk(tree) if isinstance(node, (ast.Import, ast.ImportFrom))
+                for alias in node.names]
+    assert not [name for name in imported if name.startswith("advperc_ros.core.planners")]
+
+
+@pytest.mark.parametrize("module", ["idm", "obp"])
+def test_each_planner_imports_on_its_own(module):
+    """A planner module imported first, before anything else of the package, imports cleanly."""
+    subprocess.run([sys.executable, "-c", f"import advperc_ros.core.planners.{module}"], check=True)
+
+
 def test_load_bundled_idm_with_params():
     planner = load_planner("idm", CONTEXT, {"target_speed": 7.0})
     assert isinstance(planner, IDMPlanner)
     assert planner.config.target_speed == 7.0
     assert isinstance(planner, Planner)
+    assert planner_stats(planner) is None  # it cannot fail: the search log leaves the column empty
 
 
 @pytest.mark.parametrize("name", ["nosuch", "obp_typo"])
@@ -261,9 +302,34 @@ def test_load_missing_module_or_class(tmp_path, monkeypatch):
         load_planner("empty_planner_mod:Missing", CONTEXT, {})
 
 
-def test_load_rejects_bad_params():
-    with pytest.raises(PlannerError, match="idm"):
-        load_planner("idm", CONTEXT, {"no_such_param": 1.0})
+@pytest.mark.parametrize("params, name", [
+    ({"no_such_param": 1.0}, "no_such_param"),
+    ({"target_speed": -1.0}, "target_speed"),
+    ({"target_speed": "fast"}, "target_speed"),
+    ({"max_decel": 0.0}, "max_decel"),
+    ({"horizon": 0.0}, "horizon"),
+    ({"horizon": float("inf")}, "horizon"),
+    ({"headway": -0.5}, "headway"),
+    ({"replan_period": -0.1}, "replan_period"),
+    ({"min_gap": True}, "min_gap"),
+])
+def test_load_refuses_bad_params_in_one_line_naming_planner_and_parameter(params, name):
+    with pytest.raises(PlannerError) as refused:
+        load_planner("idm", CONTEXT, params)
+    message = str(refused.value)
+    assert "'idm'" in message and f"'{name}'" in message and "\n" not in message
+
+
+def test_out_of_range_is_a_value_error_of_the_planner_itself():
+    with pytest.raises(ValueError, match="'target_speed'"):
+        IDMPlanner(CONTEXT, target_speed=-1.0)
+    with pytest.raises(ValueError, match="'exponent'"):
+        IDMConfig(exponent=0.0)
+
+
+def test_params_file_integers_are_floats():
+    target_speed = load_planner("idm", CONTEXT, {"target_speed": 14}).config.target_speed
+    assert target_speed == 14.0 and isinstance(target_speed, float)
 
 
 PLUGIN_SOURCE = textwrap.dedent(
@@ -300,6 +366,7 @@ def test_load_plugin_module_class(tmp_path, monkeypatch):
     assert planner.speed == 2.5
     plan = planner.plan(1.0, EgoState(3.0, 0.0, 0.0, 0.0), NO_TRACKS)
     assert follow_plan(plan, 1.1).v == pytest.approx(2.5)
+    assert planner_stats(planner) is None  # stats() is optional
     with pytest.raises(PlannerError, match="creep_plugin_mod:NotAPlanner"):
         load_planner("creep_plugin_mod:NotAPlanner", CONTEXT, {})
     with pytest.raises(PlannerError, match="creep_plugin_mod:CreepPlanner"):

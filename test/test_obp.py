@@ -2,6 +2,7 @@
 
 from dataclasses import replace
 
+import casadi as ca
 import numpy as np
 import pytest
 import yaml
@@ -9,8 +10,11 @@ import yaml
 from advperc_ros.backend import Stack
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, load_planner
-from advperc_ros.core.planners.obp import OBPPlanner, ellipse_axes
+from advperc_ros.core.planners.base import Planner, PlannerError, PlannerStats, PlanningContext, planner_stats
+from advperc_ros.core.planners.obp import OBPPlanner
+from advperc_ros.core.planners.obp.dynamics import NUMERIC, SYMBOLIC, bicycle_rk4
+from advperc_ros.core.planners.obp.prediction import ellipse_axes
+from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
 from advperc_ros.params import load_params
@@ -173,8 +177,11 @@ def test_failures_of_a_rollout_reach_the_search_log(scenario, params):
     problem = AttackProblem(scenario, starved.rollout, "nds_t")
     evaluation = problem.evaluate(PerceptionErrors.none(*scenario.agents.shape), "ground_truth")
     row = problem.log[-1]
-    assert row.planner_failures == evaluation.rollout.planner_failures == starved.planner.failures > 0
-    assert sum(starved.planner.fallbacks.values()) == row.planner_failures
+    stats = starved.planner.stats()
+    assert row.planner_failures == evaluation.rollout.planner_failures == stats.failures > 0
+    assert stats.failures == starved.planner.failures == sum(starved.planner.fallbacks.values())
+    assert len(stats.solve_times) == evaluation.rollout.num_frames  # a call per frame: replan_period 0, no collision
+    assert planner_stats(starved.planner) == stats
 
 
 def test_failed_solve_uses_previous_plan_shifted_when_it_is_still_safe(scenario):
@@ -205,8 +212,10 @@ def test_failed_solve_brakes_along_previous_path_when_the_shifted_plan_would_col
     assert v[-1] == pytest.approx(0.0, abs=1e-9)
     # along the previous path (straight along the lane here)
     np.testing.assert_allclose(plan.y, ego.y, atol=1e-3)
+    assert planner.stats().failures == 1 and len(planner.stats().solve_times) == 2
     planner.reset()
     assert planner.failures == 0 and planner.fallbacks == {"shifted": 0, "braking": 0}
+    assert planner.stats() == PlannerStats(failures=0, solve_times=())
 
 
 # ---------------------------------------------------------------- (f) determinism
@@ -228,12 +237,30 @@ def test_loaded_by_name_with_params_file_values(scenario, params):
     assert isinstance(planner, OBPPlanner) and isinstance(planner, Planner)
     assert planner.config.horizon == 5.0 and isinstance(planner.config.horizon, float)
     assert planner.config.target_speed == 10.0
-    with pytest.raises(PlannerError, match="obp"):
-        load_planner("obp", _context(scenario), {"no_such_param": 1.0})
-    with pytest.raises(PlannerError, match="target_speed"):
-        load_planner("obp", _context(scenario), {"target_speed": "fast"})
-    with pytest.raises(PlannerError, match="horizon"):
-        load_planner("obp", _context(scenario), {"horizon": 0.0})
+
+
+@pytest.mark.parametrize("params, name", [
+    ({"no_such_param": 1.0}, "no_such_param"),
+    ({"target_speed": "fast"}, "target_speed"),
+    ({"horizon": 0.0}, "horizon"),
+    ({"step": -0.3}, "step"),
+    ({"safety_margin": -0.1}, "safety_margin"),
+    ({"max_cpu_time": float("inf")}, "max_cpu_time"),
+    ({"max_obstacles": 2.5}, "max_obstacles"),
+    ({"max_iterations": 0}, "max_iterations"),
+    ({"max_steer": 2.0}, "max_steer"),
+    ({"single_stage": 1}, "single_stage"),
+])
+def test_load_refuses_bad_params_in_one_line_naming_planner_and_parameter(scenario, params, name):
+    with pytest.raises(PlannerError) as refused:
+        load_planner("obp", _context(scenario), params)
+    message = str(refused.value)
+    assert "'obp'" in message and f"'{name}'" in message and "\n" not in message
+
+
+def test_out_of_range_is_a_value_error_of_the_planner_itself(scenario):
+    with pytest.raises(ValueError, match="'horizon'"):
+        OBPPlanner(_context(scenario), horizon=0.0)
 
 
 def test_replan_period_holds_the_plan(scenario):
@@ -242,6 +269,25 @@ def test_replan_period_holds_the_plan(scenario):
     first = planner.plan(0.0, ego, _tracks())
     assert planner.plan(0.3, follow_plan(first, 0.3), _tracks()) is first
     assert planner.plan(0.5, follow_plan(first, 0.5), _tracks()) is not first
+
+
+def test_the_nlp_and_the_plan_integrate_one_bicycle_model():
+    """The NLP's dynamics (CasADi symbols) and the plan's poses between its nodes (floats) come from
+    the same bicycle_rk4, so the plan is the NLP's own trajectory (bit for bit on the development
+    machine; a tolerance far below any physical effect elsewhere)."""
+    xs, us = ca.SX.sym("x", 4), ca.SX.sym("u", 2)
+    symbolic = ca.Function("substeps", [xs, us], bicycle_rk4(xs, us[0], us[1], 0.1, 2.7, 3, SYMBOLIC))
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        state, (accel, steer) = rng.normal(size=4) * [20.0, 20.0, 2.0, 8.0], rng.normal(size=2) * [2.0, 0.3]
+        numeric = bicycle_rk4(state, float(accel), float(steer), 0.1, 2.7, 3, NUMERIC)
+        for a, b in zip(symbolic(state, [accel, steer]), numeric, strict=True):
+            np.testing.assert_allclose(np.asarray(a).ravel(), b, rtol=0.0, atol=1e-12)
+
+
+def test_nlp_size_with_the_defaults(stack):
+    """As docs/obp.md states it: 124 variables, 340 constraints, 287 parameters."""
+    assert stack.planner.stage2.size == {"variables": 124, "constraints": 340, "parameters": 287}
 
 
 def test_ellipses_contain_the_inflated_box():

@@ -16,7 +16,6 @@ from advperc_ros.application import run_attack
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.params import load_params
-from advperc_ros.results import closest_approach
 from advperc_ros.ros.bag import read_scenario
 
 
@@ -45,7 +44,7 @@ def _inside(points: np.ndarray, ax) -> bool:
 def test_every_bev_panel_holds_the_ego_and_the_collision_agent(outcome):
     scenario, rollout = outcome.scenario, outcome.recorded
     agents = scenario.agents
-    _, slot = closest_approach(rollout)
+    _, slot = rollout.closest_approach()
     ego_size = (outcome.params.ego.length, outcome.params.ego.width)
     fig = plots.bev_figure(outcome)
     panels = [ax for ax in fig.axes if ax.get_title()]

@@ -16,7 +16,7 @@ import numpy as np
 
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
-from advperc_ros.core.planners.base import Planner, Trajectory
+from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
 from advperc_ros.core.rules import collision_distances
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker
@@ -40,8 +40,8 @@ class RolloutResult:
     tracks: list[dict[str, np.ndarray]] | None = None  # per frame, when recorded
     plans: list[Trajectory] | None = None  # per frame, when recorded
     stage_times: dict[str, float] = field(default_factory=dict, repr=False)  # s per stage, for benchmarks
-    # failed solves the planner answered with its fallback (a planner's `failures` counter, reset per
-    # rollout); None when not known, as for a planner in another process
+    # failed solves the planner answered with its fallback (its stats() of this rollout); None when
+    # not known: a planner without stats(), or one in another process
     planner_failures: int | None = None
 
     @property
@@ -60,6 +60,11 @@ class RolloutResult:
     @property
     def min_signed_distance(self) -> float:
         return float(self.rule.min(initial=np.inf))
+
+    def closest_approach(self) -> tuple[int, int]:
+        """(frame, agent slot) of the smallest signed distance: the collision, when there is one."""
+        frame = int(np.argmin(self.rule))
+        return frame, int(np.argmin(self.distances[frame]))
 
     @property
     def collided(self) -> bool:
@@ -158,6 +163,7 @@ def rollout(
                 plans_log.append(plan)
         if inconclusive is not None:
             break
+    stats = planner_stats(planner)
     return RolloutResult(
         ego=ego_states[: last + 1],
         distances=distances[: last + 1],
@@ -165,5 +171,5 @@ def rollout(
         tracks=tracks_log if record else None,
         plans=plans_log if record else None,
         stage_times=stage_times,
-        planner_failures=getattr(planner, "failures", None),
+        planner_failures=None if stats is None else stats.failures,
     )

@@ -1,12 +1,13 @@
 """What every planner shares: the trajectory it returns, what it knows of the road, the protocol.
 
 A team plugs in its own planner as any class with this protocol, named `module:Class` in the
-params file; it is constructed as `Class(context, **params)`.
+params file; `registry.load_planner` constructs it as `Class(context, **params)`. A planner may
+also report statistics of the current rollout (`stats()`); one without still works. This module is
+the interface only: it imports no planner, so any module may import it.
 """
 
-import importlib
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -50,26 +51,23 @@ class Planner(Protocol):
         height) with a plan starting at t."""
 
 
-def load_planner(name: str, context: PlanningContext, params: dict[str, Any]) -> Planner:
-    """Build a bundled planner by name, or a plug-in given as `module:Class`."""
-    from advperc_ros.core.planners.idm import IDMPlanner
-    from advperc_ros.core.planners.obp import OBPPlanner
+@dataclass(frozen=True)
+class PlannerStats:
+    """What a planner reports of the current rollout (since its last reset()): the search log shows
+    the failures, benchmarks the solve times."""
 
-    bundled = {"idm": IDMPlanner, "obp": OBPPlanner}
-    if name in bundled:
-        cls = bundled[name]
-    elif ":" in name:
-        module_name, _, class_name = name.partition(":")
-        try:
-            cls = getattr(importlib.import_module(module_name), class_name)
-        except (ImportError, AttributeError) as exc:
-            raise PlannerError(f"planner '{name}' cannot be imported: {exc}") from exc
-    else:
-        raise PlannerError(f"unknown planner '{name}' (bundled: {', '.join(sorted(bundled))}; or module:Class)")
-    try:
-        planner = cls(context, **params)
-    except TypeError as exc:
-        raise PlannerError(f"planner '{name}' rejected its parameters: {exc}") from exc
-    if not isinstance(planner, Planner):
-        raise PlannerError(f"planner '{name}' lacks the planner protocol (reset() and plan(t, ego, tracks))")
-    return planner
+    failures: int  # planning calls whose solve failed and that a fallback answered
+    solve_times: tuple[float, ...]  # s, wall time of every planning call that planned (not held a plan)
+
+
+@runtime_checkable
+class ReportsStats(Protocol):
+    """The optional part of the protocol."""
+
+    def stats(self) -> PlannerStats:
+        """Statistics of the current rollout."""
+
+
+def planner_stats(planner: Planner) -> PlannerStats | None:
+    """The planner's statistics of the current rollout, or None if it keeps none."""
+    return planner.stats() if isinstance(planner, ReportsStats) else None

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.planners.base import PlanningContext, Trajectory
+from advperc_ros.core.planners.parameters import check_ranges, config_from_params
 from advperc_ros.core.scenario import EgoState
 
 
@@ -27,6 +28,11 @@ class IDMConfig:
     horizon: float = 8.0  # s
     corridor_margin: float = 0.3  # m beyond the ego's half width
     replan_period: float = 0.0  # s; 0 replans on every tracks message
+
+    def __post_init__(self) -> None:
+        # target_speed 0 is a planner that only brakes; the gap term divides by sqrt(max_accel * max_decel)
+        check_ranges(self, positive=("max_accel", "max_decel", "exponent", "horizon"),
+                     non_negative=("target_speed", "min_gap", "headway", "corridor_margin", "replan_period"))
 
 
 def idm_acceleration(v: float, v_lead: float | None, gap: float, cfg: IDMConfig) -> float:
@@ -46,7 +52,7 @@ def idm_acceleration(v: float, v_lead: float | None, gap: float, cfg: IDMConfig)
 class IDMPlanner:
     def __init__(self, context: PlanningContext, **params: float) -> None:
         self.context = context
-        self.config = IDMConfig(**params)
+        self.config = config_from_params(IDMConfig, params)
         self.reset()
 
     def reset(self) -> None:

@@ -1,0 +1,42 @@
+"""The bundled planners' parameters: one rule for what a params file may give each field of a
+planner's frozen config dataclass, one for ranges. A bad value raises TypeError (wrong kind, unknown
+name) or ValueError (out of range) naming the parameter, at construction; `load_planner` turns
+either into a PlannerError naming the planner as well."""
+
+import math
+from dataclasses import fields
+from typing import Any, TypeVar
+
+Config = TypeVar("Config")
+
+
+def config_from_params(config_type: type[Config], params: dict[str, Any]) -> Config:
+    """`config_type(**params)` with numbers for number fields (a YAML 10 is a fine 10.0), whole
+    numbers for int fields and true/false for bool fields; its __post_init__ checks the ranges."""
+    kinds = {field.name: field.type for field in fields(config_type)}
+    values = {}
+    for name, value in params.items():
+        if name not in kinds:
+            raise TypeError(f"unexpected parameter '{name}'")
+        kind = kinds[name]
+        if kind is bool:
+            if not isinstance(value, bool):
+                raise TypeError(f"parameter '{name}' must be true or false, got {value!r}")
+        elif isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise TypeError(f"parameter '{name}' must be a number, got {value!r}")
+        elif kind is int and not (math.isfinite(value) and float(value).is_integer()):
+            raise TypeError(f"parameter '{name}' must be an integer, got {value!r}")
+        values[name] = kind(value)
+    return config_type(**values)
+
+
+def check_ranges(config: object, positive: tuple[str, ...] = (), non_negative: tuple[str, ...] = ()) -> None:
+    """Refuse the first of these fields that is not a finite number > 0 (positive) or >= 0."""
+    for name in positive:
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"parameter '{name}' must be a finite number > 0, got {value!r}")
+    for name in non_negative:
+        value = getattr(config, name)
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"parameter '{name}' must be a finite number >= 0, got {value!r}")

@@ -69,8 +69,14 @@ _ros_domains = itertools.cycle(range(200 + (os.getpid() % 3) * 11, 233))
 
 
 @pytest.fixture
-def ros_domain(monkeypatch) -> int:
-    need_ros()
+def fresh_domain(monkeypatch) -> int:
+    """A domain id of its own for a test, also set as ROS_DOMAIN_ID (needs no ROS)."""
     domain = next(_ros_domains)
     monkeypatch.setenv("ROS_DOMAIN_ID", str(domain))
     return domain
+
+
+@pytest.fixture
+def ros_domain(fresh_domain) -> int:
+    need_ros()
+    return fresh_domain

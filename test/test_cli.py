@@ -133,13 +133,11 @@ def test_missing_bag(tmp_path, repo, capsys):
 
 
 def test_bag_without_ground_truth(tmp_path, repo, capsys):
-    scenario = load_scenario_spec(repo / "scenarios" / "idm_lane_following.yaml")
     with open_bag_for_writing(tmp_path / "clock_only") as bag:
         bag.write(topics.CLOCK, 0, msgs.clock(0))
     params = write_params(tmp_path / "p.yaml", repo, bag=str(tmp_path / "clock_only"))
     err = _run_bad(["attack", str(params)], tmp_path / "out", capsys)
     assert "clock_only" in err and "/ground_truth/objects" in err
-    assert scenario.num_frames > 0
 
 
 def test_malformed_bag(tmp_path, repo, capsys):
@@ -222,10 +220,11 @@ def test_write_scenario_round_trip_keeps_everything(tmp_path, repo):
     assert [lane.id for lane in back.lanes] == [lane.id for lane in scenario.lanes]
 
 
-def test_robustness_at_zero_strength_reproduces_the_attack(attack_run, capsys):
+def test_robustness_at_zero_strength_reproduces_the_attack(attack_run, tmp_path, capsys):
     import csv
 
-    out = attack_run[0]
+    out = tmp_path / "attack"  # a copy: the attack folder is shared by other tests
+    shutil.copytree(attack_run[0], out)
     report = json.loads((out / "report.json").read_text())
     assert main(["robustness", str(out), "--strengths", "0,0.5", "--samples", "2"]) == 0
     rows = list(csv.DictReader((out / "robustness.csv").open()))

@@ -41,9 +41,7 @@ _domain_ids = iter(range(100 + ((os.getpid() % 10 + 5) % 10) * 10, 200))
 
 
 def next_domain_id() -> int:
-    value = next(_domain_ids)
-    assert 100 <= value < 200
-    return value
+    return next(_domain_ids)
 
 
 class HangingPlanner(IDMPlanner):
@@ -189,6 +187,20 @@ def test_graph_parameters_are_validated(tmp_path):
 
 # ----- (a) the nodes as separate processes give the embedded rollout ------------------------------
 
+def test_graph_rollouts_with_the_obp_planner_equal_embedded_ones(tmp_path):
+    """ObP in the planner node: CasADi/IPOPT in another process, warm starts and all, same rollout."""
+    document = yaml.safe_load((REPO / "config" / "obp_overtake.yaml").read_text())
+    document["orchestrator"]["ros__parameters"].update(bag=str(REPO / "bags" / "obp_overtake"),
+                                                       dds={"domain_id": next_domain_id()})
+    path = tmp_path / "obp.yaml"
+    path.write_text(yaml.safe_dump(document))
+    params = load_params(path)
+    obp = read_scenario(REPO / "bags" / "obp_overtake")
+    attack = PerceptionErrors.none(*obp.agents.shape).with_drop(0, 40, obp.num_frames - 1)
+    with GraphRollouts(obp, params, REPO / "bags" / "obp_overtake") as graph:
+        assert_same_rollout(graph.rollout(attack), Stack(obp, params).rollout(attack))
+
+
 def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
     params = load_params(params_for(tmp_path))
     stack = Stack(scenario, params)
@@ -267,9 +279,7 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
         assert_same_rollout(graph.rollout(truth), expected)
         # silent: the planner stops answering; the player times out after graph.timeout
         arm.touch()
-        started = time.monotonic()
         silent = graph.rollout(truth)
-        assert time.monotonic() - started < 2.0 + 30.0
         assert "no plan stamped" in silent.inconclusive and "within 2 s" in silent.inconclusive
         assert_same_rollout(graph.rollout(truth), expected)
     lines = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]

@@ -1,4 +1,4 @@
-"""The IDM path-following planner (DESIGN.md section 8) and the planner plug-in loader."""
+"""The IDM path-following planner (README, "System under attack") and the planner plug-in loader."""
 
 import ast
 import subprocess

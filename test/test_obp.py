@@ -1,4 +1,4 @@
-"""The two-stage optimisation-based planner (DESIGN.md section 8, docs/obp.md) on obp_overtake."""
+"""The two-stage optimisation-based planner (docs/obp.md) on obp_overtake."""
 
 from dataclasses import replace
 

@@ -1,4 +1,4 @@
-"""The paper's Algorithm 1 (heuristic bisection) and Algorithm 2 (random search), DESIGN.md section 10."""
+"""The paper's Algorithm 1 (heuristic bisection) and Algorithm 2 (random search) (README, "Search")."""
 
 import copy
 import dataclasses

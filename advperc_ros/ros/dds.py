@@ -82,13 +82,13 @@ def dds_topic_name(topic: str) -> str:
     return "rt/" + topic.lstrip("/")
 
 
-def _qos(latched: bool, msgtype: str) -> Qos:
+def _qos(latched: bool, msgtype: str, reader: bool = False) -> Qos:
     """The contract's QoS, plus the USER_DATA `typehash=RIHS01_...;` that ROS 2 Jazzy endpoints
     carry (informational: `ros2 topic info -v` shows it; matching does not depend on it)."""
     return Qos(
         Policy.Reliability.Reliable(max_blocking_time=duration(milliseconds=100)),
         Policy.Durability.TransientLocal if latched else Policy.Durability.Volatile,
-        Policy.History.KeepLast(depth(latched)),
+        Policy.History.KeepLast(depth(latched, reader)),
         Policy.DataRepresentation(use_cdrv0_representation=True),
         Policy.Userdata(data=f"typehash={dds_types.TYPESTORE.hash_rihs01(msgtype)};".encode()),
     )
@@ -271,7 +271,7 @@ class DdsTransport:
         last message published before it joined. `raw`: deliver CDR payloads, not messages.
         `wake=False`: a message does not end `spin_once`'s wait; it is delivered with the next
         one that ends (another subscription's message, or the timeout)."""
-        reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype))
+        reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype, reader=True))
         subscription = Subscription(self.participant, reader, topic, msgtype, callback, raw)
         self._subscriptions.append(subscription)
         if callback is not None:

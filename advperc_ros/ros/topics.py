@@ -2,7 +2,7 @@
 
 docs/graph.md's topic table states the same, and test/test_ros2.py holds the live graph to it. QoS
 is one rule on every transport and in bags: reliable; volatile keep-last `DEPTH`, or latched
-(transient-local keep-last `LATCHED_DEPTH`), which is what ROS 2 calls latching.
+(transient-local, writers keep-last `LATCHED_DEPTH`), which is what ROS 2 calls latching.
 """
 
 CLOCK = "/clock"
@@ -45,6 +45,9 @@ DEPTH = 1000
 LATCHED_DEPTH = 1
 
 
-def depth(latched: bool) -> int:
-    """History depth of a topic's readers and writers."""
-    return LATCHED_DEPTH if latched else DEPTH
+def depth(latched: bool, reader: bool = False) -> int:
+    """History depth of a topic's writers (and its bag record), or with `reader` its readers. A
+    latched writer keeps its last message for late joiners; a reader keeps every writer's: a
+    message without a key is one instance, so a depth-1 reader would keep only the last of several
+    latched writers' messages arriving together (every node announces itself on /attack/nodes)."""
+    return LATCHED_DEPTH if latched and not reader else DEPTH

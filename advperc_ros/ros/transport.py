@@ -14,8 +14,8 @@ decoders: the per-frame messages then never become rosbags objects (docs/graph.m
   unless asked for them raw, so the node logic sees the same messages, bit for bit, on both
   transports.
 
-QoS is the contract's on both: reliable, volatile, keep-last 1000; latched topics are
-transient-local keep-last 1.
+QoS is the contract's on both (`topics.depth`): reliable, volatile, keep-last 1000; latched topics are
+transient-local, writers keep-last 1.
 """
 
 import importlib
@@ -71,12 +71,12 @@ class _RclpyPublication:
         return int(self._publisher.get_subscription_count())
 
 
-def _rclpy_qos(latched: bool) -> Any:
+def _rclpy_qos(latched: bool, reader: bool = False) -> Any:
     from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     return QoSProfile(
         history=HistoryPolicy.KEEP_LAST,
-        depth=depth(latched),
+        depth=depth(latched, reader),
         reliability=ReliabilityPolicy.RELIABLE,
         durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE,
     )
@@ -105,7 +105,7 @@ class RclpyTransport:
             self._delivered += 1
             callback(data if raw else TYPESTORE.deserialize_cdr(data, msgtype))
 
-        return self._node.create_subscription(_message_class(msgtype), topic, deliver, _rclpy_qos(latched), raw=True)
+        return self._node.create_subscription(_message_class(msgtype), topic, deliver, _rclpy_qos(latched, reader=True), raw=True)
 
     def publishers_of(self, topic: str) -> tuple[str, ...]:
         return tuple(sorted({f"{info.node_namespace.rstrip('/')}/{info.node_name}"

@@ -2,6 +2,7 @@
 orchestrator node both call, so both choose the same output folder, check it before any work,
 run the same search and write the same report."""
 
+import os
 import sys
 import time
 from collections.abc import Iterator
@@ -13,10 +14,12 @@ from typing import Any
 from tqdm import tqdm
 
 from advperc_ros.backend import EXTERNAL, Rollouts, Stack
+from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.pipeline import SearchConfig, budget, run_search
 from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig
+from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, ParamsError, resolve_bag
 from advperc_ros.results import write_results
@@ -87,18 +90,42 @@ def default_output(params: AttackParams, scenario_name: str) -> Path:
     return candidate
 
 
+def check_output(output: Path) -> None:
+    """Refuse, before any work, an output folder that exists or cannot be created and written."""
+    if output.exists():
+        raise ParamsError(f"{output}: output folder exists already; choose another output")
+    parent = output.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ParamsError(f"{output}: cannot create the output folder: {parent} is not a folder")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ParamsError(f"{output}: cannot create the output folder: {parent} is not writable")
+
+
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,
-                     transport: Any = None) -> tuple[Path, dict]:
-    """Run the attack the params describe and write its results folder; (folder, report).
-    `transport`: an rclpy node's transport, to reach graph nodes already running."""
+                     transport: Any = None, resume: bool = False) -> tuple[Path, dict]:
+    """Run the attack the params describe and write its results folder; (folder, report). Every
+    rollout is checkpointed as it completes (advperc_ros.checkpoint); `resume` finishes an attack
+    that was killed, with the report it would have written. `transport`: an rclpy node's
+    transport, to reach graph nodes already running."""
     bag_path = resolve_bag(params)
     scenario = read_scenario(bag_path)
     output = output if output is not None else default_output(params, scenario.name)
-    if output.exists():
-        raise ParamsError(f"{output}: output folder exists already; choose another output")
-    with open_rollouts(scenario, params, bag_path, transport) as rollouts:
-        outcome = run_attack(scenario, params, progress=progress, rollouts=rollouts)
-    return output, write_results(output, outcome, bag_path)
+    check_output(output)
+    checkpoint = Checkpoint(output, params, resume)
+    finished = False
+    try:
+        with open_rollouts(scenario, params, bag_path, transport) as rollouts:
+            outcome = run_attack(scenario, params, progress=progress, rollouts=ResumedRollouts(rollouts, checkpoint))
+        report = write_results(output, outcome, bag_path)
+        finished = True
+    except KeyboardInterrupt:
+        source = params.source or "PARAMS"
+        raise Interrupted(f"finish it with: advperc attack {source} --resume {output}") from None
+    finally:
+        checkpoint.close(finished)
+    return output, report
 
 
 def summary(report: dict) -> dict:

@@ -17,7 +17,7 @@ from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.search.problem import OBJECTIVES
-from advperc_ros.exits import EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
+from advperc_ros.exits import EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.params import ParamsError, load_params
 from advperc_ros.ros.bag import BagError
 
@@ -32,7 +32,11 @@ def cmd_attack(args: argparse.Namespace) -> int:
         params = params.with_values(rollout_backend=args.backend)
     if args.objective is not None:
         params = params.with_values(objective=args.objective)
-    output, report = attack_to_folder(params, Path(args.output) if args.output else None, progress=not args.quiet)
+    if args.resume is not None and args.output is not None and Path(args.resume) != Path(args.output):
+        raise ParamsError(f"--resume {args.resume} and --output {args.output}: give the folder once")
+    output = args.resume or args.output
+    output, report = attack_to_folder(params, Path(output) if output else None, progress=not args.quiet,
+                                      resume=args.resume is not None)
     print(json.dumps(summary(report)))
     print(f"results written to {output}", file=sys.stderr)
     return EXIT_OK
@@ -233,6 +237,9 @@ def build_parser() -> argparse.ArgumentParser:
     attack.add_argument("--seed", type=int, help="override the params file's seed")
     attack.add_argument("--objective", choices=OBJECTIVES, help="override the params file's objective")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
+    attack.add_argument("--resume", metavar="OUTPUT", help="finish the interrupted attack whose results folder was to be "
+                        "OUTPUT (same params): rollouts already run are not run again, and the report is the one an "
+                        "uninterrupted run writes")
     attack.add_argument("--backend", choices=("embedded", "graph"),
                         help="override rollout_backend: embedded (one process) or graph (the nodes over Cyclone DDS)")
     attack.set_defaults(func=cmd_attack)
@@ -290,6 +297,9 @@ def main(argv: list[str] | None = None) -> int:
         line, code = expected_failure(exc)
         print(f"advperc: {line}", file=sys.stderr)
         return code
+    except KeyboardInterrupt:  # outside an attack: nothing to finish
+        print("advperc: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

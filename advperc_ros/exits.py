@@ -17,6 +17,13 @@ EXIT_NOTHING_TO_ATTACK = 1  # the stack fails with perfect perception, or check-
 EXIT_INPUT = 2  # bad input: params, bag, planner, output folder
 EXIT_REJECTED = 3  # a recording whose traffic hits the ego whatever it does
 EXIT_GRAPH = 4  # the node graph could not be started or made ready
+EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT), as shells report it; an attack's checkpoint is kept
+
+
+
+class Interrupted(Exception):
+    """Ctrl-C during an attack: the text says how to finish it (its checkpoint is kept)."""
+
 
 INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError)
 EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (
@@ -24,6 +31,7 @@ EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (
     ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),
     ((ScenarioRejected,), "", EXIT_REJECTED),
     ((GraphError,), "error: graph backend: ", EXIT_GRAPH),
+    ((Interrupted,), "interrupted: ", EXIT_INTERRUPTED),
 )
 EXPECTED_TYPES = tuple(kind for kinds, _, _ in EXPECTED for kind in kinds)
 

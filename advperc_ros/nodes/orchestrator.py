@@ -3,7 +3,8 @@
     ros2 run advperc_ros orchestrator --ros-args --params-file config/idm_lane_following.yaml
 
 Parameters are those of the params file (see advperc_ros.params.SCHEMA), plus `output`, the
-results folder (default as `advperc attack`'s). They are validated by the same code as `advperc
+results folder (default as `advperc attack`'s), and `resume` (true: finish the attack that was
+interrupted while writing to `output`, as `advperc attack --resume`). They are validated by the same code as `advperc
 attack`, and the attack runs through the same application layer, so both accept and refuse the
 same files and write the same report. A relative `bag` is looked up in the order of
 `params.find_bag`; the params file of that order is the `--params-file` that set `bag`. With
@@ -20,9 +21,10 @@ from typing import Any
 
 import yaml
 
-from advperc_ros.params import NODE, nest, parse_params
+from advperc_ros.params import NODE, ParamsError, nest, parse_params
 
 OUTPUT = "output"
+RESUME = "resume"  # finish the interrupted attack whose results folder was to be `output`
 
 
 def params_source(args: list[str], bag: Any) -> Path | None:
@@ -54,11 +56,15 @@ def main(args: list[str] | None = None) -> int:
     def body(node: Any) -> int:
         flat = given_parameters(node)
         output = flat.pop(OUTPUT, "")
+        resume = flat.pop(RESUME, False)
+        if not isinstance(resume, bool) or (resume and not output):
+            raise ParamsError(f"node '{NODE}' parameters: parameter '{RESUME}' must be true or false, and true "
+                              f"only with '{OUTPUT}' (the folder of the attack to finish)")
         source = params_source(argv, flat.get("bag"))
         params = parse_params({NODE: {"ros__parameters": nest(flat)}}, str(source or f"node '{NODE}' parameters"), source)
         node.get_logger().info(f"attacking {params.bag} ({params.planner}, objective {params.objective})")
         transport = None if params.graph.spawn_nodes else RclpyTransport(node)
-        folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport)
+        folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport, resume=resume)
         node.get_logger().info(f"{json.dumps(summary(report))}; results in {folder}")
         return 0
 

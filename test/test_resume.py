@@ -1,0 +1,92 @@
+"""Nothing lost: a killed attack resumes to the report an uninterrupted one writes."""
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from advperc_ros.checkpoint import checkpoint_folder
+from conftest import REPO
+from test_cli import write_params
+
+WALL_CLOCK = ("wall_time_s",)
+
+
+def _report(folder: Path) -> dict:
+    return {k: v for k, v in json.loads((folder / "report.json").read_text()).items() if k not in WALL_CLOCK}
+
+
+def _attack(params: Path, *flags: str) -> subprocess.Popen:
+    return subprocess.Popen([sys.executable, "-m", "advperc_ros.cli", "attack", str(params), "--quiet", *flags],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    base = tmp_path_factory.mktemp("resume")
+    params = write_params(base / "p.yaml", REPO)
+    run = _attack(params, "--output", str(base / "whole"))
+    _, err = run.communicate(timeout=600)
+    assert run.returncode == 0, err
+    return params, _report(base / "whole")
+
+
+def test_sigkill_at_ten_random_moments_then_resume_gives_the_uninterrupted_report(uninterrupted, tmp_path):
+    params, expected = uninterrupted
+    moments = random.Random(12).sample([0.8 + 0.35 * i for i in range(24)], 10)  # seconds into the run
+    for n, moment in enumerate(moments):
+        output = tmp_path / f"run{n}"
+        run = _attack(params, "--output", str(output))
+        time.sleep(moment)
+        run.send_signal(signal.SIGKILL)
+        run.wait(timeout=60)
+        if output.exists():  # it finished before the kill: nothing to resume
+            assert _report(output) == expected
+            continue
+        resumed = _attack(params, "--resume", str(output))
+        _, err = resumed.communicate(timeout=600)
+        assert resumed.returncode == 0, err
+        assert _report(output) == expected, f"killed at {moment:.2f} s"
+        assert not checkpoint_folder(output).exists()
+        assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(f".{output.name}.")]  # no debris
+
+
+def test_ctrl_c_is_one_line_exit_130_and_the_attack_can_be_finished(uninterrupted, tmp_path):
+    params, expected = uninterrupted
+    output = tmp_path / "out"
+    run = _attack(params, "--output", str(output))
+    time.sleep(2.5)
+    run.send_signal(signal.SIGINT)
+    _, err = run.communicate(timeout=60)
+    if run.returncode == 0:
+        pytest.skip("the attack finished before the interrupt")
+    assert run.returncode == 130 and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert f"--resume {output}" in err and not output.exists() and checkpoint_folder(output).is_dir()
+    again = _attack(params, "--output", str(output))  # not silently started afresh over a checkpoint
+    _, err = again.communicate(timeout=60)
+    assert again.returncode == 2 and "--resume" in err
+    resumed = _attack(params, "--resume", str(output))
+    _, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err
+    assert _report(output) == expected
+
+
+def test_a_checkpoint_only_finishes_its_own_attack(uninterrupted, tmp_path):
+    params, _ = uninterrupted
+    output = tmp_path / "out"
+    run = _attack(params, "--output", str(output))
+    time.sleep(2.0)
+    os.kill(run.pid, signal.SIGKILL)
+    run.wait(timeout=60)
+    if output.exists():
+        pytest.skip("the attack finished before the kill")
+    other = write_params(tmp_path / "other.yaml", REPO, seed=5)
+    resumed = _attack(other, "--resume", str(output))
+    _, err = resumed.communicate(timeout=60)
+    assert resumed.returncode == 2 and "other params" in err

@@ -389,3 +389,40 @@ def test_launch_file_builds_the_graph():
         context.launch_configurations.update(params=str(REPO / "config" / "idm_lane_following.yaml"), planner=planner, output="")
         actions = module._graph(context)
         assert len([a for a in actions if type(a).__name__ == "Node"]) == nodes
+
+
+# ----- (f) graphs side by side, and what a killed one leaves ---------------------------------------------
+
+def test_two_graph_searches_on_one_domain_give_their_solo_reports(tmp_path):
+    """Each spawned graph talks in a DDS partition of its own, so the same params (same domain
+    id) run twice at once give the report one run alone gives."""
+    params = params_for(tmp_path)
+    solo = tmp_path / "solo"
+    assert advperc(["attack", str(params), "--output", str(solo), "--quiet", "--backend", "embedded"]) == 0
+    runs = [subprocess.Popen([sys.executable, "-m", "advperc_ros.cli", "attack", str(params), "--output",
+                              str(tmp_path / f"graph{n}"), "--quiet", "--backend", "graph"],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for n in range(2)]
+    for run in runs:
+        _, err = run.communicate(timeout=600)
+        assert run.returncode == 0, err
+    expected = json.loads((solo / "report.json").read_text())
+    expected.pop("wall_time_s")
+    for n in range(2):
+        report = json.loads((tmp_path / f"graph{n}" / "report.json").read_text())
+        report.pop("wall_time_s")
+        assert report == expected
+
+
+def test_a_killed_graph_s_log_folder_is_removed_by_the_next(tmp_path, monkeypatch):
+    import tempfile
+
+    from advperc_ros.graph.processes import WORKDIR_PREFIX, remove_stale_workdirs
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    stale = tmp_path / f"{WORKDIR_PREFIX}{int(gone.stdout)}-abc"
+    live = tmp_path / f"{WORKDIR_PREFIX}{os.getpid()}-def"
+    stale.mkdir()
+    live.mkdir()
+    remove_stale_workdirs()
+    assert not stale.exists() and live.exists()

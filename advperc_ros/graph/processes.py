@@ -6,6 +6,7 @@ quoted when it dies.
 """
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -18,14 +19,34 @@ from advperc_ros.nodes.graph_nodes import SPECS
 STOP_TIMEOUT = 5.0  # s between SIGTERM and SIGKILL on shutdown
 LOG_TAIL = 5  # lines of a dead child's log quoted in the error
 NODES = tuple(spec.name for spec in SPECS)
+WORKDIR_PREFIX = "advperc-graph-"  # + the starting process's pid: a folder whose process is gone is stale
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def remove_stale_workdirs() -> None:
+    """Remove the log folders of graphs whose starting process was killed (SIGKILL leaves them)."""
+    for folder in Path(tempfile.gettempdir()).glob(f"{WORKDIR_PREFIX}*-*"):
+        pid = folder.name[len(WORKDIR_PREFIX):].split("-")[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            shutil.rmtree(folder, ignore_errors=True)
 
 
 class NodeProcesses:
     """The five graph nodes as child processes (none until `start`), with their logs."""
 
-    def __init__(self, params_json: str, domain_id: int, localhost_only: bool) -> None:
-        self._workdir = tempfile.TemporaryDirectory(prefix="advperc-graph-")
-        self._flags = ["--params-json", params_json, "--domain-id", str(domain_id),
+    def __init__(self, params_json: str, domain_id: int, localhost_only: bool, partition: str) -> None:
+        remove_stale_workdirs()
+        self._workdir = tempfile.TemporaryDirectory(prefix=f"{WORKDIR_PREFIX}{os.getpid()}-")
+        self._flags = ["--params-json", params_json, "--domain-id", str(domain_id), "--partition", partition,
                        "--localhost-only", "true" if localhost_only else "false", "--exit-with-parent"]
         self.running: dict[str, subprocess.Popen] = {}
 

@@ -28,6 +28,8 @@ before the next rollout. Everything is shut down on exit (SIGTERM, then SIGKILL 
 
 import json
 import logging
+import os
+import secrets
 import time
 from pathlib import Path
 from types import TracebackType
@@ -72,7 +74,9 @@ class GraphRollouts:
         self._stamps = [int(s) for s in scenario.stamps_ns]
         params_json = json.dumps({**params.flat(), "bag": str(Path(bag_path).resolve()),
                                   PLANNER_PARAMS: dict(params.planner_params)})
-        self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only)
+        # a graph we start talks in a DDS partition of its own: any number of them share a domain
+        self._partition = f"advperc-{os.getpid()}-{secrets.token_hex(4)}" if params.graph.spawn_nodes else ""
+        self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only, self._partition)
         self._client: LockstepClient | None = None
         self._recording = False
         try:
@@ -107,7 +111,7 @@ class GraphRollouts:
         from advperc_ros.ros.dds import DdsError, DdsTransport
 
         try:
-            return DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only)
+            return DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only, self._partition)
         except DdsError as exc:
             raise GraphError(str(exc)) from exc
 

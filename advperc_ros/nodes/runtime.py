@@ -233,6 +233,8 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
                        "(how the graph backend hands its children the params it checked)")
     parser.add_argument("--domain-id", type=int, help="DDS domain id (default: the file's dds.domain_id)")
     parser.add_argument("--localhost-only", type=_flag, help="true|false (default: the file's dds.localhost_only)")
+    parser.add_argument("--partition", default="", help="DDS partition of every topic (the graph backend gives each "
+                        "graph its own, so graphs on one domain cannot see each other; default: ROS 2's)")
     parser.add_argument("--exit-with-parent", action="store_true",
                         help="exit when the starting process dies (the graph backend sets it: no orphans)")
     options = parser.parse_args(argv)
@@ -244,7 +246,7 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
         values = _resolve({name: params.get(name) for name in spec.params}, params.source)
         domain_id = params.dds.domain_id if options.domain_id is None else options.domain_id
         localhost_only = params.dds.localhost_only if options.localhost_only is None else options.localhost_only
-        transport = DdsTransport(domain_id, localhost_only)
+        transport = DdsTransport(domain_id, localhost_only, options.partition)
     except (*INPUT_ERRORS, DdsError) as exc:
         logger.error(str(exc))
         return EXIT_INPUT

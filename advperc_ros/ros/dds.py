@@ -37,9 +37,9 @@ from typing import Any
 
 from cyclonedds.core import DDSException, InstanceState, ReadCondition, SampleState, ViewState, WaitSet
 from cyclonedds.domain import Domain, DomainParticipant
-from cyclonedds.pub import DataWriter
+from cyclonedds.pub import DataWriter, Publisher
 from cyclonedds.qos import Policy, Qos
-from cyclonedds.sub import DataReader
+from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
@@ -224,14 +224,19 @@ class DdsTransport:
     `localhost_only` (the default) keeps all DDS traffic on 127.0.0.1 whatever CYCLONEDDS_URI
     says; with False, Cyclone's own configuration (CYCLONEDDS_URI or its defaults) applies.
     A process can hold several transports on one domain, all with the same `localhost_only`.
+    `partition`: a DDS partition for every reader and writer, so that graphs in other partitions
+    on the same domain are invisible to this one ("" is the default partition, the one ROS 2 uses).
     """
 
-    def __init__(self, domain_id: int, localhost_only: bool = True) -> None:
+    def __init__(self, domain_id: int, localhost_only: bool = True, partition: str = "") -> None:
         if not 0 <= domain_id <= 232:
             raise DdsError(f"domain id {domain_id}: must be within 0..232 (RTPS port mapping)")
         _domain(domain_id, localhost_only)
         self.domain_id = domain_id
         self._participant: DomainParticipant | None = DomainParticipant(domain_id)
+        scope = Qos(Policy.Partition(partitions=[partition]))
+        self._publisher = Publisher(self._participant, qos=scope)
+        self._subscriber = Subscriber(self._participant, qos=scope)
         self._topics: dict[str, tuple[Topic, str]] = {}
         self._publications: list[Publication] = []
         self._subscriptions: list[Subscription] = []
@@ -258,7 +263,7 @@ class DdsTransport:
 
     def publisher(self, topic: str, msgtype: str, latched: bool = False) -> Publication:
         """A writer of `topic` (ROS name) carrying `msgtype` (`pkg/msg/Type`)."""
-        writer = DataWriter(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype))
+        writer = DataWriter(self._publisher, self._topic(topic, msgtype), _qos(latched, msgtype))
         publication = Publication(writer, topic, msgtype)
         self._publications.append(publication)
         return publication
@@ -271,7 +276,7 @@ class DdsTransport:
         last message published before it joined. `raw`: deliver CDR payloads, not messages.
         `wake=False`: a message does not end `spin_once`'s wait; it is delivered with the next
         one that ends (another subscription's message, or the timeout)."""
-        reader = DataReader(self.participant, self._topic(topic, msgtype), _qos(latched, msgtype, reader=True))
+        reader = DataReader(self._subscriber, self._topic(topic, msgtype), _qos(latched, msgtype, reader=True))
         subscription = Subscription(self.participant, reader, topic, msgtype, callback, raw)
         self._subscriptions.append(subscription)
         if callback is not None:
@@ -322,6 +327,8 @@ class DdsTransport:
             _delete(publication._writer)
         for dds_topic, _ in self._topics.values():
             _delete(dds_topic)
+        _delete(self._publisher)
+        _delete(self._subscriber)
         _delete(self._participant)
         self._participant = None
         self._spin_waitset = None

@@ -46,6 +46,19 @@ GOALS = {("cyclone", "idm"): 1.5, ("rclpy", "idm"): 3.0, ("cyclone", "obp"): 1.1
 """graph / embedded rollout time, per backend and planner (issue 10)"""
 
 
+def _cpu_seconds(pids: list[int]) -> float:
+    """CPU time (user + system) the processes `pids` have used so far (Linux /proc)."""
+    total = 0
+    for pid in pids:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        total += int(fields[11]) + int(fields[12])  # utime, stime (fields 14 and 15 of stat)
+    return total / os.sysconf("SC_CLK_TCK")
+
+
+def _node_pids(graph: GraphRollouts) -> list[int]:
+    return [process.pid for process in graph.processes.running.values()] or graph.node_pids
+
+
 @contextlib.contextmanager
 def rclpy_graph(scenario, params, bag: Path, domain_id: int) -> Iterator[GraphRollouts]:
     """The launch file's graph without launch: the five nodes as rclpy processes (parameters as the
@@ -68,6 +81,7 @@ def rclpy_graph(scenario, params, bag: Path, domain_id: int) -> Iterator[GraphRo
             node = Node("graph_bench")
             with GraphRollouts(scenario, params.with_values(**{"graph.spawn_nodes": False}), bag,
                                RclpyTransport(node)) as graph:
+                graph.node_pids = [process.pid for process in nodes]  # not ours to restart, but to measure
                 yield graph
         finally:
             rclpy.try_shutdown()
@@ -123,22 +137,30 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                     GraphRollouts(scenario, params, bag) if backend == "cyclone"
                     else rclpy_graph(scenario, params, bag, domain_id + 1))
                 startup[backend] = time.perf_counter() - started
+            cpu = {"embedded": 0.0, **{backend: 0.0 for backend in backends}}  # CPU s of the rollouts, all processes
             for label, errors in cases.items():
                 times: dict[str, list[float]] = {"embedded": [], **{b: [] for b in backends}}
                 results = {}
                 for _ in range(repeats):
+                    before = time.process_time()
                     seconds, embedded = _timed(stack.rollout, errors)
+                    cpu["embedded"] += time.process_time() - before
                     times["embedded"].append(seconds)
                     for backend, graph in graphs.items():
+                        pids = _node_pids(graph)
+                        before = _cpu_seconds(pids) + time.process_time()
                         seconds, results[backend] = _timed(graph.rollout, errors)
+                        cpu[backend] += _cpu_seconds(pids) + time.process_time() - before
                         times[backend].append(seconds)
                 median = {key: statistics.median(values) for key, values in times.items()}
                 for backend in backends:
                     rows.append({"scenario": name, "planner": params.planner, "backend": backend, "errors": label,
+                                 "cpu_s": cpu[backend], "embedded_cpu_s": cpu["embedded"],
                                  "frames": results[backend].num_frames, "embedded_s": median["embedded"],
                                  "graph_s": median[backend], "ratio": median[backend] / median["embedded"],
                                  "max_difference": _difference(results[backend], embedded),
                                  "startup_s": startup[backend]})
+                cpu = dict.fromkeys(cpu, 0.0)
                 mine = rows[-len(backends):]
                 print(f"{name:22s} {label:12s} {mine[0]['frames']:6d} {median['embedded']:10.3f} "
                       + " ".join(f"{r['graph_s']:9.3f} {r['ratio']:6.2f} {r['max_difference']:8.1e}" for r in mine))
@@ -151,7 +173,11 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
             ratio = sum(row["graph_s"] for row in mine) / sum(row["embedded_s"] for row in mine)
             goal = GOALS.get((backend, mine[0]["planner"]))
             verdict = f" (goal <= {goal:g}x: {'met' if ratio <= goal else 'NOT met'})" if goal else ""
-            print(f"{name:22s} {backend:8s} {ratio:5.2f}x{verdict}")
+            # the floor: the graph's CPU work spread perfectly over this machine's cores, against the
+            # embedded rollout's CPU time (CPU, not wall time: other load on the machine cancels out)
+            work = sum(row["cpu_s"] for row in mine) / sum(row["embedded_cpu_s"] for row in mine)
+            print(f"{name:22s} {backend:8s} {ratio:5.2f}x{verdict}; CPU {work:.2f}x the embedded rollout's, over "
+                  f"{os.cpu_count()} cores a floor of {work / (os.cpu_count() or 1):.2f}x")
     return rows
 
 

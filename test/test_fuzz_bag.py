@@ -16,7 +16,7 @@ from test_check_bag import DT, LANE, boxes, write_bag
 from advperc_ros.core.boxes import BOX_FIELDS
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.ros import bag as bags
-from advperc_ros.ros.bag import BagError, check_ground_truth, read_scenario
+from advperc_ros.ros.bag import BagError, check_ground_truth, read_scenario, read_topics
 
 # hang guard, not a timing: writing and reading one small bag takes milliseconds
 FUZZ = settings(max_examples=60, deadline=10_000, suppress_health_check=[HealthCheck.too_slow])
@@ -59,10 +59,14 @@ def fresh(tmp_path_factory, mcap: bytes, metadata: str):
 
 
 def read_or_fail_naming(path) -> None:
+    """read_scenario, and read_topics deserialising every contract topic (as `advperc score` reads
+    odometry), answer or fail with one line naming the bag."""
     try:
-        check_usable(read_scenario(path))
-    except BagError as exc:
-        one_line_naming(exc, str(path))
+        for read in (lambda: check_usable(read_scenario(path)), lambda: read_topics(path, bags.TOPIC_TYPES)):
+            try:
+                read()
+            except BagError as exc:
+                one_line_naming(exc, str(path))
     finally:
         shutil.rmtree(path)
 

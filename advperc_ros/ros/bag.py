@@ -168,8 +168,8 @@ def _read(path: Path, topics: Iterable[str]) -> _Contents:
                     continue
                 expected = TOPIC_TYPES.get(connection.topic)
                 if expected is not None and connection.msgtype != expected:
-                    wrong[connection.topic] = (f"{path}: topic '{connection.topic}' has type {connection.msgtype}, "
-                                               f"expected {expected}")
+                    wrong[connection.topic] = (f"{path}: topic '{connection.topic}' has type {connection.msgtype!r}, "
+                                               f"expected '{expected}'")
                 else:
                     connections.append(connection)
             # an empty connection list means "all connections" to rosbags

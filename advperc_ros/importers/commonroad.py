@@ -117,8 +117,8 @@ def _goal_centre(goal) -> np.ndarray | None:
             centre = getattr(position, "center", None)
             if centre is None and getattr(position, "shapes", None):
                 centre = position.shapes[0].center
-            if centre is not None:  # an array, or a shapely Point for some shapes
-                xy = [centre.x, centre.y] if hasattr(centre, "x") else centre
+            if centre is not None:  # an array, or a shapely Point (maybe empty: no .x) for some shapes
+                xy = np.asarray(centre.coords, dtype=float).ravel() if hasattr(centre, "coords") else centre
                 return _finite(xy, "planningProblem.goalState.position", 2)
     return None
 

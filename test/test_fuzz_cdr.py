@@ -114,7 +114,8 @@ CONTROL = {  # topic -> (parser, a valid message as JSON)
     lockstep.ERRORS: (lockstep.parse_errors, json.loads(lockstep.errors_message(ERRORS).data)),
     lockstep.READY: (lockstep.parse_ready, json.loads(lockstep.ready_message(3).data)),
     lockstep.PRESENCE: (lockstep.parse_presence, json.loads(lockstep.presence_message("tracker", 42).data)),
-    lockstep.DONE: (lockstep.parse_done, json.loads(lockstep.done_message(lockstep.RolloutDone(3, 9, lockstep.OK, "", False)).data)),
+    lockstep.DONE: (lockstep.parse_done,
+                    json.loads(lockstep.done_message(lockstep.RolloutDone(3, 9, lockstep.OK, "", False)).data)),
 }
 
 
@@ -224,7 +225,7 @@ def test_rule_diagnostics_parser_answers_distances_or_one_message_error(statuses
 @given(data=st.data())
 def test_plan_parser_answers_a_trajectory_or_one_message_error(data):
     try:
-        stamp, plan = lockstep.plan_from_cdr(data.draw(mutated(PATH)), 0, "where")
+        _, plan = lockstep.plan_from_cdr(data.draw(mutated(PATH)), 0, "where")
     except cdr.MessageError as exc:
         one_line_naming(exc, "where: ")
     else:

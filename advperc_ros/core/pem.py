@@ -195,7 +195,8 @@ def _checked(value, name: str, source: str):
     if not all(number is not None and low < number < high for number in numbers):
         what = "a number" if count is None else f"a list of {count} numbers"
         bounds = f" in ({low}, {high})" if count is None else ", finite"
-        shown = f"a list of {len(value)}" if isinstance(value, list) else "an object" if isinstance(value, dict) else f"{value!r:.60}"
+        shown = (f"a list of {len(value)}" if isinstance(value, list) else "an object" if isinstance(value, dict)
+                 else f"{value!r:.60}")
         raise PEMError(f"{source}: field '{name}' must be {what}{bounds}, not {shown}")
     return numbers[0] if count is None else tuple(numbers)
 

@@ -29,9 +29,9 @@ import numpy as np
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.ros import cdr
-from advperc_ros.ros.cdr import MessageError
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import RULE_DIAGNOSTICS
+from advperc_ros.ros.cdr import MessageError
 
 ERRORS = "/attack/errors"
 READY = "/attack/ready"

@@ -17,7 +17,8 @@ from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.search.problem import OBJECTIVES
-from advperc_ros.exits import EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
+from advperc_ros.exits import (EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES,
+                               expected_failure)
 from advperc_ros.params import ParamsError, load_params
 from advperc_ros.ros.bag import BagError
 
@@ -227,6 +228,22 @@ def cmd_pem_fit(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_check_bag(args: argparse.Namespace) -> int:
+    """Every problem of a ground-truth bag, one line each (exit 2), or a short summary of it."""
+    from advperc_ros.ros.bag import check_ground_truth
+
+    check = check_ground_truth(Path(args.bag))
+    for problem in check.problems:
+        print(f"advperc: error: {problem}", file=sys.stderr)
+    if check.problems:
+        return EXIT_INPUT
+    scenario = check.scenario
+    topics = ", ".join(f"{name} ({count})" for name, (_, count) in sorted(check.topics.items()))
+    print(f"{args.bag}: ok: '{scenario.name}', {scenario.num_frames} frames every {scenario.dt:.3f} s "
+          f"({scenario.times[-1]:.3f} s), {scenario.agents.shape[1]} agents, {len(scenario.lanes)} lanes; topics: {topics}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="advperc", description="Adversarial perception error search.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -286,6 +303,10 @@ def build_parser() -> argparse.ArgumentParser:
     score_cmd.add_argument("perceived", help="bag with detections (confidence in each CUBE marker's text)")
     score_cmd.add_argument("--topic", default="/perception/objects", help="detections topic in the perceived bag")
     score_cmd.set_defaults(func=cmd_score)
+
+    check_bag = sub.add_parser("check-bag", help="check a ground-truth bag against the bag contract")
+    check_bag.add_argument("bag", help="ground-truth bag directory")
+    check_bag.set_defaults(func=cmd_check_bag)
     return parser
 
 

@@ -16,7 +16,8 @@ log p(det | x) + [det] (log p(position error | x) + log p(yaw error | x)).
 """
 
 import json
-from dataclasses import asdict, dataclass
+import math
+from dataclasses import asdict, dataclass, fields
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
@@ -32,6 +33,10 @@ from advperc_ros.core.occlusion import occlusion
 
 NUM_FEATURES = 5
 RANGE_SCALE = 50.0
+
+
+class PEMError(ValueError):
+    """A model file that cannot be used; the message names the file and the field."""
 
 
 def features(truth: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
@@ -141,18 +146,75 @@ class PEM:
 
     @classmethod
     def load(cls, path: Path) -> "PEM":
-        return cls.from_json(Path(path).read_text())
+        try:
+            text = Path(path).read_text()
+        except (OSError, UnicodeDecodeError) as exc:
+            raise PEMError(f"{path}: cannot read the model: {exc}") from None
+        return cls.from_json(text, str(path))
 
     @classmethod
-    def from_json(cls, text: str) -> "PEM":
-        data = json.loads(text)
-        return cls(**{k: tuple(v) if isinstance(v, list) else v for k, v in data.items()})
+    def from_json(cls, text: str, source: str) -> "PEM":
+        """The model of a JSON text as `save` writes it; `source` (its file) prefixes any error.
+        Every field is checked here, so a wrong model fails on loading, not inside a rollout."""
+        try:
+            data = json.loads(text)
+        except (ValueError, RecursionError) as exc:  # RecursionError: arrays nested too deep
+            raise PEMError(f"{source}: not JSON: {exc}") from None
+        if not isinstance(data, dict):
+            raise PEMError(f"{source}: not a JSON object")
+        names = [f.name for f in fields(cls)]
+        unknown = sorted(set(data) - set(names))
+        if unknown:
+            raise PEMError(f"{source}: field {unknown[0]!r} is unknown (fields: {', '.join(names)})")
+        values = {name: _checked(data.get(name), name, source) for name in names}
+        return cls(**values)
+
+
+# field -> (how many numbers, or None for a single one; lowest value allowed (exclusive); highest)
+_FIELD_SHAPES = {
+    "detection": (NUM_FEATURES, -math.inf, math.inf),
+    "position_loc": (2, -math.inf, math.inf),
+    "radial_log_scale": (NUM_FEATURES, -math.inf, math.inf),
+    "tangential_log_scale": (NUM_FEATURES, -math.inf, math.inf),
+    "position_rho": (None, -1.0, 1.0),
+    "position_nu": (None, 0.0, math.inf),
+    "yaw_log_scale": (NUM_FEATURES, -math.inf, math.inf),
+    "yaw_nu": (None, 0.0, math.inf),
+}
+
+
+def _checked(value, name: str, source: str):
+    """A field's JSON value as the model holds it, or a PEMError saying what the field must be."""
+    if name == "source":
+        if not isinstance(value, str):
+            raise PEMError(f"{source}: field 'source' must be a string")
+        return value
+    count, low, high = _FIELD_SHAPES[name]
+    items = [value] if count is None else value if isinstance(value, list) and len(value) == count else [None]
+    numbers = [_number(item) for item in items]
+    if not all(number is not None and low < number < high for number in numbers):
+        what = "a number" if count is None else f"a list of {count} numbers"
+        bounds = f" in ({low}, {high})" if count is None else ", finite"
+        shown = (f"a list of {len(value)}" if isinstance(value, list) else "an object" if isinstance(value, dict)
+                 else f"{value!r:.60}")
+        raise PEMError(f"{source}: field '{name}' must be {what}{bounds}, not {shown}")
+    return numbers[0] if count is None else tuple(numbers)
+
+
+def _number(value) -> float | None:
+    """A JSON number as a float; None for anything else (booleans, strings, ints beyond a float)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return None
+    try:
+        return float(value)
+    except OverflowError:
+        return None
 
 
 @lru_cache(maxsize=1)
 def default_pem() -> PEM:
     """The shipped reference model (advperc_ros/data/default_pem.json; its `source` says what it is)."""
-    return PEM.from_json(resources.files("advperc_ros").joinpath("data/default_pem.json").read_text())
+    return PEM.from_json(resources.files("advperc_ros").joinpath("data/default_pem.json").read_text(), "default_pem.json")
 
 
 def fit(phi: np.ndarray, detected: np.ndarray, radial_tangential: np.ndarray, dyaw: np.ndarray, source: str) -> PEM:

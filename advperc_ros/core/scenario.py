@@ -56,18 +56,35 @@ class Scenario:
         return (self.stamps_ns - self.stamps_ns[0]) * 1e-9
 
     def validate(self, source: str) -> None:
+        """Raise a ScenarioError naming the first of `problems`."""
+        problems = self.problems(source)
+        if problems:
+            raise ScenarioError(problems[0])
+
+    def problems(self, source: str) -> list[str]:
+        """What makes this ground truth unusable, one line per kind of problem, each naming `source`
+        and the field; empty if none. A rollout trusts what passes: finite numbers everywhere."""
+        problems = []
         if self.num_frames < 2:
-            raise ScenarioError(f"{source}: field 'frames' needs at least two frames, found {self.num_frames}")
+            problems.append(f"{source}: field 'frames' needs at least two frames, found {self.num_frames}")
         steps = np.diff(self.stamps_ns)
-        if np.any(steps <= 0) or np.any(np.abs(steps - steps[0]) > max(1, steps[0] // 1000)):
-            raise ScenarioError(f"{source}: field 'header.stamp' must increase by a constant period")
+        if steps.size and (np.any(steps <= 0) or np.any(np.abs(steps - steps[0]) > max(1, steps[0] // 1000))):
+            problems.append(f"{source}: field 'header.stamp' must increase by a constant period")
         bad = self.agents.first_invalid_field()
         if bad is not None:
             name, k, j = bad
             agent = int(self.agents.ids[k, j])
-            raise ScenarioError(f"{source}: field '{name}' of agent {agent} at frame {k} is not a valid number")
+            value = getattr(self.agents, name)[k, j]
+            problems.append(f"{source}: field '{name}' of agent {agent} at frame {k} is not a valid number ({value}; "
+                            "every field finite, sizes positive)")
         ego = np.array([self.ego_start.x, self.ego_start.y, self.ego_start.yaw, self.ego_start.v])
         if not np.all(np.isfinite(ego)):
-            raise ScenarioError(f"{source}: field 'ego.start' is not finite")
+            problems.append(f"{source}: field 'ego.start' is not finite")
         if not np.all(np.isfinite(self.route.points)):
-            raise ScenarioError(f"{source}: field 'route' is not finite")
+            problems.append(f"{source}: field 'route' is not finite")
+        for lane in self.lanes:
+            if not np.all(np.isfinite(lane.centerline.points)):
+                problems.append(f"{source}: field 'centerline' of lane {lane.id!r} is not finite")
+            if not (np.isfinite(lane.width) and lane.width > 0.0):
+                problems.append(f"{source}: field 'width' of lane {lane.id!r} must be positive, not {lane.width}")
+        return problems

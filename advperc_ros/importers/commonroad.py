@@ -2,8 +2,9 @@
 
 - Lanes: every lanelet, centre vertices and mean width.
 - Agents: every dynamic obstacle, all classes treated as `car` (the metrics are car-only), present
-  from its initial to its final recorded time step; position is the shape's centre, velocity the
-  recorded speed along the recorded orientation; height is not in CommonRoad (1.5 m).
+  from its initial to its final recorded time step (at its initial step only if it has no
+  trajectory); position is the shape's centre, velocity the recorded speed along the recorded
+  orientation; height is not in CommonRoad (1.5 m).
 - Ego: the planning problem's initial state, moved onto the route (its lateral offset from the
   lane centre dropped, so the path-following planner does not jump sideways at the first step).
 - Route: the shortest chain of successor lanelets from the ego's lanelet to a lanelet of the goal
@@ -12,6 +13,9 @@
   the route is the longest successor chain ahead.
 - Target speed (for the generated params file): the middle of the goal's velocity interval, or
   the initial speed when the goal has none.
+- Refused with a ScenarioError naming the file and the field, rather than failing later: numbers
+  that are not finite, shapes other than rectangles, predictions that are not trajectories, two
+  states at one time step, references to lanelets that do not exist, degenerate lanelets.
 """
 
 from dataclasses import dataclass
@@ -25,6 +29,7 @@ from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane, Scenario, ScenarioError
 
 AGENT_HEIGHT = 1.5
+MAX_FRAMES = 10_000  # time steps of a recording: CommonRoad's run for seconds; a bogus step would only fill memory
 
 
 @dataclass(frozen=True)
@@ -47,25 +52,62 @@ def _read(path: Path):
         raise ScenarioError(f"{path}: not a readable CommonRoad scenario: {exc}".replace("\n", " ")) from exc
 
 
-def _agents(cr_scenario, num_frames: int) -> BoxSequence:
+def _finite(value, field: str, size: int | None = None) -> np.ndarray:
+    """A number (or `size` of them) of the recording as floats; a ScenarioError naming `field`
+    unless all are finite (NaN or inf in a recording would only surface deep in a rollout)."""
+    try:
+        values = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        values = np.array([np.nan])
+    if values.shape != (() if size is None else (size,)) or not np.all(np.isfinite(values)):
+        raise ScenarioError(f"field '{field}' must be {'a finite number' if size is None else f'{size} finite numbers'}")
+    return values
+
+
+def _states(obstacle) -> dict[int, object]:
+    """A dynamic obstacle's recorded states by time step: its initial state, then its trajectory (an
+    obstacle without a prediction is known at its initial step only). Every state must be exact."""
+    name = f"dynamicObstacle {obstacle.obstacle_id}"
+    prediction = obstacle.prediction
+    if prediction is not None and getattr(prediction, "trajectory", None) is None:
+        raise ScenarioError(f"field '{name}.prediction' is not a recorded trajectory")
+    states: dict[int, object] = {}
+    for state in [obstacle.initial_state, *(prediction.trajectory.state_list if prediction is not None else ())]:
+        k = state.time_step
+        if not isinstance(k, (int, np.integer)) or not 0 <= k < MAX_FRAMES:
+            raise ScenarioError(f"field '{name}.time_step' must be a whole step in [0, {MAX_FRAMES}), not {k!r:.30}")
+        if int(k) in states:
+            raise ScenarioError(f"field '{name}' has two states at time step {k}")
+        states[int(k)] = state
+    return states
+
+
+def _agents(cr_scenario, num_frames: int, states: dict[int, dict[int, object]]) -> BoxSequence:
     obstacles = sorted(cr_scenario.dynamic_obstacles, key=lambda o: o.obstacle_id)
     agents = BoxSequence.empty(num_frames, len(obstacles))
     for j, obstacle in enumerate(obstacles):
-        states = [obstacle.initial_state, *obstacle.prediction.trajectory.state_list]
+        name = f"dynamicObstacle {obstacle.obstacle_id}"
+        if not np.iinfo(np.int64).min <= obstacle.obstacle_id <= np.iinfo(np.int64).max:
+            raise ScenarioError(f"field '{name}' has an id beyond 64 bits")
         agents.ids[:, j] = obstacle.obstacle_id
         shape = obstacle.obstacle_shape
+        if not (hasattr(shape, "length") and hasattr(shape, "width")):
+            raise ScenarioError(f"field '{name}.shape' must be a rectangle, not {type(shape).__name__}")
         agents.length[:, j], agents.width[:, j], agents.height[:, j] = shape.length, shape.width, AGENT_HEIGHT
-        for state in states:
-            k = int(state.time_step)
-            if not 0 <= k < num_frames:
-                continue
-            speed = float(getattr(state, "velocity", 0.0) or 0.0)
-            yaw = float(state.orientation)
+        for k, state in states[obstacle.obstacle_id].items():
+            speed = _speed(state, f"{name}.velocity")
+            yaw = float(_finite(getattr(state, "orientation", None), f"{name}.orientation"))
             agents.valid[k, j] = True
-            agents.x[k, j], agents.y[k, j] = state.position
+            agents.x[k, j], agents.y[k, j] = _finite(getattr(state, "position", None), f"{name}.position", 2)
             agents.yaw[k, j] = yaw
             agents.vx[k, j], agents.vy[k, j] = speed * np.cos(yaw), speed * np.sin(yaw)
     return agents
+
+
+def _speed(state, field: str) -> float:
+    """A state's recorded speed; 0 for state types that have none."""
+    velocity = getattr(state, "velocity", None)
+    return 0.0 if velocity is None else float(_finite(velocity, field))
 
 
 def _goal_centre(goal) -> np.ndarray | None:
@@ -75,24 +117,46 @@ def _goal_centre(goal) -> np.ndarray | None:
             centre = getattr(position, "center", None)
             if centre is None and getattr(position, "shapes", None):
                 centre = position.shapes[0].center
-            if centre is not None:  # an array, or a shapely Point for some shapes
-                return np.array([centre.x, centre.y]) if hasattr(centre, "x") else np.asarray(centre, dtype=float)
+            if centre is not None:  # an array, or a shapely Point (maybe empty: no .x) for some shapes
+                xy = np.asarray(centre.coords, dtype=float).ravel() if hasattr(centre, "coords") else centre
+                return _finite(xy, "planningProblem.goalState.position", 2)
     return None
 
 
+def _lane(lanelet) -> Lane:
+    """A lanelet as a lane: its centre vertices, the mean distance between its bounds as width."""
+    name = f"lanelet {lanelet.lanelet_id}"
+    left, right = np.asarray(lanelet.left_vertices, dtype=float), np.asarray(lanelet.right_vertices, dtype=float)
+    if left.shape != right.shape or not (np.all(np.isfinite(left)) and np.all(np.isfinite(right))):
+        raise ScenarioError(f"field '{name}': leftBound and rightBound must be finite points, as many of each")
+    try:
+        centerline = Polyline(lanelet.center_vertices)
+    except ValueError:
+        raise ScenarioError(f"field '{name}': its centre needs at least two distinct points") from None
+    return Lane(id=str(lanelet.lanelet_id), centerline=centerline, width=float(np.mean(np.linalg.norm(left - right, axis=1))))
+
+
 def _route(network, start_xy: np.ndarray, goal) -> tuple[list[int], str]:
+    by_id = {lanelet.lanelet_id: lanelet for lanelet in network.lanelets}
     graph = nx.DiGraph()
     for lanelet in network.lanelets:
         graph.add_node(lanelet.lanelet_id)
+    for lanelet in network.lanelets:
+        for other in (*lanelet.successor, lanelet.adj_left, lanelet.adj_right):
+            if other is not None and other not in graph:
+                raise ScenarioError(f"field 'lanelet {lanelet.lanelet_id}' refers to lanelet {other}, which does not exist")
         for successor in lanelet.successor:
             graph.add_edge(lanelet.lanelet_id, successor)
     found = network.find_lanelet_by_position([start_xy])[0]
     if not found:
-        raise ScenarioError("the ego's start is on no lanelet")
+        raise ScenarioError("field 'planningProblem.initialState': the ego's start is on no lanelet")
     start = found[0]
     goal_lanelets: set[int] = set()
     if goal.lanelets_of_goal_position:
         goal_lanelets = {i for ids in goal.lanelets_of_goal_position.values() for i in ids}
+    missing = sorted(goal_lanelets - set(graph))
+    if missing:
+        raise ScenarioError(f"field 'planningProblem.goalState' names lanelet {missing[0]}, which does not exist")
     centre = _goal_centre(goal)
     if centre is not None:
         goal_lanelets |= set(network.find_lanelet_by_position([centre])[0])
@@ -102,7 +166,7 @@ def _route(network, start_xy: np.ndarray, goal) -> tuple[list[int], str]:
     beside = {
         n
         for g in goal_lanelets
-        for n in (network.find_lanelet_by_id(g).adj_left, network.find_lanelet_by_id(g).adj_right)
+        for n in (by_id[g].adj_left, by_id[g].adj_right)
         if n is not None
     }
     paths = [nx.shortest_path(graph, start, g) for g in beside if nx.has_path(graph, start, g)]
@@ -113,46 +177,49 @@ def _route(network, start_xy: np.ndarray, goal) -> tuple[list[int], str]:
 
 
 def import_commonroad(path: str | Path) -> ImportedScenario:
+    """A CommonRoad recording as a validated Scenario; a ScenarioError naming the file and the
+    field for anything that cannot be used (one line)."""
     path = Path(path)
     cr_scenario, problems = _read(path)
+    try:
+        imported = _convert(cr_scenario, problems)
+    except ScenarioError as exc:
+        raise ScenarioError(f"{path}: {exc}") from None
+    imported.scenario.validate(str(path))
+    return imported
+
+
+def _convert(cr_scenario, problems) -> ImportedScenario:
     if not problems.planning_problem_dict:
-        raise ScenarioError(f"{path}: field 'planningProblem' is missing (needed for the ego's start)")
+        raise ScenarioError("field 'planningProblem' is missing (needed for the ego's start)")
     problem = problems.planning_problem_dict[min(problems.planning_problem_dict)]
     network = cr_scenario.lanelet_network
-    dt = float(cr_scenario.dt)
-    last = max((o.prediction.trajectory.final_state.time_step for o in cr_scenario.dynamic_obstacles), default=0)
-    num_frames = int(last) + 1
-    lanes = tuple(
-        Lane(
-            id=str(lanelet.lanelet_id),
-            centerline=Polyline(lanelet.center_vertices),
-            width=float(np.mean(np.linalg.norm(lanelet.left_vertices - lanelet.right_vertices, axis=1))),
-        )
-        for lanelet in network.lanelets
-    )
+    dt = float(_finite(cr_scenario.dt, "timeStepSize"))
+    if not dt >= 1e-9:
+        raise ScenarioError(f"field 'timeStepSize' must be positive (at least 1 ns), not {dt}")
+    states = {o.obstacle_id: _states(o) for o in cr_scenario.dynamic_obstacles}
+    num_frames = max((k for steps in states.values() for k in steps), default=0) + 1
+    lanes = tuple(_lane(lanelet) for lanelet in network.lanelets)
+    lanes_by_id = {lane.id: lane for lane in lanes}
     initial = problem.initial_state
-    start_xy = np.asarray(initial.position, dtype=float)
-    try:
-        chain, note = _route(network, start_xy, problem.goal)
-    except ScenarioError as exc:
-        raise ScenarioError(f"{path}: field 'planningProblem.initialState': {exc}") from exc
-    route = Polyline(np.concatenate([network.find_lanelet_by_id(i).center_vertices for i in chain]))
+    start_xy = _finite(getattr(initial, "position", None), "planningProblem.initialState.position", 2)
+    chain, note = _route(network, start_xy, problem.goal)
+    route = Polyline(np.concatenate([lanes_by_id[str(i)].centerline.points for i in chain]))
     s0, _ = route.project(start_xy)
     on_route = route.position(s0)
-    speed = float(getattr(initial, "velocity", 0.0) or 0.0)
+    speed = _speed(initial, "planningProblem.initialState.velocity")
     ego = EgoState(x=float(on_route[0]), y=float(on_route[1]), yaw=float(route.heading(s0)), v=speed)
     target = speed
     for state in problem.goal.state_list:
         velocity = getattr(state, "velocity", None)
         if velocity is not None and hasattr(velocity, "start"):
-            target = 0.5 * (float(velocity.start) + float(velocity.end))
+            target = float(np.mean(_finite([velocity.start, velocity.end], "planningProblem.goalState.velocity", 2)))
     scenario = Scenario(
         name=str(cr_scenario.scenario_id),
         stamps_ns=np.arange(num_frames, dtype=np.int64) * int(round(dt * 1e9)),
-        agents=_agents(cr_scenario, num_frames),
+        agents=_agents(cr_scenario, num_frames, states),
         lanes=lanes,
         route=route,
         ego_start=ego,
     )
-    scenario.validate(str(path))
     return ImportedScenario(scenario=scenario, target_speed=max(target, 1.0), route_note=note)

@@ -7,10 +7,10 @@ sibling directory and renamed into place once complete: a killed run leaves no b
 
 import hashlib
 import shutil
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
@@ -19,7 +19,7 @@ from rosbags.rosbag2.metadata import Qos, QosDurability, QosHistory, QosLiveline
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.scenario import Lane, Scenario, ScenarioError
+from advperc_ros.core.scenario import EgoState, Lane, Scenario
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.topics import CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, ROUTE, TOPIC_TYPES, depth
@@ -141,31 +141,66 @@ def write_ground_truth_bag(path: Path, scenario: Scenario) -> None:
         write_scenario(bag, scenario)
 
 
-def read_topics(path: Path, topics: Iterable[str], raw: bool = False
-                ) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, str]]:
-    """Messages of the given topics in log-time order, as (log time, message), and the bag's
-    custom metadata. Messages are deserialised, or with `raw` their CDR bytes as stored."""
+def _one_line(exc: BaseException) -> str:
+    """An exception's text on one line (YAML and rosbags errors span several)."""
+    return " ".join(str(exc).split())
+
+
+class _Contents(NamedTuple):
+    messages: dict[str, list[tuple[int, bytes]]]  # wanted topic -> (log time, CDR payload), in log-time order
+    topics: dict[str, tuple[str, int]]  # every topic of the bag -> (type, message count)
+    wrong: dict[str, str]  # wanted topic of another type than the contract's -> the problem (its messages left out)
+
+
+def _read(path: Path, topics: Iterable[str]) -> _Contents:
+    """The payloads of the given topics and the bag's topic list; a BagError if it cannot be read."""
     path = Path(path)
     if not path.exists():
         raise BagError(f"{path}: no such bag")
     wanted = set(topics)
-    out: dict[str, list[tuple[int, Any]]] = {topic: [] for topic in wanted}
+    messages: dict[str, list[tuple[int, bytes]]] = {topic: [] for topic in wanted}
+    wrong: dict[str, str] = {}
     try:
         with Reader(path) as reader:
-            connections = [c for c in reader.connections if c.topic in wanted]
-            for connection in connections:
+            listing = {name: (info.msgtype, info.msgcount) for name, info in reader.topics.items()}
+            connections = []
+            for connection in reader.connections:
+                if connection.topic not in wanted:
+                    continue
                 expected = TOPIC_TYPES.get(connection.topic)
                 if expected is not None and connection.msgtype != expected:
-                    raise BagError(f"{path}: topic '{connection.topic}' has type {connection.msgtype}, expected {expected}")
+                    wrong[connection.topic] = (f"{path}: topic '{connection.topic}' has type {connection.msgtype!r}, "
+                                               f"expected '{expected}'")
+                else:
+                    connections.append(connection)
             # an empty connection list means "all connections" to rosbags
             for connection, log_time, data in reader.messages(connections=connections) if connections else ():
-                message = bytes(data) if raw else msgs.TYPESTORE.deserialize_cdr(data, connection.msgtype)
-                out[connection.topic].append((log_time, message))
-    except BagError:
-        raise
+                messages[connection.topic].append((log_time, bytes(data)))
     except Exception as exc:  # rosbags raises several types for unreadable bags
-        raise BagError(f"{path}: not a readable rosbag2 bag: {exc}") from exc
-    return out, _custom_data(path)
+        raise BagError(f"{path}: not a readable rosbag2 bag: {_one_line(exc)}") from exc
+    return _Contents(messages, listing, wrong)
+
+
+def read_topics(path: Path, topics: Iterable[str], raw: bool = False
+                ) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, str]]:
+    """Messages of the given topics in log-time order, as (log time, message), and the bag's
+    custom metadata. Messages are deserialised, or with `raw` their CDR bytes as stored."""
+    contents = _read(path, topics)
+    if contents.wrong:
+        raise BagError(next(iter(contents.wrong.values())))
+    out: dict[str, list[tuple[int, Any]]] = contents.messages
+    if not raw:
+        out = {topic: [(log_time, _deserialize(data, contents.topics[topic][0], f"{path}: topic '{topic}'"))
+                       for log_time, data in items] for topic, items in out.items()}
+    return out, _custom_data(Path(path))
+
+
+def _deserialize(data: bytes, msgtype: str, where: str):
+    """A CDR payload as a rosbags message; a BagError naming `where` if it is not one."""
+    try:
+        return msgs.TYPESTORE.deserialize_cdr(data, msgtype)
+    except Exception as exc:  # rosbags raises several types for malformed CDR
+        raise BagError(f"{where}: not a valid {msgtype}: {_one_line(exc)}") from None
 
 
 def _custom_data(path: Path) -> dict[str, str]:
@@ -175,12 +210,14 @@ def _custom_data(path: Path) -> dict[str, str]:
         info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
     except (OSError, KeyError, TypeError, yaml.YAMLError):
         return {}
-    return {str(k): str(v) for k, v in (info.get("custom_data") or {}).items()}
+    custom = (info.get("custom_data") if isinstance(info, dict) else None) or {}
+    if not isinstance(custom, dict):
+        raise BagError(f"{metadata}: field 'custom_data' must be a mapping, not a {type(custom).__name__}")
+    return {str(k): str(v) for k, v in custom.items()}
 
 
 def objects_sequence(frames: list[tuple[int, dict[str, np.ndarray]]]) -> tuple[np.ndarray, BoxSequence]:
-    """Frames of objects sorted by stamp, as (stamps (F,), BoxSequence with one slot per id)."""
-    frames = sorted(frames, key=lambda item: item[0])
+    """Frames of objects, in the order given, as (stamps (F,), BoxSequence with one slot per id)."""
     stamps = np.array([s for s, _ in frames], dtype=np.int64)
     ids = np.unique(np.concatenate([f["ids"] for _, f in frames])) if frames else np.zeros(0, np.int64)
     boxes = BoxSequence.empty(len(frames), len(ids))
@@ -194,55 +231,113 @@ def objects_sequence(frames: list[tuple[int, dict[str, np.ndarray]]]) -> tuple[n
     return stamps, boxes
 
 
-def read_objects(path: Path, topic: str) -> tuple[np.ndarray, BoxSequence]:
-    """One object topic of a bag: (header stamps, boxes with one slot per object id)."""
-    messages = read_topics(path, [topic], raw=True)[0][topic]
-    if not messages:
-        raise BagError(f"{path}: topic '{topic}' is missing or empty")
-    where = f"{path}: topic '{topic}'"
+def _objects(messages: list[tuple[int, bytes]], where: str) -> tuple[np.ndarray, BoxSequence]:
+    """Object MarkerArrays in log-time order as (header stamps, boxes with one slot per id). The
+    contract: header stamps strictly increase in log-time order (frames out of order are an
+    error, not re-sorted) and an id is one object per frame (`cdr.decode_objects`)."""
     frames = []
-    for log_time, data in messages:
-        try:
-            stamp, objects = cdr.decode_objects(data, where)
-        except cdr.MessageError as exc:
-            raise BagError(str(exc)) from None
+    for k, (log_time, data) in enumerate(messages):
+        stamp, objects = cdr.decode_objects(data, f"{where}, frame {k}")
+        if stamp is None and log_time > np.iinfo(np.int64).max:  # no marker: the log time (uint64) stands in
+            raise BagError(f"{where}, frame {k}: field 'header.stamp' is missing and the log time {log_time} ns is too late")
         frames.append((log_time if stamp is None else stamp, objects))
     stamps, boxes = objects_sequence(frames)
-    if np.any(np.diff(stamps) <= 0):
-        raise BagError(f"{where}: field 'header.stamp' repeats or goes back in time")
-    bad = boxes.first_invalid_field()
-    if bad is not None:
-        name, k, j = bad
-        raise BagError(f"{where}: field '{name}' of object {int(boxes.ids[k, j])} at frame {k} is not a valid number")
+    back = np.flatnonzero(np.diff(stamps) <= 0)
+    if back.size:
+        k = int(back[0]) + 1
+        raise BagError(f"{where}, frame {k}: field 'header.stamp' ({stamps[k]} ns) is not after frame {k - 1}'s "
+                       f"({stamps[k - 1]} ns): frames must be in stamp order, one per stamp")
     return stamps, boxes
 
 
-def read_scenario(path: Path) -> Scenario:
-    """A ground-truth bag (section 4 of the design) as a Scenario, validated."""
-    path = Path(path)
-    stamps, agents = read_objects(path, GROUND_TRUTH)
-    topics, custom = read_topics(path, [ODOMETRY, ROUTE, LANES])
-    if not topics[ODOMETRY]:
-        raise BagError(f"{path}: topic '{ODOMETRY}' is missing (the ego's start)")
-    if not topics[ROUTE]:
-        raise BagError(f"{path}: topic '{ROUTE}' is missing")
-    route_poses, _ = msgs.path_points(topics[ROUTE][0][1])
-    if route_poses.shape[0] < 2 or not np.all(np.isfinite(route_poses)):
-        raise BagError(f"{path}: topic '{ROUTE}' needs at least two finite poses")
-    lanes = []
-    if topics[LANES]:
-        for name, points, width in msgs.markers_to_lanes(topics[LANES][0][1]):
-            lanes.append(Lane(id=name, centerline=Polyline(points), width=width))
-    scenario = Scenario(
-        name=custom.get(SCENARIO_KEY, path.name),
-        stamps_ns=stamps,
-        agents=agents,
-        lanes=tuple(lanes),
-        route=Polyline(route_poses[:, :2]),
-        ego_start=msgs.odometry_to_ego(topics[ODOMETRY][0][1]),
-    )
+def _decode(contents: _Contents, path: Path, topic: str, decode: Callable[[list[tuple[int, bytes]], str], Any]):
+    """decode(the topic's messages, where), a missing topic or a MessageError as a BagError."""
+    where = f"{path}: topic '{topic}'"
+    if topic in contents.wrong:
+        raise BagError(contents.wrong[topic])
+    if not contents.messages[topic]:
+        raise BagError(f"{where} is missing or empty")
     try:
-        scenario.validate(str(path))
-    except ScenarioError as exc:
-        raise BagError(str(exc)) from exc
-    return scenario
+        return decode(contents.messages[topic], where)
+    except cdr.MessageError as exc:
+        raise BagError(str(exc)) from None
+
+
+def read_objects(path: Path, topic: str) -> tuple[np.ndarray, BoxSequence]:
+    """One object topic of a bag: (header stamps, boxes with one slot per object id)."""
+    stamps, boxes = _decode(_read(path, [topic]), Path(path), topic, _objects)
+    bad = boxes.first_invalid_field()
+    if bad is not None:
+        name, k, j = bad
+        raise BagError(f"{path}: topic '{topic}', frame {k}: field '{name}' of object {int(boxes.ids[k, j])} "
+                       f"is not a valid number ({getattr(boxes, name)[k, j]}; every field finite, sizes positive)")
+    return stamps, boxes
+
+
+def _polyline(points: np.ndarray, where: str) -> Polyline:
+    """A route or lane centreline: at least two distinct points, all finite."""
+    if not np.all(np.isfinite(points)):
+        raise BagError(f"{where} is not finite")
+    try:
+        return Polyline(points)
+    except ValueError:
+        raise BagError(f"{where} needs at least two distinct points") from None
+
+
+def _ego(messages: list[tuple[int, bytes]], where: str) -> EgoState:
+    return msgs.ego_from_cdr(messages[0][1], where)[1]
+
+
+def _route(messages: list[tuple[int, bytes]], where: str) -> Polyline:
+    return _polyline(cdr.decode_path(messages[0][1], where)[1][:, :2], f"{where}: field 'poses'")
+
+
+def _lanes(messages: list[tuple[int, bytes]], where: str) -> tuple[Lane, ...]:
+    markers = _deserialize(messages[0][1], TOPIC_TYPES[LANES], where)
+    return tuple(Lane(id=name, centerline=_polyline(points, f"{where}: field 'points' of lane {name!r}"), width=width)
+                 for name, points, width in msgs.markers_to_lanes(markers))
+
+
+class GroundTruthCheck(NamedTuple):
+    scenario: Scenario | None  # None when there is any problem
+    topics: dict[str, tuple[str, int]]  # every topic of the bag -> (type, message count)
+    problems: list[str]  # one line each, naming the bag, the topic or field, the frame
+
+
+def check_ground_truth(path: Path) -> GroundTruthCheck:
+    """A ground-truth bag against the contract: /ground_truth/objects (at least two frames,
+    uniformly stamped, in stamp order, ids unique per frame, finite values, positive sizes),
+    /ego/odometry (the ego's start) and /ego/route, each of its type; /map/lanes if present. Every
+    topic is checked, so all their problems are found at once; the Scenario they make is then
+    validated. A bag that cannot be read at all raises a BagError."""
+    path = Path(path)
+    contents = _read(path, [GROUND_TRUTH, ODOMETRY, ROUTE, LANES])
+    problems, parts = [], {}
+    for topic, decode in ((GROUND_TRUTH, _objects), (ODOMETRY, _ego), (ROUTE, _route), (LANES, _lanes)):
+        if topic == LANES and not contents.messages[LANES] and LANES not in contents.wrong:
+            parts[LANES] = ()  # the map is optional
+            continue
+        try:
+            parts[topic] = _decode(contents, path, topic, decode)
+        except BagError as exc:
+            problems.append(str(exc))
+    try:
+        name = _custom_data(path).get(SCENARIO_KEY, path.name)
+    except BagError as exc:
+        problems.append(str(exc))
+    if problems:
+        return GroundTruthCheck(None, contents.topics, problems)
+    stamps, agents = parts[GROUND_TRUTH]
+    scenario = Scenario(name=name, stamps_ns=stamps, agents=agents, lanes=parts[LANES], route=parts[ROUTE],
+                        ego_start=parts[ODOMETRY])
+    problems = scenario.problems(str(path))
+    return GroundTruthCheck(None if problems else scenario, contents.topics, problems)
+
+
+def read_scenario(path: Path) -> Scenario:
+    """A ground-truth bag (section 4 of the design) as a Scenario, validated; a BagError names
+    the first problem `check_ground_truth` finds."""
+    check = check_ground_truth(path)
+    if check.problems:
+        raise BagError(check.problems[0])
+    return check.scenario

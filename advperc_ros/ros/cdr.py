@@ -338,7 +338,8 @@ def _score(text: bytes, marker_id: int, where: str) -> float:
 
 def decode_objects(data: bytes, where: str) -> tuple[int | None, dict[str, np.ndarray]]:
     """The CDR of an object MarkerArray as (its stamp: the first marker's, None if it has no
-    marker; the boxes as a dict of 1-D arrays, sorted by id); `where` prefixes any error."""
+    marker; the boxes as a dict of 1-D arrays, sorted by id); `where` prefixes any error. An id
+    is one object: a second CUBE (or ARROW) with an id already seen is an error, not dropped."""
     markers = _read_markers(data, where)
     cubes: dict[int, tuple] = {}
     arrows: dict[int, tuple] = {}
@@ -346,9 +347,14 @@ def decode_objects(data: bytes, where: str) -> tuple[int | None, dict[str, np.nd
         if action == DELETEALL:
             continue
         if ns == _OBJECTS_NAME:
-            cubes[marker_id] = (pose_scale, text)
+            seen, value = cubes, (pose_scale, text)
         elif ns == _VELOCITY_NAME:
-            arrows[marker_id] = points
+            seen, value = arrows, points
+        else:
+            continue
+        if marker_id in seen:
+            raise MessageError(f"{where}: field 'id': object {marker_id} appears twice in namespace '{ns.decode()}'")
+        seen[marker_id] = value
     ids = sorted(cubes)
     rows = []
     for marker_id in ids:  # per object in Python: numpy calls cost more than the arithmetic here

@@ -20,6 +20,8 @@ written with `repr` (exact round trip; `inf` where nothing is present).
 """
 
 import json
+import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
@@ -31,7 +33,8 @@ from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.topics import RULE_DIAGNOSTICS
+from advperc_ros.ros.cdr import MessageError
+from advperc_ros.ros.topics import DONE, ERRORS, PRESENCE, READY, RULE_DIAGNOSTICS
 
 RULE_STATUS = "collision"
 MIN_KEY = "min_signed_distance"
@@ -78,13 +81,55 @@ def errors_message(item: RolloutErrors):
     }))
 
 
+def _json_object(msg, topic: str) -> dict:
+    """The JSON object a control message carries. Nodes of other teams publish on these topics
+    too: anything else is a MessageError naming the topic, not a KeyError deep in a callback."""
+    try:
+        data = json.loads(msg.data)
+    except (TypeError, ValueError, RecursionError) as exc:  # RecursionError: arrays nested too deep
+        raise MessageError(f"{topic}: field 'data' is not JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise MessageError(f"{topic}: field 'data' is not a JSON object")
+    return data
+
+
+def _field(data: dict, topic: str, name: str, kind: type, allowed: tuple = ()):
+    """data[name], a JSON value of type `kind` (an int is not a bool), one of `allowed` if given."""
+    value = data.get(name)
+    if not isinstance(value, kind) or (kind is int and isinstance(value, bool)) or (allowed and value not in allowed):
+        wanted = " or ".join(map(repr, allowed)) if allowed else kind.__name__
+        shown = repr(value) if isinstance(value, (str, int, float)) and len(repr(value)) <= 40 else type(value).__name__
+        raise MessageError(f"{topic}: field '{name}' must be {wanted}, not {shown}")
+    return value
+
+
+_ELEMENTS = {"f": ("fi", "finite numbers"), "i": ("i", "integers"), "b": ("b", "booleans")}
+
+
+def _array(data: dict, topic: str, name: str, shape: tuple[int, ...] | None, kind: str) -> np.ndarray:
+    """data[name] as an array of `shape` (None: any length, 1-D) of JSON finite numbers ('f'),
+    integers ('i') or booleans ('b'); no conversion between them (`"1"` or `true` is no number)."""
+    kinds, what = _ELEMENTS[kind]
+    try:
+        value = np.array(data.get(name))
+    except ValueError:  # ragged lists
+        value = np.array(None)
+    empty = value.size == 0 and (shape is None or 0 in shape)
+    fits = value.ndim == 1 if shape is None else value.shape == shape
+    if not (empty or (fits and value.dtype.kind in kinds and (kind != "f" or np.isfinite(value).all()))):
+        size = "1-D" if shape is None else "x".join(map(str, shape))
+        raise MessageError(f"{topic}: field '{name}' must be a {size} array of {what}")
+    return value.reshape(shape if shape is not None else -1)
+
+
 def parse_errors(msg) -> RolloutErrors:
-    data = json.loads(msg.data)
-    shape = (len(data["stamps_ns"]), len(data["agent_ids"]))
-    arrays = {name: np.asarray(data[name], dtype=float).reshape(shape) for name in ("dx", "dy", "dyaw")}
-    errors = PerceptionErrors(fn=np.asarray(data["fn"], dtype=bool).reshape(shape), **arrays)
-    return RolloutErrors(int(data["rollout"]), errors, np.asarray(data["agent_ids"], dtype=np.int64),
-                         np.asarray(data["stamps_ns"], dtype=np.int64))
+    data = _json_object(msg, ERRORS)
+    stamps = _array(data, ERRORS, "stamps_ns", None, "i").astype(np.int64)
+    agent_ids = _array(data, ERRORS, "agent_ids", None, "i").astype(np.int64)
+    shape = (len(stamps), len(agent_ids))
+    arrays = {name: _array(data, ERRORS, name, shape, "f").astype(float) for name in ("dx", "dy", "dyaw")}
+    errors = PerceptionErrors(fn=_array(data, ERRORS, "fn", shape, "b").astype(bool), **arrays)
+    return RolloutErrors(_field(data, ERRORS, "rollout", int), errors, agent_ids, stamps)
 
 
 def ready_message(rollout: int):
@@ -92,7 +137,7 @@ def ready_message(rollout: int):
 
 
 def parse_ready(msg) -> int:
-    return int(json.loads(msg.data)["rollout"])
+    return _field(_json_object(msg, READY), READY, "rollout", int)
 
 
 def presence_message(node: str, pid: int):
@@ -100,8 +145,8 @@ def presence_message(node: str, pid: int):
 
 
 def parse_presence(msg) -> tuple[str, int]:
-    data = json.loads(msg.data)
-    return str(data["node"]), int(data["pid"])
+    data = _json_object(msg, PRESENCE)
+    return _field(data, PRESENCE, "node", str), _field(data, PRESENCE, "pid", int)
 
 
 def done_message(done: RolloutDone):
@@ -110,9 +155,10 @@ def done_message(done: RolloutDone):
 
 
 def parse_done(msg) -> RolloutDone:
-    data = json.loads(msg.data)
-    return RolloutDone(int(data["rollout"]), int(data["frames"]), Status(data["status"]), str(data["reason"]),
-                       bool(data["timeout"]))
+    data = _json_object(msg, DONE)
+    return RolloutDone(_field(data, DONE, "rollout", int), _field(data, DONE, "frames", int),
+                       Status(_field(data, DONE, "status", str, tuple(s.value for s in Status))),
+                       _field(data, DONE, "reason", str), _field(data, DONE, "timeout", bool))
 
 
 def rule_diagnostics(ns_time: int, agent_ids: np.ndarray, distances: np.ndarray) -> bytes:
@@ -125,12 +171,33 @@ def rule_diagnostics(ns_time: int, agent_ids: np.ndarray, distances: np.ndarray)
 
 
 def parse_rule_diagnostics(data: bytes) -> tuple[int, float, dict[int, float]]:
-    """(stamp ns, minimum, distance per agent id) of a /rules/diagnostics message's CDR."""
+    """(stamp ns, minimum, distance per agent id) of a /rules/diagnostics message's CDR; a
+    MessageError naming the field if it has no `collision` status or a value is not a number."""
     stamp, statuses = cdr.decode_diagnostics(data, RULE_DIAGNOSTICS)
-    status = next(s for s in statuses if s.name == RULE_STATUS)
-    values = {key: float(value) for key, value in status.values.items()}
-    per_agent = {int(k[len(AGENT_KEY):]): v for k, v in values.items() if k.startswith(AGENT_KEY)}
-    return stamp, values[MIN_KEY], per_agent
+    status = next((s for s in statuses if s.name == RULE_STATUS), None)
+    if status is None:
+        raise MessageError(f"{RULE_DIAGNOSTICS}: field 'status' holds no status named '{RULE_STATUS}'")
+    if MIN_KEY not in status.values:
+        raise MessageError(f"{RULE_DIAGNOSTICS}: field '{MIN_KEY}' is missing")
+    per_agent = {}
+    for key, text in status.values.items():
+        if key.startswith(AGENT_KEY):
+            agent = key[len(AGENT_KEY):]
+            if not re.fullmatch(r"-?[0-9]{1,19}", agent):  # an int64 as written; int() would also take " 3", "3_0"
+                raise MessageError(f"{RULE_DIAGNOSTICS}: field {key!r} does not name an agent id")
+            per_agent[int(agent)] = _distance(key, text)
+    return stamp, _distance(MIN_KEY, status.values[MIN_KEY]), per_agent
+
+
+def _distance(key: str, text: str) -> float:
+    """A signed distance as `repr` wrote it: a number, inf where nothing is present, never nan."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if math.isnan(value):
+        raise MessageError(f"{RULE_DIAGNOSTICS}: field {key!r} is not a distance: {text!r:.40}")
+    return value
 
 
 def plan_from_cdr(data: bytes, first_stamp_ns: int, where: str) -> tuple[int, Trajectory]:

@@ -124,10 +124,12 @@ def lanes_to_markers(lanes: tuple[Lane, ...], ns_time: int):
 
 
 def markers_to_lanes(msg) -> list[tuple[str, np.ndarray, float]]:
+    """(id, centreline points (P, 2), width) of every marker in namespace `lanes`, however few
+    its points: the caller refuses a lane it cannot use rather than losing it here."""
     return [
-        (m.text, np.array([[p.x, p.y] for p in m.points]), float(m.scale.x))
+        (m.text, np.array([[p.x, p.y] for p in m.points]).reshape(-1, 2), float(m.scale.x))
         for m in msg.markers
-        if m.ns == LANES_NS and len(m.points) >= 2
+        if m.ns == LANES_NS
     ]
 
 

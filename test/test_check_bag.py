@@ -13,7 +13,6 @@ import pytest
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from advperc_ros.cli import main
-from advperc_ros.ros import bag as bags
 from advperc_ros.ros import topics
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs

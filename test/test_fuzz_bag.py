@@ -15,7 +15,6 @@ from test_check_bag import DT, LANE, boxes, write_bag
 
 from advperc_ros.core.boxes import BOX_FIELDS
 from advperc_ros.core.geometry import wrap_angle
-from advperc_ros.ros import bag as bags
 from advperc_ros.ros import topics
 from advperc_ros.ros.bag import BagError, check_ground_truth, read_scenario, read_topics
 

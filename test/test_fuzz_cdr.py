@@ -115,7 +115,7 @@ CONTROL = {  # topic -> (parser, a valid message as JSON)
     lockstep.READY: (lockstep.parse_ready, json.loads(lockstep.ready_message(3).data)),
     lockstep.PRESENCE: (lockstep.parse_presence, json.loads(lockstep.presence_message("tracker", 42).data)),
     lockstep.DONE: (lockstep.parse_done,
-                    json.loads(lockstep.done_message(lockstep.RolloutDone(3, 9, lockstep.OK, "", False)).data)),
+                    json.loads(lockstep.done_message(lockstep.RolloutDone(3, 9, lockstep.Status.OK, "", False)).data)),
 }
 
 
@@ -145,7 +145,7 @@ def check_control(parsed, topic: str) -> None:
         for values in (parsed.errors.dx, parsed.errors.dy, parsed.errors.dyaw):
             assert values.shape == shape and np.isfinite(values).all()
     elif topic == lockstep.DONE:
-        assert parsed.status in (lockstep.OK, lockstep.INCONCLUSIVE) and isinstance(parsed.timeout, bool)
+        assert parsed.status in (lockstep.Status.OK, lockstep.Status.INCONCLUSIVE) and isinstance(parsed.timeout, bool)
     elif topic == lockstep.PRESENCE:
         assert isinstance(parsed[0], str) and type(parsed[1]) is int
     else:

@@ -79,7 +79,7 @@ def _renormalise_heading(state: np.ndarray) -> None:
 class Tracker:
     def __init__(self, config: TrackerConfig = TrackerConfig()) -> None:
         self.config = config
-        self._r = np.diag([config.position_std**2] * 2 + [config.heading_std**2] * 2)
+        self._r_diag = np.array([config.position_std**2] * 2 + [config.heading_std**2] * 2)
         self._h = np.zeros((4, 8))
         self._h[np.arange(4), _MEASURED] = 1.0
         self._eye = np.eye(8)
@@ -114,15 +114,21 @@ class Tracker:
         _renormalise_heading(state)
 
     def _update(self, rows: np.ndarray, z: np.ndarray) -> None:
-        """filterpy's update (Joseph form) of the tracks `rows` with measurements z (M, 4)."""
-        x, p = self.tracks.state[rows], self.tracks.covariance[rows]
+        """filterpy's update (Joseph form) of the tracks `rows` (ascending) with measurements z (M, 4).
+
+        S = HPH' + R is diagonal, exactly: F, Q and P0 never correlate x, y, cos and sin with one
+        another (each only with its own rate), and neither does an update. So S^-1 is 1 / diag(S).
+        """
+        every = len(rows) == len(self.tracks)  # then rows is 0..N-1: work on the arrays themselves
+        x, p = (self.tracks.state, self.tracks.covariance) if every else (self.tracks.state[rows], self.tracks.covariance[rows])
         pht = p[:, :, _MEASURED]  # P H': H only selects the measured components
-        gain = pht @ np.linalg.inv(pht[:, _MEASURED] + self._r)
+        gain = pht * (1.0 / (p[:, _MEASURED, _MEASURED] + self._r_diag))[:, None, :]
         x += (gain @ (z - x[:, _MEASURED])[:, :, None])[:, :, 0]
         i_kh = self._eye - gain @ self._h
-        p = i_kh @ p @ i_kh.transpose(0, 2, 1) + gain @ self._r @ gain.transpose(0, 2, 1)
+        p[:] = i_kh @ p @ i_kh.transpose(0, 2, 1) + (gain * self._r_diag) @ gain.transpose(0, 2, 1)
         _renormalise_heading(x)
-        self.tracks.state[rows], self.tracks.covariance[rows] = x, p
+        if not every:
+            self.tracks.state[rows], self.tracks.covariance[rows] = x, p
 
     def _births(self, t: float, det: dict[str, np.ndarray], which: np.ndarray) -> Tracks:
         """New tracks at the detections `which`, velocity included."""
@@ -149,27 +155,28 @@ class Tracker:
         self._t = t
 
         det_x, det_y = detections["x"], detections["y"]
-        matched = np.zeros(len(tracks), dtype=bool)
-        unmatched = np.ones(len(det_x), dtype=bool)
+        rows = cols = np.zeros(0, dtype=np.int64)  # matched track and detection indices
         if len(tracks) and len(det_x):
             dx = tracks.state[:, 0, None] - det_x
             dy = tracks.state[:, 1, None] - det_y
             cost = np.sqrt(dx * dx + dy * dy)
             rows, cols = linear_sum_assignment(np.where(cost <= cfg.gate, cost, _UNASSIGNABLE))
             ok = cost[rows, cols] <= cfg.gate
-            rows, cols = rows[ok], cols[ok]
+            if not ok.all():
+                rows, cols = rows[ok], cols[ok]
             if rows.size:
                 yaw = detections["yaw"][cols]
                 self._update(rows, np.array([det_x[cols], det_y[cols], np.cos(yaw), np.sin(yaw)]).T)
                 tracks.last_seen[rows] = t
                 tracks.size[rows] = np.array([detections["length"][cols], detections["width"][cols], detections["height"][cols]]).T
-                matched[rows] = True
-                unmatched[cols] = False
 
-        keep = matched | (t - tracks.last_seen < cfg.max_age - 1e-6)
+        keep = t - tracks.last_seen < cfg.max_age - 1e-6
+        keep[rows] = True  # observed now
         if not keep.all():
             self.tracks = self.tracks.select(keep)
-        if unmatched.any():
+        if len(cols) < len(det_x):
+            unmatched = np.ones(len(det_x), dtype=bool)
+            unmatched[cols] = False
             self.tracks = self.tracks.extend(self._births(t, detections, np.flatnonzero(unmatched)))
         return self._output()
 

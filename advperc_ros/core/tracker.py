@@ -25,6 +25,7 @@ from scipy.optimize import linear_sum_assignment
 # state layout: x, y, vx, vy, c, s, vc, vs  (c, s) = (cos yaw, sin yaw)
 _MEASURED = np.array([0, 1, 4, 5])
 _UNASSIGNABLE = 1e9
+_NONE = np.zeros(0, dtype=np.int64)
 
 
 @dataclass(frozen=True)
@@ -72,8 +73,8 @@ def _transition(dt: float) -> np.ndarray:
 
 def _renormalise_heading(state: np.ndarray) -> None:
     """(cos, sin) back onto the unit circle, in place; a vanishing vector is left alone."""
-    norm = np.hypot(state[:, 4], state[:, 5])
-    state[:, 4:6] /= np.where(norm > 1e-9, norm, 1.0)[:, None]
+    norm = np.hypot(state[:, 4], state[:, 5])[:, None]
+    np.divide(state[:, 4:6], norm, out=state[:, 4:6], where=norm > 1e-9)
 
 
 class Tracker:
@@ -109,8 +110,9 @@ class Tracker:
         """filterpy's predict for every track: x = Fx, P = FPF' + Q."""
         transition, noise = self._motion_model(dt)
         state, covariance = self.tracks.state, self.tracks.covariance
-        state[:] = state @ transition.T
-        covariance[:] = transition @ covariance @ transition.T + noise
+        np.matmul(state, transition.T, out=state)
+        np.matmul(transition @ covariance, transition.T, out=covariance)
+        covariance += noise
         _renormalise_heading(state)
 
     def _update(self, rows: np.ndarray, z: np.ndarray) -> None:
@@ -125,7 +127,8 @@ class Tracker:
         gain = pht * (1.0 / (p[:, _MEASURED, _MEASURED] + self._r_diag))[:, None, :]
         x += (gain @ (z - x[:, _MEASURED])[:, :, None])[:, :, 0]
         i_kh = self._eye - gain @ self._h
-        p[:] = i_kh @ p @ i_kh.transpose(0, 2, 1) + (gain * self._r_diag) @ gain.transpose(0, 2, 1)
+        np.matmul(i_kh @ p, i_kh.transpose(0, 2, 1), out=p)
+        p += (gain * self._r_diag) @ gain.transpose(0, 2, 1)
         _renormalise_heading(x)
         if not every:
             self.tracks.state[rows], self.tracks.covariance[rows] = x, p
@@ -154,43 +157,47 @@ class Tracker:
             self._predict(t - self._t)
         self._t = t
 
-        det_x, det_y = detections["x"], detections["y"]
-        rows = cols = np.zeros(0, dtype=np.int64)  # matched track and detection indices
-        if len(tracks) and len(det_x):
-            dx = tracks.state[:, 0, None] - det_x
-            dy = tracks.state[:, 1, None] - det_y
+        yaw = detections["yaw"]
+        # (7, D): the measurement z = (x, y, cos, sin) and the size of every detection
+        det = np.array([detections["x"], detections["y"], np.cos(yaw), np.sin(yaw),
+                        detections["length"], detections["width"], detections["height"]])
+        rows = cols = _NONE  # matched track and detection indices
+        if len(tracks) and det.shape[1]:
+            dx = tracks.state[:, 0, None] - det[0]
+            dy = tracks.state[:, 1, None] - det[1]
             cost = np.sqrt(dx * dx + dy * dy)
             rows, cols = linear_sum_assignment(np.where(cost <= cfg.gate, cost, _UNASSIGNABLE))
             ok = cost[rows, cols] <= cfg.gate
             if not ok.all():
                 rows, cols = rows[ok], cols[ok]
             if rows.size:
-                yaw = detections["yaw"][cols]
-                self._update(rows, np.array([det_x[cols], det_y[cols], np.cos(yaw), np.sin(yaw)]).T)
+                matched = det[:, cols].T
+                self._update(rows, matched[:, :4])
                 tracks.last_seen[rows] = t
-                tracks.size[rows] = np.array([detections["length"][cols], detections["width"][cols], detections["height"][cols]]).T
+                tracks.size[rows] = matched[:, 4:]
 
-        keep = t - tracks.last_seen < cfg.max_age - 1e-6
-        keep[rows] = True  # observed now
-        if not keep.all():
-            self.tracks = self.tracks.select(keep)
-        if len(cols) < len(det_x):
-            unmatched = np.ones(len(det_x), dtype=bool)
+        if rows.size < len(tracks):  # only an unobserved track can age out
+            keep = t - tracks.last_seen < cfg.max_age - 1e-6
+            keep[rows] = True
+            if not keep.all():
+                self.tracks = self.tracks.select(keep)
+        if cols.size < det.shape[1]:
+            unmatched = np.ones(det.shape[1], dtype=bool)
             unmatched[cols] = False
             self.tracks = self.tracks.extend(self._births(t, detections, np.flatnonzero(unmatched)))
         return self._output()
 
     def _output(self) -> dict[str, np.ndarray]:
-        state, size = self.tracks.state.T.copy(), self.tracks.size.T.copy()  # the tracker updates its own in place
+        columns = np.concatenate([self.tracks.state.T, self.tracks.size.T])  # a copy: the tracker updates its own in place
         return {
-            "ids": self.tracks.ids.copy(),
-            "x": state[0],
-            "y": state[1],
-            "vx": state[2],
-            "vy": state[3],
-            "yaw": np.arctan2(state[5], state[4]),
-            "length": size[0],
-            "width": size[1],
-            "height": size[2],
+            "ids": self.tracks.ids,  # never updated in place
+            "x": columns[0],
+            "y": columns[1],
+            "vx": columns[2],
+            "vy": columns[3],
+            "yaw": np.arctan2(columns[5], columns[4]),
+            "length": columns[8],
+            "width": columns[9],
+            "height": columns[10],
             "score": np.full(len(self.tracks), np.nan),
         }

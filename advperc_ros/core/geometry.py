@@ -89,18 +89,20 @@ def box_corners(x: FloatArray, y: FloatArray, yaw: FloatArray, length: FloatArra
 _CORNER_SIGNS = np.array([[1.0, 1.0], [-1.0, 1.0], [-1.0, -1.0], [1.0, -1.0]])[:, None, None, :]
 
 
-def _signed_distance(boxes: FloatArray) -> FloatArray:
-    """Signed distance of rectangles a and b, given as boxes[0] and boxes[1], (2, n, 5) in all.
+def signed_box_distance_pairs(boxes: FloatArray) -> FloatArray:
+    """Gap between the two boxes of each pair when apart, minus the penetration depth when they overlap.
 
-    Points are complex numbers (x + iy), headings unit complex numbers, so each box is looked at
-    from the other's frame, both ways round at once, in few numpy calls: a rollout calls this
-    every frame. Overlap: separating axis theorem on the four box axes; the smallest projected
-    overlap is the penetration depth (the minimum translation that separates them). Apart: the
-    nearest vertex-edge pair of two disjoint convex polygons has a vertex at one end, so the gap
-    is the smallest distance of a corner to the other box.
+    boxes: (2, n, 5) C-contiguous; row 0 holds the pairs' first boxes, row 1 their second, each
+    as (x, y, yaw, length, width). Pure numpy, equal to shapely's distance when apart (tested);
+    a rollout calls this every frame, so it is written in few numpy calls: points are complex
+    numbers (x + iy), headings unit complex numbers, and each box is looked at from the other's
+    frame, both ways round at once. Overlap: separating axis theorem on the four box axes; the
+    smallest projected overlap is the penetration depth (the minimum translation that separates
+    them). Apart: the nearest points of two disjoint convex polygons include a vertex, so the
+    gap is the smallest distance of a corner to the other box.
     """
     num = boxes.shape[1]
-    centre = boxes[..., 0] + 1j * boxes[..., 1]
+    centre = boxes[..., :2].view(complex)[..., 0]
     heading = np.exp(1j * boxes[..., 2])
     half = 0.5 * boxes[..., 3:]  # (2, n, 2): half length, half width
     other_half = half[::-1]
@@ -112,30 +114,20 @@ def _signed_distance(boxes: FloatArray) -> FloatArray:
     depth = (other_half + reach - np.abs(rel.view(float)).reshape(2, num, 2)).min(axis=(0, 2))
     corners = rel + rot * (half * _CORNER_SIGNS).view(complex)[..., 0]  # (4, 2, n) in the other's frame
     outside = np.maximum(np.abs(corners.view(float)).reshape(4, 2, num, 2) - other_half, 0.0)
-    gap = np.sqrt((outside * outside).sum(axis=-1).min(axis=(0, 1)))
+    gap = np.hypot(outside[..., 0], outside[..., 1]).min(axis=(0, 1))
     return np.where(depth >= 0.0, -depth, gap)
 
 
-def signed_box_distance_of(a: FloatArray, b: FloatArray) -> FloatArray:
-    """Gap between boxes when apart, minus the penetration depth when they overlap.
-
-    a, b: (..., 5) arrays of (x, y, yaw, length, width), broadcasting; pure numpy, equal to
-    shapely's distance when apart (tested).
-    """
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    shape = np.broadcast(a, b).shape
-    both = np.empty((2, *shape))
-    both[0], both[1] = a, b
-    return _signed_distance(both.reshape(2, -1, 5)).reshape(shape[:-1])
-
-
 def signed_box_distance(corners_a: FloatArray, corners_b: FloatArray) -> FloatArray:
-    """signed_box_distance_of for boxes given by their corners (..., 4, 2), as box_corners makes them."""
+    """signed_box_distance_pairs for boxes given by their corners (..., 4, 2), as box_corners
+    makes them (rectangles), broadcasting."""
     a, b = np.broadcast_arrays(np.asarray(corners_a, float), np.asarray(corners_b, float))
-    return signed_box_distance_of(_box_of_corners(a), _box_of_corners(b))
+    pairs = np.stack([_box_of_corners(a), _box_of_corners(b)]).reshape(2, -1, 5)
+    return signed_box_distance_pairs(pairs).reshape(a.shape[:-2])
 
 
 def _box_of_corners(corners: FloatArray) -> FloatArray:
+    """(x, y, yaw, length, width) (..., 5) of rectangles from their corners in box_corners' order."""
     centre = 0.5 * (corners[..., 0, :] + corners[..., 2, :])
     along, across = corners[..., 0, :] - corners[..., 1, :], corners[..., 1, :] - corners[..., 2, :]
     return np.stack([

@@ -7,7 +7,7 @@ when apart, minus the penetration depth when they overlap. r(tau) is its minimum
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.geometry import signed_box_distance_of
+from advperc_ros.core.geometry import signed_box_distance_pairs
 from advperc_ros.core.scenario import EgoState
 
 
@@ -15,6 +15,8 @@ def collision_distances(
     ego: EgoState, ego_length: float, ego_width: float, agents: BoxSequence, k: int
 ) -> np.ndarray:
     """Signed distance from the ego to every agent slot at frame k; +inf for absent agents."""
-    boxes = np.array([agents.x[k], agents.y[k], agents.yaw[k], agents.length[k], agents.width[k]]).T
-    distance = signed_box_distance_of(np.array([ego.x, ego.y, ego.yaw, ego_length, ego_width]), boxes)
+    pairs = np.empty((2, agents.shape[1], 5))
+    pairs[0] = ego.x, ego.y, ego.yaw, ego_length, ego_width
+    pairs[1] = np.array([agents.x[k], agents.y[k], agents.yaw[k], agents.length[k], agents.width[k]]).T
+    distance = signed_box_distance_pairs(pairs)
     return np.where(agents.valid[k], distance, np.inf)  # absent slots hold padding: cheaper to measure than to skip

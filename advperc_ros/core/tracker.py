@@ -43,7 +43,8 @@ class TrackerConfig:
 class Tracks:
     """Every live track, in creation order (association ties follow this order).
 
-    The tracker updates the arrays in place; `Tracker.step` hands out copies.
+    The tracker updates state, covariance, last_seen and size in place (never ids), so
+    `Tracker.step` hands out copies of those.
     """
 
     ids: np.ndarray  # (N,) int64

@@ -19,4 +19,5 @@ def collision_distances(
     pairs[0] = ego.x, ego.y, ego.yaw, ego_length, ego_width
     pairs[1] = np.array([agents.x[k], agents.y[k], agents.yaw[k], agents.length[k], agents.width[k]]).T
     distance = signed_box_distance_pairs(pairs)
-    return np.where(agents.valid[k], distance, np.inf)  # absent slots hold padding: cheaper to measure than to skip
+    # absent slots hold padding (zeros, or nan): cheaper to measure along than to leave out
+    return np.where(agents.valid[k], distance, np.inf)

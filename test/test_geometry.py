@@ -157,6 +157,32 @@ def test_gap_of_separated_boxes_matches_shapely_and_naive_reference():
     np.testing.assert_allclose(signed_box_distance(b, a)[separated], got[separated], atol=1e-12)
 
 
+def _minkowski_signed_distance(ca, cb):
+    """Signed distance from shapely alone: b touches a when translated by a point of the Minkowski
+    difference a - b, so the distance from the origin to that polygon's boundary is the gap (origin
+    outside) or the penetration depth (origin inside)."""
+    hull = shapely.MultiPoint((ca[:, None, :] - cb[None, :, :]).reshape(-1, 2)).convex_hull
+    origin = shapely.Point(0.0, 0.0)
+    return -hull.exterior.distance(origin) if hull.contains(origin) else hull.distance(origin)
+
+
+def test_signed_distance_equals_shapely_on_random_boxes_overlapping_and_apart():
+    rng = np.random.default_rng(23)
+    n = 2000
+    x, y, yaw, length, width = _random_boxes(rng, n)
+    a = box_corners(x, y, yaw, length, width)
+    # centres 0 to 8 m apart: deep overlaps, shallow ones, near misses and clear gaps
+    angle, dist = rng.uniform(0.0, 2.0 * np.pi, n), rng.uniform(0.0, 8.0, n)
+    b = box_corners(x + dist * np.cos(angle), y + dist * np.sin(angle), *_random_boxes(rng, n)[2:])
+    got = signed_box_distance(a, b)
+    ref = np.array([_minkowski_signed_distance(pa, pb) for pa, pb in zip(a, b)])
+    apart = shapely.distance(shapely.polygons(a), shapely.polygons(b))
+    np.testing.assert_allclose(got, ref, rtol=0.0, atol=1e-9)
+    np.testing.assert_allclose(got[apart > 0.0], apart[apart > 0.0], rtol=0.0, atol=1e-9)
+    assert np.all(got[apart == 0.0] <= 0.0)
+    assert (got < -0.1).sum() > 300 and (got > 0.1).sum() > 300 and (np.abs(got) < 0.1).sum() > 20
+
+
 def test_broadcast_one_box_against_many_and_empty():
     ego = box_corners(0.0, 0.0, 0.0, 4.0, 2.0)
     others = box_corners(np.array([10.0, 0.0, 0.0]), np.array([0.0, 5.0, 0.0]), np.zeros(3), 4.0, 2.0)

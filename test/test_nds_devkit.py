@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, nds
+from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, greedy_match, nds
 
 CASES = json.loads((Path(__file__).parent / "fixtures" / "nds" / "devkit_cases.json").read_text())
 COLUMNS = ("ids", "x", "y", "yaw", "length", "width", "height", "vx", "vy")
@@ -55,3 +55,37 @@ def test_nds_equals_devkit(case):
     for name, value in ref["tp_errors"].items():
         expected = math.nan if value is None else value
         assert ours.tp_errors[name] == pytest.approx(expected, abs=1e-9, nan_ok=True), name
+
+
+def devkit_loop(dist, scores, threshold):
+    """The devkit's accumulate() matching, frame by frame: predictions by descending (score, index),
+    each taking the nearest untaken gt (strict <, so the first of equals) if nearer than the threshold."""
+    num_frames, num_pred, num_gt = dist.shape
+    out = np.full((num_frames, num_pred), -1)
+    for f in range(num_frames):
+        taken = set()
+        present = [i for i in range(num_pred) if np.isfinite(scores[f, i])]
+        for p in sorted(present, key=lambda i: (scores[f, i], i), reverse=True):
+            best, best_g = np.inf, None
+            for g in range(num_gt):
+                if g not in taken and dist[f, p, g] < best:
+                    best, best_g = dist[f, p, g], g
+            if best_g is not None and best < threshold:
+                taken.add(best_g)
+                out[f, p] = best_g
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_greedy_match_equals_the_devkit_loop(seed):
+    """Random frames where predictions compete for gts and distances and scores tie exactly,
+    including pairs that may not match (inf) and absent predictions (nan score)."""
+    rng = np.random.default_rng(seed)
+    num_frames, num_pred, num_gt = 300, rng.integers(1, 7), rng.integers(1, 7)
+    dist = rng.choice([0.3, 0.5, 0.7, 1.0, 1.5, 2.0, 3.0, 4.0, 5.0, np.inf], size=(num_frames, num_pred, num_gt))
+    dist[::2] = rng.uniform(0.0, 5.0, size=dist[::2].shape)
+    scores = rng.choice([0.2, 0.5, 0.9, np.nan], size=(num_frames, num_pred))
+    dist[np.isnan(scores)] = np.inf
+    got = greedy_match(np.ascontiguousarray(dist.transpose(1, 2, 0)), scores, DIST_THRESHOLDS)
+    for i, th in enumerate(DIST_THRESHOLDS):
+        np.testing.assert_array_equal(got[i].T, devkit_loop(dist, scores, th), err_msg=f"threshold {th}")

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 import shapely
 
+from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.geometry import box_corners, signed_box_distance
@@ -132,6 +133,31 @@ def test_collision_distances_inf_for_absent_agents():
     assert np.all(np.isinf(result.distances[:20, 0]))
     assert np.all(np.isfinite(result.distances[20:51, 0]))
     assert np.all(np.isinf(result.distances[51:, 0]))
+
+
+def test_collision_distances_equal_shapely_on_random_agents():
+    """One frame of 400 random agent boxes round a random ego, overlapping and apart, a quarter absent."""
+    rng = np.random.default_rng(5)
+    n = 400
+    agents = BoxSequence.empty(1, n)
+    agents.valid[0] = rng.random(n) > 0.25
+    agents.x[0], agents.y[0] = rng.uniform(-9.0, 9.0, n), rng.uniform(-6.0, 6.0, n)
+    agents.yaw[0] = rng.uniform(-np.pi, np.pi, n)
+    agents.length[0], agents.width[0] = rng.uniform(3.0, 6.0, n), rng.uniform(1.5, 2.5, n)
+    ego = EgoState(0.3, -0.2, 0.7, 5.0)
+    got = collision_distances(ego, EGO_LENGTH, EGO_WIDTH, agents, 0)
+    assert np.all(got[~agents.valid[0]] == np.inf)
+    valid = agents.valid[0]
+    ego_poly = shapely.Polygon(ego_box((ego.x, ego.y, ego.yaw)))
+    polys = shapely.polygons(box_corners(agents.x[0], agents.y[0], agents.yaw[0], agents.length[0], agents.width[0]))
+    gap, hit = shapely.distance(ego_poly, polys), shapely.intersects(ego_poly, polys)
+    apart = valid & ~hit
+    np.testing.assert_allclose(got[apart], gap[apart], rtol=0.0, atol=1e-9)
+    assert np.all(got[valid & hit] <= 0.0)
+    # overlapping: the penetration depth of signed_box_distance, tested against shapely in test_geometry
+    corners = box_corners(agents.x[0, valid], agents.y[0, valid], agents.yaw[0, valid], agents.length[0, valid], agents.width[0, valid])
+    np.testing.assert_allclose(got[valid], signed_box_distance(ego_box((ego.x, ego.y, ego.yaw))[None], corners), atol=1e-12)
+    assert (valid & hit).sum() > 50 and apart.sum() > 50
 
 
 def test_ego_footprint_from_config():

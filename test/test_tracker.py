@@ -1,7 +1,12 @@
-"""The Kalman + Hungarian tracker (DESIGN.md section 7): association, gating, coasting, ageing, heading."""
+"""The Kalman + Hungarian tracker (DESIGN.md section 7): association, gating, coasting, ageing, heading,
+and its batched filter against a filterpy KalmanFilter per track."""
 
 import numpy as np
 import pytest
+from filterpy.common import Q_discrete_white_noise
+from filterpy.kalman import KalmanFilter
+from scipy.linalg import block_diag
+from scipy.optimize import linear_sum_assignment
 
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.tracker import Tracker, TrackerConfig
@@ -146,13 +151,13 @@ def test_heading_renormalised_and_stable_near_pi():
         x += speed * np.cos(yaw) * DT
         assert list(out["ids"]) == [1]
         errors.append(abs(float(wrap_angle(by_id(out, 1)["yaw"] - yaw))))
-        state = tracker._tracks[0].kf.x[:, 0]
+        state = tracker.tracks.state[0]
         assert np.hypot(state[4], state[5]) == pytest.approx(1.0, abs=1e-12)
     assert max(errors) < 0.1
     # and while coasting (the predicted heading rate would otherwise shrink or grow the vector)
     for k in range(80, 85):
         tracker.step(t_of(k), NONE)
-        state = tracker._tracks[0].kf.x[:, 0]
+        state = tracker.tracks.state[0]
         assert np.hypot(state[4], state[5]) == pytest.approx(1.0, abs=1e-12)
 
 
@@ -299,3 +304,142 @@ def test_reset_forgets_everything():
     out = tracker.step(0.0, dets((100.0, 0.0, 0.0, 0.0, 0.0)))
     assert list(out["ids"]) == [1]
     assert by_id(out, 1)["x"] == pytest.approx(100.0)
+
+
+# ---------------------------------------------------------------- the batched filter against filterpy
+
+class FilterpyTracker:
+    """The tracker as it was before it was batched: one filterpy KalmanFilter per track, the same rules."""
+
+    def __init__(self, cfg: TrackerConfig = TrackerConfig()) -> None:
+        self.cfg, self.tracks, self.next_id = cfg, [], 1
+
+    def step(self, t, det):
+        cfg = self.cfg
+        for tr in self.tracks:
+            dt = t - tr["t"]
+            if dt > 0.0:
+                block = np.eye(4)
+                block[0, 2] = block[1, 3] = dt
+                q_pos = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.accel_std**2, block_size=2, order_by_dim=False)
+                q_head = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.heading_accel_std**2, block_size=2, order_by_dim=False)
+                tr["kf"].predict(F=block_diag(block, block), Q=block_diag(q_pos, q_head))
+                self._renormalise(tr["kf"])
+                tr["t"] = t
+        matched_t, matched_d = set(), set()
+        if self.tracks and len(det["x"]):
+            predicted = np.array([tr["kf"].x[:2, 0] for tr in self.tracks])
+            cost = np.hypot(predicted[:, None, 0] - det["x"][None], predicted[:, None, 1] - det["y"][None])
+            for ti, di in zip(*linear_sum_assignment(np.where(cost <= cfg.gate, cost, 1e9))):
+                if cost[ti, di] <= cfg.gate:
+                    tr, yaw = self.tracks[ti], det["yaw"][di]
+                    tr["kf"].update(np.array([[det["x"][di]], [det["y"][di]], [np.cos(yaw)], [np.sin(yaw)]]))
+                    self._renormalise(tr["kf"])
+                    tr["last_seen"] = t
+                    matched_t.add(ti)
+                    matched_d.add(di)
+        self.tracks = [tr for ti, tr in enumerate(self.tracks) if ti in matched_t or t - tr["last_seen"] < cfg.max_age - 1e-6]
+        for di in sorted(set(range(len(det["x"]))) - matched_d):
+            kf = KalmanFilter(dim_x=8, dim_z=4)
+            kf.H = np.zeros((4, 8))
+            kf.H[[0, 1, 2, 3], [0, 1, 4, 5]] = 1.0
+            kf.R = np.diag([cfg.position_std**2] * 2 + [cfg.heading_std**2] * 2)
+            yaw = det["yaw"][di]
+            kf.x = np.array([[det["x"][di]], [det["y"][di]], [det["vx"][di]], [det["vy"][di]], [np.cos(yaw)], [np.sin(yaw)], [0.0], [0.0]])
+            kf.P = np.diag([cfg.position_std**2] * 2 + [cfg.initial_velocity_std**2] * 2 + [cfg.heading_std**2] * 2 + [0.25] * 2)
+            self.tracks.append({"id": self.next_id, "kf": kf, "t": t, "last_seen": t})
+            self.next_id += 1
+
+    @staticmethod
+    def _renormalise(kf):
+        norm = np.hypot(kf.x[4, 0], kf.x[5, 0])
+        if norm > 1e-9:
+            kf.x[4:6, 0] /= norm
+
+
+def random_traffic(seed, frames=150):
+    """Detections of cars that appear, vanish, reappear, turn, brake and cross, with noise and clutter.
+
+    Each car has its own drop pattern: single-frame misses, drops shorter and longer than max_age;
+    clutter detections appear for a frame or two and are never seen again.
+    """
+    rng = np.random.default_rng(seed)
+    num_cars = 6
+    start = rng.uniform(-40.0, 40.0, (num_cars, 2))
+    heading = rng.uniform(-np.pi, np.pi, num_cars)
+    speed = rng.uniform(0.0, 15.0, num_cars)
+    turn = rng.choice([0.0, 0.0, 0.3, -0.5], num_cars)
+    accel = rng.choice([0.0, -3.0, 1.5], num_cars)
+    # two cars through the origin from crossing directions, both at 4 s
+    heading[1] = heading[0] + np.pi / 2
+    speed[1] = speed[0] = 8.0
+    turn[:2] = accel[:2] = 0.0
+    start[0] = -4.0 * np.array([np.cos(heading[0]), np.sin(heading[0])]) * 8.0
+    start[1] = -4.0 * np.array([np.cos(heading[1]), np.sin(heading[1])]) * 8.0
+    present = np.ones((frames, num_cars), dtype=bool)
+    for j in range(num_cars):
+        present[: rng.integers(0, 40) if j >= 2 else 0, j] = False  # births at different frames
+        for _ in range(rng.integers(1, 5)):
+            a = rng.integers(0, frames)
+            present[a : a + rng.choice([1, 3, 8, 15]), j] = False  # drops, some longer than max_age
+    yaw, spd = heading.copy(), speed.copy()
+    pos = start.copy()
+    out = []
+    for k in range(frames):
+        boxes = []
+        for j in range(num_cars):
+            if present[k, j]:
+                v = spd[j] * np.array([np.cos(yaw[j]), np.sin(yaw[j])])
+                noisy = pos[j] + rng.normal(0.0, 0.2, 2)
+                boxes.append((*noisy, wrap_angle(yaw[j] + rng.normal(0.0, 0.03)), *v))
+        for _ in range(rng.poisson(0.3)):
+            boxes.append((*rng.uniform(-60.0, 60.0, 2), rng.uniform(-np.pi, np.pi), *rng.normal(0.0, 3.0, 2)))
+        order = rng.permutation(len(boxes))
+        out.append(dets(*[boxes[i] for i in order]) if boxes else NONE)
+        pos += DT * spd[:, None] * np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
+        yaw = wrap_angle(yaw + DT * turn)
+        spd = np.maximum(spd + DT * accel, 0.0)
+    return out
+
+
+def assert_same_as_filterpy(frames, times, config=TrackerConfig()):
+    """Steps both trackers through the frames, comparing at every step; returns (births, deletions, most at once)."""
+    ours, ref = Tracker(config), FilterpyTracker(config)
+    live, deletions, most = set(), 0, 0
+    for t, frame in zip(times, frames):
+        out = ours.step(t, frame)
+        ref.step(t, frame)
+        assert list(out["ids"]) == [tr["id"] for tr in ref.tracks]
+        deletions += len(live - set(out["ids"]))
+        live, most = set(out["ids"]), max(most, len(out["ids"]))
+        if not ref.tracks:
+            continue
+        state = np.array([tr["kf"].x[:, 0] for tr in ref.tracks])
+        np.testing.assert_allclose(ours.tracks.state, state, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(ours.tracks.covariance, [tr["kf"].P for tr in ref.tracks], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out["x"], state[:, 0], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out["vy"], state[:, 3], rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(out["yaw"], np.arctan2(state[:, 5], state[:, 4]), rtol=1e-12, atol=1e-12)
+    return ref.next_id - 1, deletions, most
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_batched_filter_equals_filterpy_per_track(seed):
+    frames = random_traffic(seed)
+    births, deletions, most = assert_same_as_filterpy(frames, [t_of(k) for k in range(len(frames))])
+    assert births > 20 and deletions > 20 and most >= 8  # the traffic exercised what it should
+
+
+def test_batched_filter_equals_filterpy_with_irregular_steps_and_repeated_times():
+    frames = random_traffic(11, frames=80)
+    times = np.cumsum(np.random.default_rng(3).choice([0.0, 0.05, 0.1, 0.1, 0.23], len(frames)))
+    assert_same_as_filterpy(frames, times, TrackerConfig(gate=3.0, max_age=0.6))
+
+
+def test_time_must_not_go_back_without_a_reset():
+    tracker = Tracker()
+    tracker.step(1.0, dets((0.0, 0.0, 0.0, 0.0, 0.0)))
+    with pytest.raises(ValueError, match="reset"):
+        tracker.step(0.5, NONE)
+    tracker.reset()
+    assert list(tracker.step(0.5, dets((0.0, 0.0, 0.0, 0.0, 0.0)))["ids"]) == [1]

@@ -5,8 +5,10 @@ TP metrics at 2 m, class range 50 m around the ego (strict <, for truth and pred
 greedy matching in descending confidence with strict <, 101-point interpolation, recall and
 precision floors 0.1, AAE = 0 (truth and predictions share one attribute). Each frame is a sample.
 
-The devkit matches predictions one by one in a Python loop; here the matching runs rank by rank
-across all frames at once, since a prediction only competes with predictions of its own frame.
+The devkit matches predictions one by one in a Python loop. Here, since a prediction only
+competes with predictions of its own frame, every frame is matched at once: where no two
+predictions of a frame want the same gt, each takes its nearest; the few frames where two do run
+the devkit's loop, rank by rank, all together.
 """
 
 from dataclasses import dataclass
@@ -49,50 +51,122 @@ def in_range(boxes: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
     return boxes.valid & (dist < CLASS_RANGE)
 
 
-def _prediction_order(scores: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Per frame, prediction slots by descending confidence; ties by descending slot (the
-    devkit sorts (score, index) pairs and reverses); invalid slots last."""
-    key = np.where(valid, scores, -np.inf)
+def _prediction_order(scores: np.ndarray) -> np.ndarray:
+    """Per frame, prediction slots by descending confidence; ties by descending slot (the devkit
+    sorts (score, index) pairs and reverses); absent slots (nan) last."""
     slots = np.broadcast_to(np.arange(scores.shape[1]), scores.shape)
-    return np.lexsort((-slots, -key), axis=-1)
+    return np.lexsort((-slots, -scores), axis=-1)
 
 
-def greedy_match(
-    dist: np.ndarray, order: np.ndarray, pred_ok: np.ndarray, gt_ok: np.ndarray, thresholds: tuple[float, ...]
-) -> dict[float, Matching]:
-    """The devkit's greedy matching for every threshold at once, one confidence rank at a time.
+def _nearest(dist: np.ndarray, limit: float) -> tuple[np.ndarray, np.ndarray]:
+    """Along axis 1 of dist (n, G, m): the smallest value, and a one-hot (n, G, m) of the first
+    index holding it where that value is below limit (argmin is slow along a short axis)."""
+    nearest = dist.min(axis=1)
+    near = nearest < limit
+    first = (dist == nearest[:, None]) & near[:, None]
+    if np.count_nonzero(first) > np.count_nonzero(near):  # equally near: the first, as argmin
+        first &= np.cumsum(first, axis=1) == 1
+    return nearest, first
 
-    dist (F, P, G) centre distances; each prediction takes the nearest untaken gt (first index on
-    ties, as the devkit's strict <) and is a match if that distance is below the threshold.
+
+def _index(one_hot: np.ndarray) -> np.ndarray:
+    """The index along axis 1 of a one-hot (n, G, m); 0 where it holds no True."""
+    return np.matmul(np.arange(one_hot.shape[1], dtype=float), one_hot).astype(np.int64)
+
+
+def _greedy_by_rank(ranked_dist: np.ndarray, below: np.ndarray) -> np.ndarray:
+    """The devkit's loop, one confidence rank at a time, for all frames and thresholds at once.
+
+    ranked_dist (P, G, F) from each frame's rank-r prediction (inf: may not match); below (H, 1)
+    the thresholds. Returns the matched gt (H, P, F), -1 if none.
     """
-    num_frames, num_pred, num_gt = dist.shape
-    ths = np.asarray(thresholds)[:, None]  # (H, 1)
-    frames = np.arange(num_frames)
-    taken = np.broadcast_to(~gt_ok, (len(thresholds), num_frames, num_gt)).copy()
-    pred_gt = np.full((len(thresholds), num_frames, num_pred), -1)
-    for rank in range(num_pred if num_gt else 0):
-        p = order[:, rank]
-        active = pred_ok[frames, p]
-        d = np.where(taken, np.inf, dist[frames, p, :])  # (H, F, G)
-        g = np.argmin(d, axis=2)  # (H, F)
-        hit = active & (np.take_along_axis(d, g[:, :, None], axis=2)[:, :, 0] < ths)
-        h_idx, f_idx = np.nonzero(hit)
-        pred_gt[h_idx, f_idx, p[f_idx]] = g[h_idx, f_idx]
-        taken[h_idx, f_idx, g[h_idx, f_idx]] = True
-    return {th: Matching(pred_gt=pred_gt[i]) for i, th in enumerate(thresholds)}
+    num_pred, num_gt, num_frames = ranked_dist.shape
+    shape = (1, num_gt, len(below) * num_frames)  # thresholds and frames on one axis
+    free = np.ones(shape, dtype=bool)
+    out = np.full((num_pred, len(below), num_frames), -1)
+    for rank in range(num_pred):
+        d = np.broadcast_to(ranked_dist[rank, :, None, :], (num_gt, len(below), num_frames)).reshape(shape)
+        nearest, take = _nearest(np.where(free, d, np.inf), np.inf)
+        hit = nearest.reshape(len(below), num_frames) < below
+        take &= hit.reshape(1, 1, -1)
+        out[rank] = np.where(hit, _index(take).reshape(hit.shape), -1)
+        free ^= take  # take is within free
+    return out.transpose(1, 0, 2)
 
 
-def _angle_diff(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    diff = (a - b + np.pi) % (2.0 * np.pi) - np.pi
+def greedy_match(dist: np.ndarray, scores: np.ndarray, thresholds: tuple[float, ...]) -> np.ndarray:
+    """The devkit's greedy matching for every threshold at once.
+
+    dist (P, G, F) centre distances by prediction slot, inf where the pair may not match (either
+    box out of range: such a prediction takes nothing wherever it ranks); scores (F, P). In
+    descending confidence, each prediction takes the nearest untaken gt (first index on ties, as
+    the devkit's strict <) and is a match if that distance is below the threshold. Returns the
+    matched gt of each prediction slot (H, P, F), -1 if none.
+
+    Where no two predictions of a frame have the same nearest gt within the loosest threshold, no
+    prediction finds its nearest gt taken, so each simply takes its nearest: that is all frames
+    at once. Frames where two do go through the devkit's loop, rank by rank. Axes put the frames
+    last: numpy reduces over a short last axis slowly.
+    """
+    num_pred, num_gt, num_frames = dist.shape
+    below = np.asarray(thresholds)[:, None]
+    if num_pred == 0 or num_gt == 0:
+        return np.full((len(thresholds), num_pred, num_frames), -1)
+    nearest, first = _nearest(dist, max(thresholds))  # (P, F), (P, G, F)
+    matched = np.where(nearest < below[:, :, None], _index(first), -1)  # (H, P, F)
+    contested = np.flatnonzero((np.count_nonzero(first, axis=0) > 1).any(axis=0))
+    if contested.size:
+        ranked = _prediction_order(scores[contested]).T  # (P, C)
+        by_rank = _greedy_by_rank(dist[ranked[:, None, :], np.arange(num_gt)[:, None], contested], below)
+        matched[:, ranked, contested] = by_rank
+    return matched
+
+
+def _angle_diff(a_minus_b: np.ndarray) -> np.ndarray:
+    """The devkit's |angle_diff(a, b)| from a - b."""
+    diff = (a_minus_b + np.pi) % (2.0 * np.pi) - np.pi
     return np.abs(np.where(diff > np.pi, diff - 2.0 * np.pi, diff))
 
 
-def _scale_error(gt: BoxSequence, pred: BoxSequence, f: np.ndarray, g: np.ndarray, p: np.ndarray) -> np.ndarray:
-    gt_size = np.stack([gt.width[f, g], gt.length[f, g], gt.height[f, g]])
-    pred_size = np.stack([pred.width[f, p], pred.length[f, p], pred.height[f, p]])
-    inter = np.prod(np.minimum(gt_size, pred_size), axis=0)
-    union = np.prod(gt_size, axis=0) + np.prod(pred_size, axis=0) - inter
-    return 1.0 - inter / union
+def _mean(values: np.ndarray) -> np.floating:
+    """np.mean without its Python wrapper (the same sum and division), which here costs more than the sum."""
+    return values.sum() / values.size
+
+
+_REC_INTERP = np.linspace(0.0, 1.0, NUM_POINTS)
+# what the TP metrics read of a box, sizes in the devkit's wlh order
+_TP_FIELDS = ("x", "y", "vx", "vy", "yaw", "width", "length", "height")
+
+
+def _gather(boxes: BoxSequence, frames: np.ndarray, slots: np.ndarray) -> np.ndarray:
+    """_TP_FIELDS (8, n) of the (frame, slot) boxes, by flat index (np.take on 1-D is cheap)."""
+    flat = frames * boxes.shape[1] + slots
+    return np.array([np.take(getattr(boxes, name), flat) for name in _TP_FIELDS])
+
+
+def _tp_errors(
+    gt: BoxSequence, pred: BoxSequence, frames: np.ndarray, slots: np.ndarray, gts: np.ndarray,
+    match_conf: np.ndarray, conf_interp: np.ndarray, last: int,
+) -> dict[str, float]:
+    """The devkit's TP metrics from the true positives (frames, pred slots, gt slots) in global order.
+
+    Attributes always agree, so attr_err is 0 wherever it is defined.
+    """
+    g, p = _gather(gt, frames, gts), _gather(pred, frames, slots)
+    diff = g - p
+    errors = np.empty((4, len(frames)))  # TP_METRICS but attr_err
+    errors[0:4:3] = np.hypot(diff[0:4:2], diff[1:4:2])  # centre and velocity
+    inter = np.minimum(g[5], p[5]) * np.minimum(g[6], p[6]) * np.minimum(g[7], p[7])
+    errors[1] = 1.0 - inter / (g[5] * g[6] * g[7] + p[5] * p[6] * p[7] - inter)  # 1 - IoU aligned and centred
+    errors[2] = _angle_diff(diff[4])
+    # the devkit's cummean (nancumsum / count); inputs are validated finite, so no NaN to skip
+    running_mean = np.cumsum(errors, axis=1) / np.arange(1, errors.shape[1] + 1)
+    out = {}
+    for name, curve_at_matches in zip(TP_METRICS, running_mean):
+        curve = np.interp(conf_interp[::-1], match_conf[::-1], curve_at_matches[::-1])[::-1]
+        out[name] = float(_mean(curve[FIRST_USEFUL : last + 1]))
+    out["attr_err"] = 0.0
+    return out
 
 
 def nds(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> NDSResult:
@@ -100,51 +174,44 @@ def nds(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> NDSResult:
     gt_ok = in_range(gt, ego_xy)
     pred_ok = in_range(pred, ego_xy)
     npos = int(gt_ok.sum())
-    dist = np.hypot(pred.x[:, :, None] - gt.x[:, None, :], pred.y[:, :, None] - gt.y[:, None, :])
-    order = _prediction_order(pred.score, pred_ok)
-    matchings = greedy_match(dist, order, pred_ok, gt_ok, DIST_THRESHOLDS)
+    # (slot, frame) layouts from here: numpy reduces and broadcasts faster with the frames last
+    pairs = np.ascontiguousarray(pred_ok.T)[:, None, :] & np.ascontiguousarray(gt_ok.T)  # (P, G, F)
+    dist = np.full(pairs.shape, np.inf)  # only pairs in range can match
+    dx = np.ascontiguousarray(pred.x.T)[:, None, :] - np.ascontiguousarray(gt.x.T)
+    dy = np.ascontiguousarray(pred.y.T)[:, None, :] - np.ascontiguousarray(gt.y.T)
+    np.hypot(dx, dy, out=dist, where=pairs)
+    matched = greedy_match(dist, pred.score, DIST_THRESHOLDS)  # (H, P, F)
+    matchings = {th: Matching(pred_gt=matched[i].T) for i, th in enumerate(DIST_THRESHOLDS)}
 
     # global order of the devkit: descending score, ties by descending position in the flat list
     pf, pp = np.nonzero(pred_ok)
     flat_scores = pred.score[pf, pp]
     glob = np.lexsort((-np.arange(pf.size), -flat_scores))
     pf, pp, conf = pf[glob], pp[glob], flat_scores[glob]
-    rec_interp = np.linspace(0.0, 1.0, NUM_POINTS)
+    matched_gt = matched[:, pp, pf]  # (H, M)
+    is_tp = matched_gt >= 0
+    tp = np.cumsum(is_tp, axis=1, dtype=float)
+    recall = tp / max(npos, 1)  # unused without positives
+    precision = tp / np.arange(1, pf.size + 1)  # tp + fp is the rank
 
     ap: dict[float, float] = {}
     tp_errors = {name: 1.0 for name in TP_METRICS}
-    for th, matching in matchings.items():
-        matched_gt = matching.pred_gt[pf, pp]
-        is_tp = matched_gt >= 0
-        if npos == 0 or not is_tp.any():
+    for i, th in enumerate(DIST_THRESHOLDS):
+        if npos == 0 or not is_tp[i].any():
             ap[th] = 0.0
             continue
-        tp = np.cumsum(is_tp).astype(float)
-        fp = np.cumsum(~is_tp).astype(float)
-        prec = np.interp(rec_interp, tp / npos, tp / (fp + tp), right=0)
-        conf_interp = np.interp(rec_interp, tp / npos, conf, right=0)
+        prec = np.interp(_REC_INTERP, recall[i], precision[i], right=0)
         useful = prec[FIRST_USEFUL:] - MIN_PRECISION
         useful[useful < 0] = 0
-        ap[th] = float(np.mean(useful)) / (1.0 - MIN_PRECISION)
+        ap[th] = float(_mean(useful)) / (1.0 - MIN_PRECISION)
         if th != TP_THRESHOLD:
             continue
-        f, p, g = pf[is_tp], pp[is_tp], matched_gt[is_tp]
-        errors = np.stack([
-            np.hypot(pred.x[f, p] - gt.x[f, g], pred.y[f, p] - gt.y[f, g]),
-            _scale_error(gt, pred, f, g, p),
-            _angle_diff(gt.yaw[f, g], pred.yaw[f, p]),
-            np.hypot(pred.vx[f, p] - gt.vx[f, g], pred.vy[f, p] - gt.vy[f, g]),
-        ])  # in TP_METRICS order; attributes always agree, so attr_err is 0 wherever it is defined
-        # the devkit's cummean (nancumsum / count); inputs are validated finite, so no NaN to skip
-        running_mean = np.cumsum(errors, axis=1) / np.arange(1, f.size + 1)
-        match_conf = conf[is_tp][::-1]
-        nonzero = np.nonzero(conf_interp)[0]
+        conf_interp = np.interp(_REC_INTERP, recall[i], conf, right=0)
+        nonzero = np.flatnonzero(conf_interp)
         last = int(nonzero[-1]) if nonzero.size else 0
         if last >= FIRST_USEFUL:
-            for name, curve_at_matches in zip(TP_METRICS, running_mean):
-                curve = np.interp(conf_interp[::-1], match_conf, curve_at_matches[::-1])[::-1]
-                tp_errors[name] = float(np.mean(curve[FIRST_USEFUL : last + 1]))
-            tp_errors["attr_err"] = 0.0
+            hits = is_tp[i]
+            tp_errors = _tp_errors(gt, pred, pf[hits], pp[hits], matched_gt[i, hits], conf[hits], conf_interp, last)
 
     mean_ap = float(np.mean([ap[th] for th in DIST_THRESHOLDS]))
     tp_score = sum(max(0.0, 1.0 - tp_errors[name]) for name in TP_METRICS)

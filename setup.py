@@ -27,7 +27,6 @@ setup(
         "casadi>=3.6",
         "pyyaml>=6",
         "filterpy>=1.4.5",
-        "shapely>=2.0",
         "rosbags>=0.11.2",
         "mcap>=1.1",
         "mcap-ros2-support>=0.5",
@@ -37,7 +36,7 @@ setup(
     ],
     extras_require={
         "commonroad": ["commonroad-io>=2023.1"],
-        "test": ["pytest>=7", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],  # colcon: the ROS workspace test
+        "test": ["pytest>=7", "hypothesis>=6", "shapely>=2.0", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],  # colcon: the ROS workspace test
     },
     zip_safe=True,
     maintainer="advperc_ros developers",

@@ -42,7 +42,7 @@ differs from the embedded one in the last bits (messages carry yaw as a quaterni
 an arrow; docs/graph.md), so these are rounded to REPORT_DIGITS significant digits and both
 backends write the same report. Every other float is the same to the bit in both."""
 REPORT_DIGITS = 7
-LIBRARIES = ("numpy", "scipy", "filterpy", "shapely", "rosbags", "mcap-ros2-support", "matplotlib")
+LIBRARIES = ("numpy", "scipy", "filterpy", "casadi", "rosbags", "mcap-ros2-support", "matplotlib")
 
 
 def _finite_or_none(value: float) -> float | None:

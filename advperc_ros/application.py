@@ -2,7 +2,6 @@
 orchestrator node both call, so both choose the same output folder, check it before any work,
 run the same search and write the same report."""
 
-import os
 import sys
 import time
 from collections.abc import Iterator
@@ -21,7 +20,8 @@ from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
-from advperc_ros.params import AttackParams, ParamsError, resolve_bag
+from advperc_ros.params import AttackParams, resolve_bag
+from advperc_ros.paths import check_output
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
 
@@ -88,19 +88,6 @@ def default_output(params: AttackParams, scenario_name: str) -> Path:
         n += 1
         candidate = base.with_name(f"{base.name}-{n}")
     return candidate
-
-
-def check_output(output: Path) -> None:
-    """Refuse, before any work, an output folder that exists or cannot be created and written."""
-    if output.exists():
-        raise ParamsError(f"{output}: output folder exists already; choose another output")
-    parent = output.parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise ParamsError(f"{output}: cannot create the output folder: {parent} is not a folder")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ParamsError(f"{output}: cannot create the output folder: {parent} is not writable")
 
 
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,

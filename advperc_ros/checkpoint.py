@@ -97,9 +97,10 @@ class Checkpoint:
         os.fsync(self._file.fileno())
 
     def close(self, finished: bool) -> None:
-        """Keep the checkpoint for --resume, or remove it once the results folder is complete."""
+        """Keep the checkpoint for --resume, or remove it once the results folder is complete (or
+        when the attack ended before its first rollout: nothing to resume, nothing left behind)."""
         self._file.close()
-        if finished:
+        if finished or not (self.folder / ROLLOUTS).stat().st_size:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 

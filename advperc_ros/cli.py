@@ -126,26 +126,16 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     from advperc_ros.backend import Stack
     from advperc_ros.core.robustness import RobustnessPoint, robustness_curve
     from advperc_ros.core.search.problem import AttackProblem
-    from advperc_ros.params import NODE, PLANNER_PARAMS, nest, parse_params
-    from advperc_ros.results import ERRORS, REPORT_JSON, load_errors
+    from advperc_ros.results import ERRORS, read_attack
     from advperc_ros.ros.bag import read_scenario
 
     results = Path(args.results)
-    report_path, errors_path = results / REPORT_JSON, results / ERRORS
-    for needed in (report_path, errors_path):
-        if not needed.is_file():
-            raise ParamsError(f"{needed}: missing; robustness needs the results folder of an attack that collided")
-    report = json.loads(report_path.read_text())
-    flat = dict(report["params"])
-    planner_params = flat.pop(PLANNER_PARAMS)
-    params = parse_params({NODE: {"ros__parameters": {**nest(flat), PLANNER_PARAMS: planner_params}}}, str(report_path))
-    scenario = read_scenario(Path(report["bag"]))
-    errors = load_errors(errors_path)
+    params, bag, errors = read_attack(results)
+    scenario = read_scenario(bag)
     if errors.shape != scenario.agents.shape:
-        raise BagError(f"{errors_path}: field 'fn' has shape {errors.shape}, the bag {report['bag']} has {scenario.agents.shape}")
-    strengths = tuple(float(s) for s in args.strengths.split(","))
+        raise BagError(f"{results / ERRORS}: field 'fn' has shape {errors.shape}, the bag {bag} has {scenario.agents.shape}")
     problem = AttackProblem(scenario, Stack(scenario, params).rollout, params.objective)
-    points = robustness_curve(problem, errors, strengths, args.samples, np.random.default_rng(args.seed))
+    points = robustness_curve(problem, errors, args.strengths, args.samples, np.random.default_rng(args.seed))
     staging = results / ".robustness.partial.csv"
     with staging.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(RobustnessPoint)])
@@ -199,7 +189,9 @@ def cmd_pem_fit(args: argparse.Namespace) -> int:
     from advperc_ros.core.metrics.scores import matched_errors
     from advperc_ros.core.pem import bearings, features, fit
     from advperc_ros.importers.nuscenes import load_pairs
+    from advperc_ros.paths import check_output
 
+    check_output(Path(args.output), "model file")
     if args.nuscenes_gt:
         sources = [load_pairs(Path(args.nuscenes_gt), Path(results)) for results in args.inputs]
     else:
@@ -244,8 +236,37 @@ def cmd_check_bag(args: argparse.Namespace) -> int:
     return 0
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """argparse's refusals as every other bad input: one line, exit code 2 (`advperc -h` for usage)."""
+
+    def error(self, message: str) -> None:
+        self.exit(EXIT_INPUT, f"advperc: error: {self.prog}: {message}\n")
+
+
+def _count(text: str) -> int:
+    """A number of samples: a whole number, at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
+    return value
+
+
+def _strengths(text: str) -> tuple[float, ...]:
+    """Perturbation strengths: comma-separated probabilities in [0, 1]."""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
+    if not all(0.0 <= value <= 1.0 for value in values):
+        raise argparse.ArgumentTypeError(f"each strength is a probability in [0, 1], got {text!r}")
+    return values
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="advperc", description="Adversarial perception error search.")
+    parser = OneLineParser(prog="advperc", description="Adversarial perception error search.")
     sub = parser.add_subparsers(dest="command", required=True)
 
     attack = sub.add_parser("attack", help="search for an adversarial perception attack (no ROS needed)")
@@ -275,15 +296,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     typical = sub.add_parser("check-typical", help="roll out PEM-sampled typical errors; exit 1 on any collision")
     typical.add_argument("params", help="params YAML, as for attack")
-    typical.add_argument("--samples", type=int, default=100, help="rollouts (paper: 100)")
+    typical.add_argument("--samples", type=_count, default=100, help="rollouts (paper: 100)")
     typical.add_argument("--seed", type=int, default=0)
     typical.add_argument("--model", help="PEM JSON (default: the shipped reference model)")
     typical.set_defaults(func=cmd_check_typical)
 
     robust = sub.add_parser("robustness", help="perturb a found attack at growing strength (paper figure 5)")
     robust.add_argument("results", help="results folder of an attack (report.json + attack_errors.npz)")
-    robust.add_argument("--strengths", default=",".join(map(str, DEFAULT_STRENGTHS)), help="comma-separated strengths")
-    robust.add_argument("--samples", type=int, default=10, help="perturbations per strength (paper: 10)")
+    robust.add_argument("--strengths", type=_strengths, default=DEFAULT_STRENGTHS,
+                        help="comma-separated strengths in [0, 1]")
+    robust.add_argument("--samples", type=_count, default=10, help="perturbations per strength (paper: 10)")
     robust.add_argument("--seed", type=int, default=0)
     robust.set_defaults(func=cmd_robustness)
 

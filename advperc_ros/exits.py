@@ -5,6 +5,7 @@ else is a bug and keeps its traceback.
 """
 
 from advperc_ros.core.feasibility import ScenarioRejected
+from advperc_ros.core.pem import PEMError
 from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.search.problem import GroundTruthFails
@@ -25,7 +26,7 @@ class Interrupted(Exception):
     """Ctrl-C during an attack: the text says how to finish it (its checkpoint is kept)."""
 
 
-INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError)
+INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError, PEMError)
 EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (
     (INPUT_ERRORS, "error: ", EXIT_INPUT),
     ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),
@@ -37,6 +38,7 @@ EXPECTED_TYPES = tuple(kind for kinds, _, _ in EXPECTED for kind in kinds)
 
 
 def expected_failure(exc: BaseException) -> tuple[str, int]:
-    """(the line to print after the program's name, the exit code) of an `EXPECTED_TYPES` error."""
+    """(the line to print after the program's name, the exit code) of an `EXPECTED_TYPES` error;
+    one line whatever the message holds (a YAML parser's, say, spans several)."""
     prefix, code = next((prefix, code) for kinds, prefix, code in EXPECTED if isinstance(exc, kinds))
-    return f"{prefix}{exc}", code
+    return f"{prefix}{' '.join(str(exc).split())}", code

@@ -20,9 +20,11 @@ from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.outcome import AttackOutcome
+from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, ParamsError, find_bag, nest, parse_params
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr, topics
 from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.bag import BagError
 
 REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
@@ -305,8 +307,35 @@ def write_errors(path: Path, outcome: AttackOutcome) -> None:
 
 
 def load_errors(path: Path) -> PerceptionErrors:
-    with np.load(path) as data:
-        return PerceptionErrors(dx=data["dx"], dy=data["dy"], dyaw=data["dyaw"], fn=data["fn"])
+    """The error tensor of a results folder; one BagError line if the file is not one."""
+    try:
+        with np.load(path) as data:
+            errors = PerceptionErrors(dx=data["dx"], dy=data["dy"], dyaw=data["dyaw"], fn=data["fn"].astype(bool))
+    except (OSError, ValueError, KeyError, EOFError) as exc:
+        raise BagError(f"{path}: not an error tensor (npz with dx, dy, dyaw, fn): {exc}") from None
+    if not all(array.shape == errors.fn.shape and array.ndim == 2 for array in (errors.dx, errors.dy, errors.dyaw)):
+        raise BagError(f"{path}: fields 'dx', 'dy', 'dyaw', 'fn' must be frames x agents arrays of one shape")
+    return errors
+
+
+def read_attack(results: Path) -> tuple[AttackParams, Path, PerceptionErrors]:
+    """A results folder's params, bag (found as the attack found it; checked against the report's
+    bag_sha256) and error tensor, from any working directory; one line for whatever is wrong."""
+    report_path, errors_path = results / REPORT_JSON, results / ERRORS
+    for needed in (report_path, errors_path):
+        if not needed.is_file():
+            raise ParamsError(f"{needed}: missing; this needs the results folder of an attack that collided")
+    try:
+        report = json.loads(report_path.read_text())
+        flat = dict(report["params"])
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
+        raise ParamsError(f"{report_path}: not the report of an attack (no 'params'): {exc}") from None
+    planner_params = flat.pop(PLANNER_PARAMS, {})
+    params = parse_params({NODE: {"ros__parameters": {**nest(flat), PLANNER_PARAMS: planner_params}}}, str(report_path))
+    bag = find_bag(params.bag, None)
+    if "bag_sha256" in report and bags.digest(bag) != report["bag_sha256"]:
+        raise BagError(f"{bag}: not the bag {report_path} attacked (field 'bag_sha256' differs)")
+    return params, bag, load_errors(errors_path)
 
 
 def _ego(row: np.ndarray) -> EgoState:

@@ -61,7 +61,10 @@ def test_ctrl_c_is_one_line_exit_130_and_the_attack_can_be_finished(uninterrupte
     params, expected = uninterrupted
     output = tmp_path / "out"
     run = _attack(params, "--output", str(output))
-    time.sleep(2.5)
+    rollouts = checkpoint_folder(output) / "rollouts.jsonl"
+    deadline = time.monotonic() + 120
+    while not (rollouts.exists() and rollouts.stat().st_size) and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)  # interrupt once a rollout is checkpointed: before, there is nothing to keep
     run.send_signal(signal.SIGINT)
     _, err = run.communicate(timeout=60)
     if run.returncode == 0:

@@ -140,7 +140,7 @@ def load_scenario_spec(path: str | Path) -> Scenario:
     path = Path(path)
     try:
         spec = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ScenarioError(f"{path}: cannot read scenario description: {exc}") from exc
     if not isinstance(spec, dict):
         raise ScenarioError(f"{path}: a scenario description must be a mapping")

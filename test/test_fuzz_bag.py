@@ -11,6 +11,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from mutations import damaged
 from test_check_bag import DT, LANE, boxes, write_bag
 
 from advperc_ros.core.boxes import BOX_FIELDS
@@ -71,29 +72,11 @@ def read_or_fail_naming(path) -> None:
         shutil.rmtree(path)
 
 
-@st.composite
-def corrupted(draw, data: bytes) -> bytes:
-    """Bytes cut short, with bits flipped, or with 8 bytes overwritten (MCAP lengths are 4 or 8
-    bytes: all ones and all zeros are the interesting values)."""
-    data = bytearray(data)
-    kind = draw(st.sampled_from(["cut", "flip", "overwrite"]))
-    if kind == "cut":
-        return bytes(data[: draw(st.integers(0, len(data) - 1))])
-    if kind == "flip":
-        for bit in draw(st.lists(st.integers(0, 8 * len(data) - 1), min_size=1, max_size=4)):
-            data[bit // 8] ^= 1 << bit % 8
-        return bytes(data)
-    at = draw(st.integers(0, len(data) - 8))
-    data[at: at + 8] = draw(st.sampled_from([b"\xff" * 8, bytes(8), b"\xff\xff\xff\x7f\x00\x00\x00\x00"])
-                            | st.binary(min_size=8, max_size=8))
-    return bytes(data)
-
-
 @FUZZ
 @given(data=st.data())
 def test_corrupt_mcap_reads_or_fails_naming_the_bag(seed_bag, data, tmp_path_factory):
     mcap, metadata = seed_bag
-    read_or_fail_naming(fresh(tmp_path_factory, data.draw(corrupted(mcap)), metadata))
+    read_or_fail_naming(fresh(tmp_path_factory, data.draw(damaged(mcap, word=8)), metadata))
 
 
 yaml_values = st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=8) | \
@@ -114,7 +97,7 @@ def wrong_metadata(draw, metadata: str) -> str:
     bits flipped."""
     kind = draw(st.sampled_from(["replace", "remove", "text"]))
     if kind == "text":
-        return draw(corrupted(metadata.encode())).decode(errors="replace")
+        return draw(damaged(metadata.encode(), word=8)).decode(errors="replace")
     document = yaml.safe_load(metadata)
     where, _ = draw(st.sampled_from(list(nodes(document))[1:]))
     parent = document

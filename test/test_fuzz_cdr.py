@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from mutations import damaged
 
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
@@ -55,32 +56,13 @@ def one_line_naming(exc: Exception, *names: str) -> None:
         assert name in text, (name, text)
 
 
-@st.composite
-def mutated(draw, payload: bytes) -> bytes:
-    """A valid payload cut short, with bits flipped or bytes overwritten, or arbitrary bytes."""
-    data = bytearray(payload)
-    kind = draw(st.sampled_from(["cut", "flip", "overwrite", "arbitrary"]))
-    if kind == "cut":
-        return bytes(data[: draw(st.integers(0, len(data) - 1))])
-    if kind == "flip":
-        for bit in draw(st.lists(st.integers(0, 8 * len(data) - 1), min_size=1, max_size=4)):
-            data[bit // 8] ^= 1 << bit % 8
-        return bytes(data)
-    if kind == "overwrite":  # lengths and counts are 4 bytes: huge or zero ones are the interesting cases
-        at = draw(st.integers(0, len(data) - 4))
-        data[at: at + 4] = draw(st.sampled_from([b"\xff\xff\xff\xff", b"\x00\x00\x00\x00", b"\xff\xff\xff\x7f"])
-                                | st.binary(min_size=4, max_size=4))
-        return bytes(data)
-    return draw(st.binary(max_size=300))
-
-
 @pytest.mark.parametrize("name", DECODERS)
 @FUZZ
 @given(data=st.data())
 def test_decoders_answer_a_value_or_one_message_error(name, data):
     decode, payload = DECODERS[name]
     try:
-        decode(data.draw(mutated(payload)), "where")
+        decode(data.draw(damaged(payload, word=4, arbitrary=True)), "where")
     except cdr.MessageError as exc:
         one_line_naming(exc, "where: ")
         assert str(exc).startswith("where: ")
@@ -225,7 +207,7 @@ def test_rule_diagnostics_parser_answers_distances_or_one_message_error(statuses
 @given(data=st.data())
 def test_plan_parser_answers_a_trajectory_or_one_message_error(data):
     try:
-        _, plan = lockstep.plan_from_cdr(data.draw(mutated(PATH)), 0, "where")
+        _, plan = lockstep.plan_from_cdr(data.draw(damaged(PATH, word=4, arbitrary=True)), 0, "where")
     except cdr.MessageError as exc:
         one_line_naming(exc, "where: ")
     else:

@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
-from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.rules import collision_distances, not_at_fault
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker

@@ -81,6 +81,12 @@ class EgoParams:
 
 
 @dataclass(frozen=True)
+class RuleParams:
+    at_fault_only: bool = _param(False, "count only collisions that are the ego's fault (nuPlan's at-fault "
+                                 "collisions): not when the ego is stopped or hit from behind")
+
+
+@dataclass(frozen=True)
 class TrackerParams:
     gate: float = _param(2.0, "association gate on centre distance (m)", positive=True)
     max_age: float = _param(1.0, "seconds without an observation before a track is deleted", positive=True)
@@ -136,6 +142,7 @@ class AttackParams:
     objective: str = _param("nds_t", "perception metric the search maximises", choices=("nds", "nds_t", "pem_ll"))
     seed: int = _param(0, "seed of the random search; same params and seed give the same attack", low=0, high=INT64_MAX)
     stop_at_collision: bool = _param(True, "end a rollout at its first rule violation")
+    rule: RuleParams = RuleParams()
     ego: EgoParams = EgoParams()
     tracker: TrackerParams = TrackerParams()
     search: SearchParams = SearchParams()
@@ -366,7 +373,7 @@ def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
 
 def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
     return RolloutConfig(ego_length=values["ego.length"], ego_width=values["ego.width"],
-                         stop_at_collision=values["stop_at_collision"])
+                         stop_at_collision=values["stop_at_collision"], at_fault_only=values["rule.at_fault_only"])
 
 
 def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningContext:

@@ -11,16 +11,19 @@ import numpy as np
 import pytest
 import yaml
 
+from advperc_ros.backend import Stack
 from advperc_ros.cli import main
+from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.feasibility import unavoidable_collision
 from advperc_ros.core.scenario_spec import build_scenario
+from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "commonroad"
 # sample -> (recorded vehicles, frames, outcome of an attack with the IDM planner)
 SAMPLES = {
     "USA_US101-1_1_T-1": (2, 61, "no influential agent"),
-    "USA_US101-10_1_T-1": (44, 81, "collides with perfect perception"),
+    "USA_US101-10_1_T-1": (44, 81, "rear-ended with perfect perception"),
     "USA_Lanker-2_1_T-1": (43, 91, "no influential agent"),
     "USA_Peach-2_1_T-1": (16, 106, "no influential agent"),
 }
@@ -62,15 +65,44 @@ def test_sample_imports_and_attacks_or_is_refused_with_a_reason(name, tmp_path, 
     params.write_text(yaml.safe_dump(document))
     capsys.readouterr()
     code = main(["attack", str(params), "--output", str(tmp_path / "out"), "--quiet"])
-    err = capsys.readouterr().err
-    if outcome == "collides with perfect perception":
-        assert code == 1 and "perfect perception" in err
-        assert not (tmp_path / "out").exists()
+    capsys.readouterr()
+    if outcome == "rear-ended with perfect perception":
+        # not the ego's fault, so the attack goes on (and finds no drop that makes it the ego's) ...
+        assert code == 0
+        report = json.loads((tmp_path / "out" / "report.json").read_text())
+        assert report["collision"] is False and report["ground_truth_min_signed_distance"] < 0.0
+        # ... but counting every collision, the recording is refused as the ego collides unattacked
+        document["orchestrator"]["ros__parameters"]["rule"]["at_fault_only"] = False
+        params.write_text(yaml.safe_dump(document))
+        code = main(["attack", str(params), "--output", str(tmp_path / "every"), "--quiet"])
+        assert code == 1 and "perfect perception" in capsys.readouterr().err
+        assert not (tmp_path / "every").exists()
     else:
         assert code == 0
         report = json.loads((tmp_path / "out" / "report.json").read_text())
         assert report["collision"] is False and "no agent" in report["message"]
         assert report["rollouts"] == 1 + vehicles  # ground truth, then each agent dropped once
+
+
+@needs_data
+def test_urban_turn_imports_for_both_planners_and_obp_drives_it(tmp_path, commonroad):
+    """Lankershim, a left turn at an intersection: an IDM and an ObP params file, both counting only
+    at-fault collisions (recorded traffic does not react to the ego); ObP's ground-truth rollout
+    runs every frame and takes the turn."""
+    bag, params = tmp_path / "bag", tmp_path / "lanker.yaml"
+    assert main(["import-commonroad", str(DATA / "USA_Lanker-2_3_T-1.xml"), "--output", str(bag),
+                 "--params", str(params)]) == 0
+    idm, obp = load_params(params), load_params(tmp_path / "lanker.obp.yaml")
+    assert (idm.planner, obp.planner) == ("idm", "obp")
+    assert idm.planner_params == obp.planner_params and obp.planner_params["target_speed"] > 1.0
+    assert idm.rule.at_fault_only and obp.rule.at_fault_only
+    assert idm.bag == obp.bag == str(bag.resolve())
+
+    scenario = read_scenario(bag)
+    result = Stack(scenario, obp).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    assert result.inconclusive is None and result.num_frames == scenario.num_frames
+    heading = np.unwrap(result.ego[:, 2])
+    assert heading.max() - heading.min() > 1.0  # the ego turned (about 1.5 rad)
 
 
 @needs_data
@@ -105,7 +137,7 @@ def test_unavoidable_recording_is_rejected_and_nothing_written(tmp_path, capsys,
     err = capsys.readouterr().err.strip()
     assert code == 3
     assert "blocked.xml" in err and "rejected" in err and len(err.splitlines()) == 1
-    assert not (tmp_path / "bag").exists() and not (tmp_path / "p.yaml").exists()
+    assert not any(tmp_path / name for name in ("bag", "p.yaml", "p.obp.yaml") if (tmp_path / name).exists())
 
 
 def test_feasibility_tells_unavoidable_from_avoidable():

@@ -4,6 +4,10 @@ Per frame k: score the collision rule for the ego at t_k, inject errors into the
 track, plan, and move the ego along the plan to t_{k+1}. Agents never react to the ego, so a
 rollout is a pure function of (scenario, errors, stack) and is deterministic.
 
+A contact always ends a rollout that stops at collisions (a crash ends the drive); with
+`at_fault_only` the verdict counts only the contacts that are the ego's fault (core.rules), so a
+rollout that ends in the ego being rear-ended or hit while stopped is no violation.
+
 The rules of a frame (`violates`, `after_plan`) and of what a rollout records (`recorded_frames`)
 are written once here: `rollout` below runs them in one process, the graph's scenario player and
 orchestrator (advperc_ros.nodes.scenario_player, advperc_ros.graph) run them over DDS.
@@ -14,10 +18,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
-from advperc_ros.core.rules import collision_distances
+from advperc_ros.core.rules import collision_distances, not_at_fault
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker
 
@@ -30,6 +35,7 @@ class RolloutConfig:
     ego_length: float = 4.6  # m
     ego_width: float = 1.9  # m
     stop_at_collision: bool = True
+    at_fault_only: bool = False  # the verdict counts only collisions that are the ego's fault
 
 
 @dataclass
@@ -43,6 +49,9 @@ class RolloutResult:
     # failed solves the planner answered with its fallback (its stats() of this rollout); None when
     # not known: a planner without stats(), or one in another process
     planner_failures: int | None = None
+    # (K, N) contacts that are not the ego's fault, when only at-fault ones count (`judge`); None:
+    # every contact counts
+    excused: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -68,7 +77,20 @@ class RolloutResult:
 
     @property
     def collided(self) -> bool:
-        return self.inconclusive is None and self.min_signed_distance < 0.0
+        """The verdict: a conclusive rollout with a contact that counts."""
+        if self.inconclusive is not None:
+            return False
+        if self.excused is None:
+            return self.min_signed_distance < 0.0
+        return bool(np.any((self.distances < 0.0) & ~self.excused))
+
+
+def judge(result: RolloutResult, agents: BoxSequence, config: RolloutConfig) -> RolloutResult:
+    """`result` with the contacts that are not the ego's fault excused when `config.at_fault_only`;
+    from the ego states and distances alone, so any backend's result is judged the same way."""
+    if config.at_fault_only:
+        result.excused = not_at_fault(result.ego, config.ego_length, agents, result.distances)
+    return result
 
 
 def violates(rule_value: float, stop_at_collision: bool) -> bool:
@@ -164,7 +186,7 @@ def rollout(
         if inconclusive is not None:
             break
     stats = planner_stats(planner)
-    return RolloutResult(
+    return judge(RolloutResult(
         ego=ego_states[: last + 1],
         distances=distances[: last + 1],
         inconclusive=inconclusive,
@@ -172,4 +194,4 @@ def rollout(
         plans=plans_log if record else None,
         stage_times=stage_times,
         planner_failures=None if stats is None else stats.failures,
-    )
+    ), agents, config)

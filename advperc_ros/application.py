@@ -20,7 +20,7 @@ from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
-from advperc_ros.params import AttackParams, resolve_bag
+from advperc_ros.params import AttackParams, resolve_bag, rollout_config
 from advperc_ros.paths import check_output
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
@@ -104,7 +104,8 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     finished = False
     try:
         with open_rollouts(scenario, params, bag_path, transport) as rollouts:
-            outcome = run_attack(scenario, params, progress=progress, rollouts=ResumedRollouts(rollouts, checkpoint))
+            outcome = run_attack(scenario, params, progress=progress, rollouts=ResumedRollouts(
+                rollouts, checkpoint, scenario.agents, rollout_config(params.flat())))
         report = write_results(output, outcome, bag_path)
         finished = True
     except KeyboardInterrupt:

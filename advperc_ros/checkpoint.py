@@ -24,7 +24,8 @@ import numpy as np
 
 from advperc_ros.backend import AttackedPlanner, Rollouts
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.params import AttackParams, ParamsError
 
 PARAMS = "params.json"
@@ -112,9 +113,11 @@ class ResumedRollouts:
     """A backend whose rollouts already in the checkpoint are answered from it, in order; the rest
     run on `backend` and are appended. Recorded rollouts (tracks, plans) always run."""
 
-    def __init__(self, backend: Rollouts, checkpoint: Checkpoint) -> None:
+    def __init__(self, backend: Rollouts, checkpoint: Checkpoint, agents: BoxSequence, config: RolloutConfig) -> None:
         self._backend = backend
         self._checkpoint = checkpoint
+        self._agents = agents
+        self._config = config  # a stored rollout is judged again (at-fault), as every backend judges its own
         self._next = 0
 
     @property
@@ -130,7 +133,7 @@ class ResumedRollouts:
             if stored["errors"] != _digest(errors):
                 raise ParamsError(f"{self._checkpoint.folder}: rollout {index + 1} differs from the one recorded: "
                                   "the checkpoint is of another attack (or another version of this tool)")
-            return _result(stored)
+            return judge(_result(stored), self._agents, self._config)
         result = self._backend.rollout(errors)
         self._checkpoint.append(errors, result)
         return result

@@ -39,13 +39,13 @@ import numpy as np
 
 from advperc_ros.backend import EXTERNAL, AttackedPlanner
 from advperc_ros.core.errors import PerceptionErrors
-from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.rollout import RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.graph.assembly import assemble, frames_in, kept_frames
 from advperc_ros.graph.client import SPIN, LockstepClient
 from advperc_ros.graph.errors import GraphError, RolloutFault
 from advperc_ros.graph.processes import NodeProcesses
-from advperc_ros.params import PLANNER_PARAMS, AttackParams
+from advperc_ros.params import PLANNER_PARAMS, AttackParams, rollout_config
 from advperc_ros.ros.topics import ERRORS, PLAN
 from advperc_ros.ros.transport import Transport
 
@@ -77,6 +77,7 @@ class GraphRollouts:
         # a graph we start talks in a DDS partition of its own: any number of them share a domain
         self._partition = f"advperc-{os.getpid()}-{secrets.token_hex(4)}" if params.graph.spawn_nodes else ""
         self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only, self._partition)
+        self._config = rollout_config(params.flat())
         self._client: LockstepClient | None = None
         self._recording = False
         try:
@@ -184,7 +185,7 @@ class GraphRollouts:
         except RolloutFault as fault:
             log.error(f"rollout {rollout} inconclusive: {fault}; "
                       + ("restarting the graph nodes" if self.params.graph.spawn_nodes else "going on with the running nodes"))
-            result = assemble(client.received, self._stamps, self._slots, frames_in(client.received, self._stamps),
+            result = self._judged(client.received, frames_in(client.received, self._stamps),
                               f"graph failure in rollout {rollout}: {fault}", None)
             if record:  # the attack bag is still written, without tracks and plans
                 result.tracks, result.plans = [], []
@@ -193,4 +194,9 @@ class GraphRollouts:
         if done.reason:
             log.warning(f"rollout {rollout} {done.status}: {done.reason}")
         recorded = kept_frames(client.received, self._stamps, done, self.params.stop_at_collision) if record else None
-        return assemble(client.received, self._stamps, self._slots, done.frames, done.reason or None, recorded)
+        return self._judged(client.received, done.frames, done.reason or None, recorded)
+
+    def _judged(self, received: dict, frames: int, inconclusive: str | None, recorded: tuple[int, int] | None) -> RolloutResult:
+        """The result of what the graph published, judged as the embedded rollout judges its own."""
+        result = assemble(received, self._stamps, self._slots, frames, inconclusive, recorded)
+        return judge(result, self.scenario.agents, self._config)

@@ -27,6 +27,14 @@ def _attack(params: Path, *flags: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)
 
 
+def _wait_for_a_checkpointed_rollout(run: subprocess.Popen, output: Path) -> None:
+    """Until the attack has checkpointed a rollout (before, there is nothing to keep), or ended."""
+    rollouts = checkpoint_folder(output) / "rollouts.jsonl"
+    deadline = time.monotonic() + 120
+    while not (rollouts.exists() and rollouts.stat().st_size) and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+
+
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     base = tmp_path_factory.mktemp("resume")
@@ -61,10 +69,7 @@ def test_ctrl_c_is_one_line_exit_130_and_the_attack_can_be_finished(uninterrupte
     params, expected = uninterrupted
     output = tmp_path / "out"
     run = _attack(params, "--output", str(output))
-    rollouts = checkpoint_folder(output) / "rollouts.jsonl"
-    deadline = time.monotonic() + 120
-    while not (rollouts.exists() and rollouts.stat().st_size) and run.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)  # interrupt once a rollout is checkpointed: before, there is nothing to keep
+    _wait_for_a_checkpointed_rollout(run, output)
     run.send_signal(signal.SIGINT)
     _, err = run.communicate(timeout=60)
     if run.returncode == 0:
@@ -84,7 +89,7 @@ def test_a_checkpoint_only_finishes_its_own_attack(uninterrupted, tmp_path):
     params, _ = uninterrupted
     output = tmp_path / "out"
     run = _attack(params, "--output", str(output))
-    time.sleep(2.0)
+    _wait_for_a_checkpointed_rollout(run, output)
     os.kill(run.pid, signal.SIGKILL)
     run.wait(timeout=60)
     if output.exists():

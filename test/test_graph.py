@@ -30,6 +30,7 @@ from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
 from advperc_ros.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
+from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
 from advperc_ros.ros.lockstep import RolloutClock  # noqa: E402
 
@@ -300,8 +301,8 @@ def test_rclpy_transport_passes_rosbags_messages_through(ros_domain):
     try:
         sender, receiver = Node("advperc_test_sender"), Node("advperc_test_receiver")
         got = []
-        RclpyTransport(receiver).subscriber("/advperc_test/done", lockstep.CONTROL_TYPE, callback=got.append)
-        publication = RclpyTransport(sender).publisher("/advperc_test/done", lockstep.CONTROL_TYPE)
+        RclpyTransport(receiver).subscriber("/advperc_test/done", CONTROL_TYPE, callback=got.append)
+        publication = RclpyTransport(sender).publisher("/advperc_test/done", CONTROL_TYPE)
         transport = RclpyTransport(receiver)
         deadline = time.monotonic() + 10.0
         while publication.matched_count() < 1 and time.monotonic() < deadline:

@@ -110,9 +110,9 @@ def _node_table() -> dict[str, tuple[set[str], set[str]]]:
     text = (REPO / "docs" / "graph.md").read_text().split("\n## Nodes\n")[1].split("\n## ")[0]
     out = {}
     for name, subscribes, publishes in re.findall(r"^\| `(\w+)` \| [^|]* \| ([^|]*) \| ([^|]*) \|$", text, flags=re.M):
-        def topics(cell: str) -> set[str]:
+        def named(cell: str) -> set[str]:
             return set(re.findall(r"/[\w/]+", re.sub(r"\(.*?\)", "", cell)))
-        out[name] = (topics(subscribes), topics(publishes))
+        out[name] = (named(subscribes), named(publishes))
     assert set(out) == {"scenario_player", "error_injector", "tracker", "planner", "rule_monitor", "orchestrator"}
     return out
 
@@ -141,11 +141,17 @@ def _live_graph(domain: int, expected_nodes: set[str], deadline: float) -> dict:
             time.sleep(0.2)
         else:
             raise AssertionError(f"nodes never all up: {sorted(expected_nodes - names)} missing")
-        time.sleep(1.0)  # every endpoint of the nodes discovered
+        table = _node_table()
         graph = {"nodes": {}, "qos": {}}
-        for name in expected_nodes:
-            graph["nodes"][name] = (dict(probe.get_subscriber_names_and_types_by_node(name, "/")),
-                                    dict(probe.get_publisher_names_and_types_by_node(name, "/")))
+        while True:  # discovery brings a node's name before all its endpoints: wait for what the docs list
+            for name in expected_nodes:
+                graph["nodes"][name] = (dict(probe.get_subscriber_names_and_types_by_node(name, "/")),
+                                        dict(probe.get_publisher_names_and_types_by_node(name, "/")))
+            complete = all(table[name][0] <= set(graph["nodes"][name][0]) and table[name][1] <= set(graph["nodes"][name][1])
+                           for name in expected_nodes)
+            if complete or time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
         for topic in _contract():
             endpoints = probe.get_publishers_info_by_topic(topic) + probe.get_subscriptions_info_by_topic(topic)
             graph["qos"][topic] = [(e.node_name, e.qos_profile) for e in endpoints]
@@ -287,9 +293,9 @@ def _bag_info(path: Path) -> tuple[str, dict[str, tuple[str, int]]]:
     run = subprocess.run(["ros2", "bag", "info", str(path)], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0, run.stderr
     distro = re.search(r"ROS Distro:\s+(\S+)", run.stdout).group(1)
-    topics = {topic: (msgtype, int(count)) for topic, msgtype, count in
+    listed = {topic: (msgtype, int(count)) for topic, msgtype, count in
               re.findall(r"Topic: (\S+) \| Type: (\S+) \| Count: (\d+)", run.stdout)}
-    return distro, topics
+    return distro, listed
 
 
 def _recorded(path: Path) -> dict[str, tuple[str, int]]:
@@ -306,8 +312,8 @@ def test_ros2_bag_info_lists_every_topic_of_our_bags(tmp_path, ros_domain):
                              "--output", str(tmp_path / "out"), "--quiet"], capture_output=True, text=True, timeout=TIMEOUT)
     assert attack.returncode == 0, attack.stderr
     for path in [*ground_truth, tmp_path / "out" / "attack"]:
-        distro, topics = _bag_info(path)
-        assert distro == "jazzy" and topics == _recorded(path), path
+        distro, listed = _bag_info(path)
+        assert distro == "jazzy" and listed == _recorded(path), path
     assert {topics.PERCEPTION, topics.TRACKING, topics.PLAN, topics.RULE} <= set(_bag_info(tmp_path / "out" / "attack")[1])
 
 

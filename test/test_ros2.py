@@ -236,6 +236,8 @@ def test_readme_ros_section_runs_as_written(workspace, ros_domain):
     shutil.rmtree(results, ignore_errors=True)
     run = subprocess.run(["bash", "-e", "-c", block], cwd=workspace, capture_output=True, text=True, timeout=2 * TIMEOUT)
     assert run.returncode == 0, (run.stdout + run.stderr)[-3000:]
+    for way in ("run", "launch", "external"):  # a launch exits 0 whatever its orchestrator did: look
+        assert (results / way / "report.json").is_file(), (way, (run.stdout + run.stderr)[-4000:])
     expected = _report(results / "run")
     assert expected["collision"] and _report(results / "launch") == expected
     external = _report(results / "external")

@@ -16,8 +16,8 @@ from advperc_ros.backend import EXTERNAL, Rollouts, Stack
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.pipeline import SearchConfig, run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
-from advperc_ros.core.search.refine import dropped_runs
 from advperc_ros.core.search.random_search import RandomSearchConfig
+from advperc_ros.core.search.refine import dropped_runs
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, ParamsError, resolve_bag
 from advperc_ros.results import write_results

@@ -19,7 +19,9 @@ from typing import Any
 import yaml
 
 from advperc_ros.backend import Stack
+from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.search.problem import OBJECTIVES
+from advperc_ros.exits import INPUT_ERRORS
 from advperc_ros.params import (
     EXECUTION,
     PLANNER_PARAMS,
@@ -324,7 +326,12 @@ def plan(campaign: Campaign) -> list[Cell]:
         params = cell.params
         system = json.dumps({k: v for k, v in cell.values.items() if k not in ("objective", "seed")}, sort_keys=True)
         if system not in checked:
-            Stack(read_scenario(resolve_bag(params)), params)
+            try:
+                Stack(read_scenario(resolve_bag(params)), params)
+            except PlannerError as exc:
+                raise campaign.fail("planners" if campaign.planners else "scenarios", f"cell {cell.name}: {exc}") from None
+            except INPUT_ERRORS as exc:
+                raise campaign.fail("replay" if campaign.replay else "scenarios", f"cell {cell.name}: {exc}") from None
             checked.add(system)
     for cell in cells:
         report = cell.report(campaign.output)

@@ -37,7 +37,9 @@ setup(
     ],
     extras_require={
         "commonroad": ["commonroad-io>=2023.1"],
-        "test": ["pytest>=7", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],  # colcon: the ROS workspace test
+        "ray": ["ray>=2.9"],  # advperc campaign's executor ray
+        "test": ["pytest>=7", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3",  # colcon: the ROS workspace test
+                 "ray>=2.9"],
     },
     zip_safe=True,
     maintainer="advperc_ros developers",

@@ -29,6 +29,7 @@ ATTACK_FIELDS = ("heuristic_fn", "heuristic_tp", "heuristic_nds", "heuristic_nds
 REPLAY_FIELDS = ("attack", "attack_planner", "attack_metric", "attack_min_signed_distance", "min_signed_distance",
                  "ground_truth_min_signed_distance", "fn", "tp", "nds", "nds_t", "pem_ll")
 NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
+TEXT_COLUMNS = ("scenario", "planner", "objective", "attack", "attacked", "replayed on")  # left-aligned in the page
 
 
 @dataclass(frozen=True)
@@ -155,7 +156,7 @@ th, td { border: 1px solid #bbb; padding: 4px 8px; text-align: right; vertical-a
 th { background: #eee; } td.text { text-align: left; }
 tr.failure td.verdict { background: #f8d0d0; } tr.pass td.verdict { background: #d4efd4; }
 tr.error td.verdict { background: #f3e2b3; } tr.pending td.verdict { background: #e4e4e4; }
-img { display: block; max-width: 420px; }
+img { display: block; max-width: 640px; }
 """
 
 
@@ -177,7 +178,7 @@ def html_page(campaign: Campaign, records: list[dict], output: Path) -> str:
         for header, text in zip(headers, texts):
             bold = text.startswith("**")
             body = escape(text.strip("*"))
-            kind = "verdict text" if header == "verdict" else "text" if header in ("scenario", "planner", "attack") else ""
+            kind = "verdict text" if header == "verdict" else "text" if header in TEXT_COLUMNS else ""
             cells.append(f'<td class="{kind}">' + (f"<b>{body}</b>" if bold else body) + "</td>")
         folder = record["cell"]
         report = REPLAY_MD if campaign.replay is not None else REPORT_MD

@@ -110,23 +110,26 @@ class ProcessExecutor:
 
 
 LOOPBACK = "127.0.0.1"
-SINGLE_NODE = ("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # ray then gives its node the loopback address
+SINGLE_NODE = "RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER"  # "0": ray gives its node the loopback address
+LOCAL_RAY = {SINGLE_NODE: "0",
+             "RAY_worker_niceness": "0"}  # ray's 15 would leave its cells behind every other process on a shared machine
 
 
 class RayExecutor:
     """Ray tasks. Without an address, a local Ray of `workers` CPUs on the loopback interface only:
     Ray takes this machine's network address for its node unless told the node is not part of a
     cluster (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0, read when ray is imported), with no dashboard and no
-    usage statistics sent; the workers import this very advperc_ros. With an address, the cluster's
-    nodes need advperc_ros installed and the campaign's files (bags, output) at the same paths."""
+    usage statistics sent; its workers run at the campaign's priority and import this very
+    advperc_ros. With an address, the cluster's nodes need advperc_ros installed and the campaign's
+    files (bags, output) at the same paths."""
 
     def __init__(self, output: Path, workers: int, address: str | None) -> None:
-        if address is None and "ray" in sys.modules and os.environ.get(SINGLE_NODE[0]) != SINGLE_NODE[1]:
+        if address is None and "ray" in sys.modules and os.environ.get(SINGLE_NODE) != LOCAL_RAY[SINGLE_NODE]:
             raise ParamsError("executor ray: ray was imported before the campaign could keep a local Ray on "
                               f"{LOOPBACK}; run the campaign in a fresh process")
         os.environ["RAY_USAGE_STATS_ENABLED"] = "0"
         if address is None:
-            os.environ[SINGLE_NODE[0]] = SINGLE_NODE[1]
+            os.environ.update(LOCAL_RAY)
         import logging
 
         import ray

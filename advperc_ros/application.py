@@ -4,7 +4,7 @@ run the same search and write the same report."""
 
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -15,9 +15,10 @@ from tqdm import tqdm
 from advperc_ros.backend import EXTERNAL, Rollouts, Stack
 from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.search.pipeline import SearchConfig, budget, run_search
-from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
+from advperc_ros.core.search.pipeline import SearchConfig, run_search
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig
+from advperc_ros.core.search.refine import dropped_runs
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, resolve_bag, rollout_config
@@ -50,26 +51,72 @@ def open_rollouts(scenario: Scenario, params: AttackParams, bag_path: Path, tran
         yield graph
 
 
+class RolloutProgress:
+    """The progress bar of a search, counting the rollouts that run. Its total is the rollouts run
+    so far plus those still to come as far as the search has shown them: every agent's drop, the
+    bisections (2 x iterations at most) of each agent whose drop collided, and once an agent is
+    influential the random steps and refine's bisections of the best attack's dropped runs. The
+    search's budget would leave the bar at 12-39 %: most agents are not influential, and a bisection
+    or a random step can end early; `close` ends the bar at the count."""
+
+    def __init__(self, name: str, config: SearchConfig, num_agents: int, best: Callable[[], Evaluation | None],
+                 enabled: bool = True) -> None:
+        self.name, self.config, self.num_agents, self.best = name, config, num_agents, best
+        self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
+        self.bisecting = False  # the last agent dropped collided: its bisections are under way
+        self.bar = tqdm(total=1 + num_agents, desc=name, unit="rollout", disable=not enabled, file=sys.stderr,
+                        mininterval=1.0)
+
+    def __call__(self, row: LogRow) -> None:
+        phase = row.phase
+        if phase == Phase.HEURISTIC_DROP:
+            self.drops += 1
+            self.bisecting, self.bisections = row.collided, 0
+            self.influential += row.collided
+        elif phase in (Phase.HEURISTIC_START, Phase.HEURISTIC_END):
+            self.bisections += 1
+        elif phase == Phase.RANDOM:
+            self.random += 1
+        elif phase == Phase.REFINE:
+            self.refined += 1
+        best = self.best()
+        if phase != Phase.REFINE and best is not None:  # refine bisects the runs of the best before it
+            self.refine_runs = len(dropped_runs(best.errors.fn[: best.rollout.num_frames]))
+        self.bar.total = self.bar.n + 1 + self._still_to_run(phase)
+        name = "heuristic" if phase.heuristic else {Phase.RANDOM: "random search"}.get(phase, str(phase))
+        self.bar.set_description(f"{self.name} ({name})", refresh=False)
+        self.bar.set_postfix(best="none yet" if best is None else f"{best.metric:.4f}", refresh=False)
+        self.bar.update()
+
+    def _still_to_run(self, phase: Phase) -> int:
+        config = self.config
+        refine = config.refine_iterations * self.refine_runs
+        if phase == Phase.REFINE:
+            return max(0, refine - self.refined)
+        tail = max(0, config.random.steps - self.random) + refine
+        if phase == Phase.RANDOM:
+            return tail
+        bisections = max(0, 2 * config.heuristic_iterations - self.bisections) if self.bisecting else 0
+        return self.num_agents - self.drops + bisections + (tail if self.influential else 0)
+
+    def close(self) -> None:
+        self.bar.total = self.bar.n
+        self.bar.close()
+
+
 def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
                rollouts: Rollouts | None = None) -> AttackOutcome:
     """The whole search over `rollouts` (default: embedded), then the best attack recorded."""
     started = time.perf_counter()
     backend = rollouts if rollouts is not None else Stack(scenario, params)
     config = search_config(params)
-    bar = tqdm(total=budget(config, scenario.agents.shape[1]), desc=scenario.name, unit="rollout",
-               disable=not progress, file=sys.stderr, mininterval=1.0)
-
-    def on_rollout(row: LogRow) -> None:
-        phase = "heuristic" if row.phase.heuristic else {Phase.RANDOM: "random search"}.get(row.phase, str(row.phase))
-        bar.set_description(f"{scenario.name} ({phase})", refresh=False)
-        bar.set_postfix(best=f"{row.best_metric:.4f}", refresh=False)
-        bar.update()
-
-    problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=on_rollout)
+    problem: AttackProblem | None = None
+    counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], lambda: problem.best, progress)
+    problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter)
     try:
         result = run_search(problem, config)
     finally:
-        bar.close()
+        counter.close()
     recorded = backend.rollout(result.best.errors, record=True) if result.best is not None else None
     attacked = backend.attacked_planner
     if attacked.node is not None:

@@ -153,6 +153,34 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_replay(args: argparse.Namespace) -> int:
+    from advperc_ros.replay import load_attack, replay, replay_params, replay_report, write_replay
+
+    attack = load_attack(Path(args.results))
+    params = replay_params(attack, load_params(args.params) if args.params else None)
+    if args.backend is not None:
+        params = params.with_values(rollout_backend=args.backend)
+    replayed = replay(attack, params)
+    report = write_replay(Path(args.output), replayed) if args.output else replay_report(replayed)
+    keys = ("attack", "scenario", "objective", "attack_planner", "planner", "collision", "verdict", "min_signed_distance",
+            "attack_min_signed_distance", "metric", "nds", "nds_t")
+    print(json.dumps({key: report[key] for key in keys}))
+    if args.output:
+        print(f"replay written to {args.output}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_campaign(args: argparse.Namespace) -> int:
+    from advperc_ros.campaign.run import run_campaign
+    from advperc_ros.campaign.spec import load_campaign
+
+    changes = {"output": args.output, "executor": args.executor, "workers": args.workers}
+    campaign = load_campaign(args.campaign, **{field: value for field, value in changes.items() if value is not None})
+    run = run_campaign(campaign, progress=not args.quiet)
+    print(json.dumps(run.summary()))
+    return run.exit_code
+
+
 def aligned(ground_truth: Path, perceived: Path, topic: str):
     """(truth, perceived, ego_xy) on the frames both bags share; the 50 m range uses /ego/odometry
     of the perceived bag, else of the ground-truth bag (latest pose at or before each frame)."""
@@ -313,6 +341,23 @@ def build_parser() -> argparse.ArgumentParser:
     robust.add_argument("--samples", type=_count, default=10, help="perturbations per strength (paper: 10)")
     robust.add_argument("--seed", type=int, default=0)
     robust.set_defaults(func=cmd_robustness)
+
+    campaign = sub.add_parser("campaign", help="attack scenarios x objectives x seeds x planners (or replay found "
+                              "attacks) into one table, JUnit XML included; resumable")
+    campaign.add_argument("campaign", help="campaign YAML (see the README's Campaigns)")
+    campaign.add_argument("--output", help="override the campaign's output folder")
+    campaign.add_argument("--executor", choices=("process", "ray", "serial"), help="override the campaign's executor")
+    campaign.add_argument("--workers", type=int, help="override the campaign's workers")
+    campaign.add_argument("--quiet", action="store_true", help="no progress bar, no per-cell lines")
+    campaign.set_defaults(func=cmd_campaign)
+
+    replay_cmd = sub.add_parser("replay", help="re-run a found attack's errors against another planner or configuration")
+    replay_cmd.add_argument("results", help="results folder of an attack that collided (report.json + attack_errors.npz)")
+    replay_cmd.add_argument("--params", help="params YAML of the planner or configuration to replay against (same bag); "
+                            "default: the attack's own")
+    replay_cmd.add_argument("--output", help="replay folder to write (replay.json, replay.md, bev.png); default: none")
+    replay_cmd.add_argument("--backend", choices=("embedded", "graph"), help="override rollout_backend")
+    replay_cmd.set_defaults(func=cmd_replay)
 
     pem = sub.add_parser("pem", help="perception error model tools")
     pem_sub = pem.add_subparsers(dest="pem_command", required=True)

@@ -1,0 +1,113 @@
+"""One run of a campaign: check it whole, take its output folder, clear what killed cells left, run the
+cells not finished yet on the executor, and keep the summary current after every cell, so a campaign
+killed at any point is resumed by running it again.
+"""
+
+import fcntl
+import shutil
+import sys
+from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from tqdm import tqdm
+
+from advperc_ros.campaign.execute import CellResult, executor
+from advperc_ros.campaign.spec import Campaign, plan
+from advperc_ros.campaign.summary import (
+    ERROR,
+    FAILURE,
+    CellStatus,
+    verdict,
+    write_summary,
+)
+from advperc_ros.exits import EXIT_OK
+from advperc_ros.params import ParamsError
+
+LOCK = ".campaign.lock"
+EXIT_BUG = 1  # what Python exits with on an uncaught exception
+
+
+@dataclass(frozen=True)
+class CampaignRun:
+    output: Path
+    ran: tuple[str, ...]  # cells run now
+    finished_before: tuple[str, ...]  # cells found finished and not run again
+    records: list[dict]  # the summary's rows
+    exit_code: int  # EXIT_OK, else the first failed cell's (a bug counts as EXIT_BUG)
+
+    def summary(self) -> dict:
+        outcomes = [r["outcome"] for r in self.records]
+        return {"output": str(self.output), "cells": len(self.records), "ran": len(self.ran),
+                "finished_before": len(self.finished_before), "collide": sum(1 for r in self.records if r["collision"]),
+                "failures": outcomes.count(FAILURE), "errors": outcomes.count(ERROR)}
+
+
+@contextmanager
+def _locked(output: Path) -> Iterator[None]:
+    """The output folder for this run alone: two runs would start the same cells."""
+    with (output / LOCK).open("w") as handle:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ParamsError(f"{output}: another campaign run is using this folder") from None
+        yield
+
+
+def _clear_staging(output: Path) -> None:
+    """Hidden staging folders and files (.<name>.partial) are what a killed cell or summary left."""
+    for stale in output.glob(".*.partial"):
+        shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
+
+
+def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
+    cells = plan(campaign)  # everything checked before any work
+    output = campaign.output.resolve()
+    output.mkdir(parents=True, exist_ok=True)
+    with _locked(output):
+        _clear_staging(output)
+        reports = {cell.name: cell.report(output) for cell in cells}
+        todo = deque(cell for cell in cells if reports[cell.name] is None)
+        before = tuple(cell.name for cell in cells if reports[cell.name] is not None)
+        results: dict[str, CellResult] = {}
+        running: set[str] = set()
+
+        def statuses() -> list[CellStatus]:
+            return [CellStatus(cell, reports[cell.name], results[cell.name].error if cell.name in results else None,
+                               cell.name in running) for cell in cells]
+
+        say = (lambda line: tqdm.write(line, file=sys.stderr)) if progress else (lambda line: None)
+        bar = tqdm(total=len(cells), initial=len(before), desc=f"campaign {campaign.name}", unit="cell",
+                   disable=not progress, file=sys.stderr)
+        in_flight = 1 if campaign.executor == "serial" else campaign.workers
+        say(f"campaign {campaign.name}: {len(cells)} cells, {len(before)} finished before, {len(todo)} to run "
+            f"({campaign.executor}, {in_flight} at a time) into {output}")
+        records = write_summary(campaign, output, statuses())
+        by_name = {cell.name: cell for cell in cells}
+        pool = executor(campaign, output, progress) if todo else None
+        try:
+            while todo or running:
+                while todo and len(running) < in_flight:
+                    cell = todo.popleft()
+                    pool.submit(cell)
+                    running.add(cell.name)
+                    say(f"started  {cell.name}")
+                bar.set_postfix_str(f"{len(running)} running", refresh=True)
+                result = pool.next_done()
+                running.discard(result.name)
+                bar.set_postfix_str(f"{len(running)} running", refresh=False)
+                reports[result.name] = by_name[result.name].report(output)
+                results[result.name] = result
+                records = write_summary(campaign, output, statuses())
+                status = CellStatus(by_name[result.name], reports[result.name], result.error)
+                say(f"finished {result.name}: {verdict(status, dict(campaign.thresholds)).text}")
+                bar.update()
+        finally:
+            if pool is not None:
+                pool.close()
+            bar.close()
+    failed = [results[cell.name] for cell in cells if cell.name in results and results[cell.name].error is not None]
+    code = EXIT_OK if not failed else (failed[0].exit_code if failed[0].exit_code is not None else EXIT_BUG)
+    return CampaignRun(output, tuple(results), before, records, code)

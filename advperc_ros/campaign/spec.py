@@ -1,0 +1,342 @@
+"""The campaign file and its cells.
+
+A campaign file is one YAML mapping (its fields: `FIELDS`, documented in the README's "Campaigns").
+It is checked whole before any work: every field, every cell's params, every bag and planner; an
+error is one ParamsError naming the file and the field. Cells are named from what they vary,
+`<scenario>-<objective>-<seed>-<planner>` (a replay: `<attack folder>-on-<planner>`), and a cell is
+finished when its folder holds its report (results are renamed into place when complete).
+"""
+
+import json
+import os
+import re
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from importlib.util import find_spec
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from advperc_ros.backend import Stack
+from advperc_ros.core.planners.base import PlannerError
+from advperc_ros.core.search.problem import OBJECTIVES
+from advperc_ros.exits import INPUT_ERRORS
+from advperc_ros.params import (
+    EXECUTION,
+    PLANNER_PARAMS,
+    AttackParams,
+    ParamsError,
+    find_bag,
+    load_params,
+    params_from_values,
+    resolve_bag,
+)
+from advperc_ros.replay import REPLAY_JSON, load_attack
+from advperc_ros.results import ERRORS, REPORT_JSON
+from advperc_ros.ros.bag import read_scenario
+
+EXECUTORS = ("process", "ray", "serial")
+FIELDS = {
+    "name": "campaign name: JUnit suite and default output folder (default: the file's name)",
+    "output": "folder of the cell folders and the summary (default results/campaign-<name>)",
+    "scenarios": "params files or ground-truth bag folders to attack (required unless replay)",
+    "objectives": "objectives to search for (default: each params file's own)",
+    "seeds": "seeds of the random search (default: each params file's own)",
+    "planners": "planners to attack, each {name, planner, planner_params} (default: each scenario's own)",
+    "overrides": "parameters set in every cell, by dotted name (search.random.steps: 4)",
+    "executor": "process (a pool of workers), ray, or serial (in this process)",
+    "workers": "cells run at once (default: the CPUs of this machine)",
+    "ray_address": "for executor ray: a running cluster's address (default: a local Ray on 127.0.0.1)",
+    "thresholds": "per objective, the metric at which an attack found fails its JUnit test case",
+    "replay": "a folder of attack results folders (another campaign's output): replay each on the planners",
+}
+ENTRY_FIELDS = ("name", "planner", "planner_params")
+AXES = ("bag", "objective", "seed", "planner", PLANNER_PARAMS)  # what cells vary: not for `overrides`
+LABEL = re.compile(r"[A-Za-z0-9_+][A-Za-z0-9_.+-]*")  # a cell name's parts: a folder name, never hidden
+
+
+@dataclass(frozen=True)
+class PlannerEntry:
+    """A planner to attack. `planner` None keeps the scenario's own; `planner_params` are merged over
+    the scenario's when the planner is its own, and replace them when it is another."""
+
+    name: str
+    planner: str | None = None
+    planner_params: Mapping[str, Any] | None = None
+
+    def apply(self, params: AttackParams) -> AttackParams:
+        planner = self.planner or params.planner
+        base = dict(params.planner_params) if planner == params.planner else {}
+        return params.with_values(planner=planner, planner_params={**base, **(self.planner_params or {})})
+
+
+@dataclass(frozen=True)
+class Campaign:
+    source: Path
+    name: str
+    output: Path
+    scenarios: tuple[Path, ...]
+    objectives: tuple[str, ...] | None
+    seeds: tuple[int, ...] | None
+    planners: tuple[PlannerEntry, ...] | None
+    overrides: Mapping[str, Any]
+    executor: str
+    workers: int
+    ray_address: str | None
+    thresholds: Mapping[str, float]
+    replay: Path | None
+
+    def fail(self, field: str, text: str) -> ParamsError:
+        return _fail(self.source, field, text)
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One attack (or replay) of a campaign. Params travel as values (AttackParams holds a read-only
+    mapping, which does not pickle) and are checked again where the cell runs."""
+
+    name: str
+    scenario: str
+    objective: str
+    seed: int
+    planner: str
+    values: Mapping[str, Any]  # AttackParams.canonical(): every value that decides the result
+    source: Path | None  # the params file, where a relative bag is looked up
+    attack: Path | None = None  # a replay cell: the results folder of the attack replayed
+
+    @property
+    def params(self) -> AttackParams:
+        return params_from_values(self.values, self.source)
+
+    @property
+    def report_name(self) -> str:
+        return REPORT_JSON if self.attack is None else REPLAY_JSON
+
+    def report(self, output: Path) -> dict | None:
+        """The finished cell's report, None while it is not finished."""
+        path = output / self.name / self.report_name
+        return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _fail(path: Path, field: str, text: str) -> ParamsError:
+    return ParamsError(f"{path}: field '{field}' {text}")
+
+
+FIELD_RULES = {
+    "scenarios": "each a params file or a bag folder, by path",
+    "objectives": f"each one of {', '.join(OBJECTIVES)}",
+    "seeds": "each an integer >= 0",
+}
+
+
+def _list(path: Path, document: dict, field: str, kind: type, check=None) -> tuple | None:
+    """A non-empty list of `kind` (no repeats), each passing `check`; None when absent."""
+    if field not in document:
+        return None
+    values = document[field]
+    if not isinstance(values, list) or not values:
+        raise _fail(path, field, f"must be a non-empty list, got {values!r}")
+    for value in values:
+        if not isinstance(value, kind) or isinstance(value, bool) or (check is not None and not check(value)):
+            raise _fail(path, field, f"has {value!r}: {FIELD_RULES[field]}")
+    if len(set(map(str, values))) != len(values):
+        raise _fail(path, field, "lists a value twice")
+    return tuple(values)
+
+
+def _planner_entries(path: Path, raw: Any) -> tuple[PlannerEntry, ...]:
+    if not isinstance(raw, list) or not raw:
+        raise _fail(path, "planners", f"must be a non-empty list of {{name, planner, planner_params}}, got {raw!r}")
+    entries = []
+    for i, item in enumerate(raw):
+        field = f"planners[{i}]"
+        if not isinstance(item, dict) or set(item) - set(ENTRY_FIELDS) or "name" not in item:
+            raise _fail(path, field, f"must be a mapping with 'name' and optionally 'planner', 'planner_params', got {item!r}")
+        if not isinstance(item["name"], str) or not LABEL.fullmatch(item["name"]):
+            raise _fail(path, f"{field}.name", f"must be a name of letters, digits, _ . + - (a folder name), got {item['name']!r}")
+        if not isinstance(item.get("planner", ""), str):
+            raise _fail(path, f"{field}.planner", f"must be a planner name, got {item['planner']!r}")
+        if not isinstance(item.get(PLANNER_PARAMS, {}), dict):
+            raise _fail(path, f"{field}.{PLANNER_PARAMS}", f"must be a mapping, got {item[PLANNER_PARAMS]!r}")
+        entries.append(PlannerEntry(item["name"], item.get("planner"), item.get(PLANNER_PARAMS)))
+    if len({entry.name for entry in entries}) != len(entries):
+        raise _fail(path, "planners", "names a planner twice")
+    return tuple(entries)
+
+
+def _thresholds(path: Path, raw: Any) -> dict[str, float]:
+    if not isinstance(raw, dict):
+        raise _fail(path, "thresholds", f"must be a mapping of objective to metric, got {raw!r}")
+    for objective, value in raw.items():
+        if objective not in OBJECTIVES:
+            raise _fail(path, "thresholds", f"names '{objective}', not one of {', '.join(OBJECTIVES)}")
+        if not isinstance(value, (int, float)) or isinstance(value, bool):
+            raise _fail(path, f"thresholds.{objective}", f"must be a number, got {value!r}")
+    return {objective: float(value) for objective, value in raw.items()}
+
+
+def _found(path: Path, field: str, entry: str) -> Path:
+    """A path the campaign names, looked up as a params file's bag is (`find_bag`): as given, next to
+    the campaign file, then in the package share."""
+    try:
+        return find_bag(entry, path)
+    except ParamsError:
+        raise _fail(path, field, f"names '{entry}', which does not exist") from None
+
+
+def load_campaign(path: str | Path, **changes: Any) -> Campaign:
+    """The campaign file, its fields checked (the cells are checked by `plan`); `changes` replace
+    fields (the command line's --output, --executor, --workers) and are checked the same way."""
+    path = Path(path)
+    try:
+        document = yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ParamsError(f"{path}: no such campaign file") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ParamsError(f"{path}: cannot read campaign file: {exc}".replace("\n", " ")) from exc
+    if not isinstance(document, dict):
+        raise ParamsError(f"{path}: a campaign file is a mapping of the fields {', '.join(FIELDS)}")
+    document = {**document, **changes}
+    unknown = sorted(str(key) for key in set(document) - set(FIELDS))
+    if unknown:
+        raise _fail(path, unknown[0], f"is not a campaign field (fields: {', '.join(FIELDS)})")
+    for field in ("name", "output", "executor", "ray_address", "replay"):
+        if document.get(field) is not None and not isinstance(document[field], str):
+            raise _fail(path, field, f"must be a string, got {document[field]!r}")
+    name = document.get("name", path.stem)
+    if not LABEL.fullmatch(name):
+        raise _fail(path, "name", f"must be a name of letters, digits, _ . + - (a folder name), got {name!r}")
+    executor = document.get("executor", "process")
+    if executor not in EXECUTORS:
+        raise _fail(path, "executor", f"must be one of {', '.join(EXECUTORS)}, got {executor!r}")
+    workers = document.get("workers", os.cpu_count() or 1)
+    if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
+        raise _fail(path, "workers", f"must be an integer >= 1, got {workers!r}")
+    if executor == "ray" and find_spec("ray") is None:  # not imported here: RayExecutor sets its environment first
+        raise _fail(path, "executor", "is ray, but ray is not installed: pip install 'advperc_ros[ray]'")
+    overrides = document.get("overrides", {})
+    if not isinstance(overrides, dict):
+        raise _fail(path, "overrides", f"must be a mapping of dotted parameter names to values, got {overrides!r}")
+    for key in overrides:
+        if key in AXES:
+            raise _fail(path, "overrides", f"sets '{key}', which the cells vary: use scenarios, objectives, seeds, planners")
+        if key in EXECUTION:
+            raise _fail(path, "overrides", f"sets '{key}': campaign cells roll out embedded, the workers being the parallelism")
+    replay = document.get("replay")
+    axes = ("scenarios", "objectives", "seeds")
+    if replay is not None:
+        given = [field for field in axes if field in document]
+        if given:
+            raise _fail(path, given[0], "does not apply to a replay campaign (its cells are the attacks in 'replay')")
+    elif "scenarios" not in document:
+        raise _fail(path, "scenarios", "is required (or 'replay')")
+    scenarios = _list(path, document, "scenarios", str) or ()
+    return Campaign(
+        source=path,
+        name=name,
+        output=Path(document.get("output") or Path("results") / f"campaign-{name}"),
+        scenarios=tuple(_found(path, f"scenarios[{i}]", entry) for i, entry in enumerate(scenarios)),
+        objectives=_list(path, document, "objectives", str, lambda value: value in OBJECTIVES),
+        seeds=_list(path, document, "seeds", int, lambda value: value >= 0),
+        planners=_planner_entries(path, document["planners"]) if "planners" in document else None,
+        overrides=dict(overrides),
+        executor=executor,
+        workers=workers,
+        ray_address=document.get("ray_address"),
+        thresholds=_thresholds(path, document.get("thresholds", {})),
+        replay=_found(path, "replay", replay) if replay is not None else None,
+    )
+
+
+def _label(planner: str) -> str:
+    """A planner's name in cell names: a plug-in `module:Class` goes by its class."""
+    return planner.rpartition(":")[2]
+
+
+def _scenario_params(campaign: Campaign, index: int) -> tuple[str, AttackParams]:
+    """(label, params) of a scenario: a params file's own, or the defaults on a bag folder."""
+    path = campaign.scenarios[index]
+    if path.is_dir():
+        return path.name, AttackParams(bag=str(path))
+    return path.stem, load_params(path)
+
+
+def _checked(campaign: Campaign, field: str, change: Callable[..., AttackParams], **changes: Any) -> AttackParams:
+    """Params the campaign changed, `change(**changes)`: a refusal names the campaign field that made it."""
+    try:
+        return change(**changes)
+    except ParamsError as exc:
+        raise campaign.fail(field, str(exc).split(": ", 1)[-1]) from None
+
+
+def _planned(campaign: Campaign, base: AttackParams) -> list[tuple[AttackParams, str]]:
+    """(params, planner label) per planner of the campaign: the scenario's own when it names none."""
+    if campaign.planners is None:
+        return [(base, _label(base.planner))]
+    return [(_checked(campaign, f"planners[{i}]", entry.apply, params=base), entry.name)
+            for i, entry in enumerate(campaign.planners)]
+
+
+def _cell(name: str, scenario: str, params: AttackParams, planner: str, attack: Path | None = None) -> Cell:
+    return Cell(name, scenario, params.objective, params.seed, planner, params.canonical(), params.source, attack)
+
+
+def _attack_cells(campaign: Campaign) -> list[Cell]:
+    cells = []
+    for index in range(len(campaign.scenarios)):
+        label, scenario = _scenario_params(campaign, index)
+        scenario = _checked(campaign, "overrides", scenario.with_values, **campaign.overrides)
+        for objective in campaign.objectives or (scenario.objective,):
+            for seed in campaign.seeds or (scenario.seed,):
+                base = _checked(campaign, "seeds", scenario.with_values, objective=objective, seed=seed)
+                for params, planner in _planned(campaign, base):
+                    cells.append(_cell(f"{label}-{objective}-{seed}-{planner}", label, params, planner))
+    return cells
+
+
+def _replay_cells(campaign: Campaign) -> list[Cell]:
+    """Every attack that collided in the `replay` folder, on each planner."""
+    folders = sorted(folder for folder in campaign.replay.iterdir()
+                     if not folder.name.startswith(".") and (folder / ERRORS).is_file())
+    attacks = [load_attack(folder) for folder in folders]
+    if not attacks:
+        raise campaign.fail("replay", f"names {campaign.replay}, which holds no results folder of an attack that collided")
+    cells = []
+    for attack in attacks:
+        base = _checked(campaign, "overrides", attack.params.with_values, **campaign.overrides)
+        for params, planner in _planned(campaign, base):
+            cells.append(_cell(f"{attack.folder.name}-on-{planner}", attack.report["scenario"], params, planner,
+                               attack.folder))
+    return cells
+
+
+def plan(campaign: Campaign) -> list[Cell]:
+    """The campaign's cells in table order, checked: names unique and folder-safe, every bag read
+    and every planner built once, and finished cells run with these very params."""
+    cells = _replay_cells(campaign) if campaign.replay is not None else _attack_cells(campaign)
+    names = [cell.name for cell in cells]
+    for cell in cells:
+        if not LABEL.fullmatch(cell.name):
+            raise campaign.fail("scenarios", f"makes cell name '{cell.name}', not a folder name (letters, digits, _ . + -)")
+        if names.count(cell.name) > 1:
+            raise campaign.fail("scenarios", f"makes cell '{cell.name}' twice: scenario and planner names must be unique")
+    checked = set()
+    for cell in cells:  # a stack per bag and planner configuration: bags readable, planners buildable
+        params = cell.params
+        system = json.dumps({k: v for k, v in cell.values.items() if k not in ("objective", "seed")}, sort_keys=True)
+        if system not in checked:
+            try:
+                Stack(read_scenario(resolve_bag(params)), params)
+            except PlannerError as exc:
+                raise campaign.fail("planners" if campaign.planners else "scenarios", f"cell {cell.name}: {exc}") from None
+            except INPUT_ERRORS as exc:
+                raise campaign.fail("replay" if campaign.replay else "scenarios", f"cell {cell.name}: {exc}") from None
+            checked.add(system)
+    for cell in cells:
+        report = cell.report(campaign.output)
+        if report is not None and report["config_hash"] != cell.params.config_hash():
+            raise ParamsError(f"{campaign.output / cell.name}: finished with other params (config hash "
+                              f"{report['config_hash']}, this campaign's {cell.params.config_hash()}): remove it or "
+                              f"choose another output")
+    return cells

@@ -1,0 +1,199 @@
+"""Replay a found attack against another planner or configuration: does its error tensor still make
+the ego collide? A regression check after a fix, or a transfer test from one planner to another.
+
+The errors are the attack's own (`attack_errors.npz` of its results folder), replayed unchanged on
+the same scenario: the bag the replay's params name must hash as the attack's did (`bag_sha256`).
+The ground truth is rolled out first, as an attack does: a configuration that collides with perfect
+perception has nothing to say about the attack. A replay folder, like a results folder, is written
+into a hidden staging folder and renamed into place.
+"""
+
+import json
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from advperc_ros.application import open_rollouts
+from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.problem import (
+    AttackProblem,
+    Evaluation,
+    GroundTruthFails,
+    Phase,
+)
+from advperc_ros.outcome import AttackOutcome
+from advperc_ros.params import (
+    AttackParams,
+    ParamsError,
+    params_from_values,
+    resolve_bag,
+)
+from advperc_ros.results import (
+    ERRORS,
+    REPORT_JSON,
+    _rounded,
+    _scores,
+    load_errors,
+    versions,
+)
+from advperc_ros.ros import bag as bags
+from advperc_ros.ros.bag import BagError, read_scenario
+
+REPLAY_JSON = "replay.json"
+REPLAY_MD = "replay.md"
+BEV_PLOT = "bev.png"  # the replayed rollout's last seconds, when it still collides
+
+
+@dataclass(frozen=True)
+class FoundAttack:
+    """An attack as its results folder holds it: the report, the error tensor and the params it ran with."""
+
+    folder: Path
+    report: dict
+    errors: PerceptionErrors
+    params: AttackParams
+
+
+@dataclass(frozen=True)
+class Replay:
+    attack: FoundAttack
+    params: AttackParams  # what the errors were replayed against
+    scenario: Scenario
+    truth_min_signed_distance: float  # of the ground-truth rollout under these params
+    evaluation: Evaluation  # the attack's errors rolled out under these params, recorded
+    wall_time_s: float
+
+    @property
+    def verdict(self) -> str:
+        rollout = self.evaluation.rollout
+        if rollout.inconclusive:
+            return f"inconclusive ({rollout.inconclusive})"
+        return "still collides" if rollout.collided else "no longer collides"
+
+
+def load_attack(folder: Path) -> FoundAttack:
+    """The attack of a results folder; ParamsError when it is not one of an attack that collided."""
+    folder = Path(folder)
+    report_path, errors_path = folder / REPORT_JSON, folder / ERRORS
+    if not report_path.is_file():
+        raise ParamsError(f"{report_path}: missing; replay needs the results folder of an attack")
+    try:
+        report = json.loads(report_path.read_text())
+        values = dict(report["params"])  # AttackParams.canonical(): planner_params included
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ParamsError(f"{report_path}: not an attack report: {exc}") from exc
+    if not report.get("collision") or not errors_path.is_file():
+        raise ParamsError(f"{folder}: the search found no collision there, so there is no attack to replay")
+    params = params_from_values(values, report_path)
+    return FoundAttack(folder, report, load_errors(errors_path), params)
+
+
+def replay_params(attack: FoundAttack, other: AttackParams | None) -> AttackParams:
+    """The params to replay with: `other`'s (its planner, tracker, ego, backend) judged on the attack's
+    objective, or the attack's own when there is no other."""
+    return attack.params if other is None else other.with_values(objective=attack.params.objective)
+
+
+def replay(attack: FoundAttack, params: AttackParams) -> Replay:
+    """Roll out the ground truth and then the attack's errors under `params`."""
+    started = time.perf_counter()
+    bag_path = resolve_bag(params)
+    digest = bags.digest(bag_path)
+    if digest != attack.report["bag_sha256"]:
+        raise ParamsError(f"{params.source or 'params'}: parameter 'bag' names {bag_path}, not the scenario the attack "
+                          f"in {attack.folder} was found on (bag_sha256 {digest[:12]}, not {attack.report['bag_sha256'][:12]})")
+    scenario = read_scenario(bag_path)
+    if attack.errors.shape != scenario.agents.shape:
+        raise BagError(f"{attack.folder / ERRORS}: field 'fn' has shape {attack.errors.shape}, the bag {bag_path} has "
+                       f"{scenario.agents.shape}")
+    with open_rollouts(scenario, params, bag_path) as rollouts:
+        problem = AttackProblem(scenario, rollouts.rollout, params.objective)
+        truth = problem.evaluate(PerceptionErrors.none(*scenario.agents.shape), Phase.GROUND_TRUTH).rollout
+        if truth.inconclusive or truth.collided:
+            why = truth.inconclusive or f"min signed distance {truth.min_signed_distance:.3f} m"
+            raise GroundTruthFails(f"{params.planner}: the ground truth does not pass with perfect perception ({why}); "
+                                   f"replaying the attack in {attack.folder} cannot tell anything")
+        result = rollouts.rollout(attack.errors, record=True)
+    scores = problem.scores(attack.errors, result.num_frames, result.ego_xy)
+    evaluation = Evaluation(attack.errors, result, scores, getattr(scores, params.objective))
+    return Replay(attack, params, scenario, truth.min_signed_distance, evaluation, time.perf_counter() - started)
+
+
+def replay_report(replayed: Replay) -> dict:
+    """replay.json: the attack replayed, the configuration, and whether it still collides."""
+    attack, params, rollout = replayed.attack.report, replayed.params, replayed.evaluation.rollout
+    frame, slot = rollout.closest_approach()
+    return {
+        "attack": str(replayed.attack.folder),
+        "scenario": replayed.scenario.name,
+        "bag": params.bag,
+        "bag_sha256": attack["bag_sha256"],
+        "objective": params.objective,
+        "seed": attack["seed"],
+        "attack_planner": attack["planner"],
+        "attack_config_hash": attack["config_hash"],
+        "attack_min_signed_distance": attack["min_signed_distance"],
+        "attack_metric": attack[params.objective],
+        "planner": params.planner,
+        "collision": rollout.collided,
+        "verdict": replayed.verdict,
+        "inconclusive": rollout.inconclusive,
+        "min_signed_distance": _rounded("min_signed_distance", rollout.min_signed_distance),
+        "closest_frame": frame,
+        "closest_agent": int(replayed.scenario.agents.ids[frame, slot]),
+        "metric": _rounded("metric", replayed.evaluation.metric),
+        **_scores(replayed.evaluation),
+        "ground_truth_min_signed_distance": _rounded("min_signed_distance", replayed.truth_min_signed_distance),
+        "wall_time_s": replayed.wall_time_s,
+        "config_hash": params.config_hash(),
+        "params": params.canonical(),
+        "versions": versions(),
+    }
+
+
+def replay_markdown(report: dict) -> str:
+    return "\n".join([
+        f"# Replay of {report['attack']} on the {report['planner']} planner: {report['verdict']}",
+        "",
+        "| | planner | min signed distance (m) | metric |",
+        "|---|---|---|---|",
+        f"| attack | {report['attack_planner']} | {report['attack_min_signed_distance']:.3f} | {report['attack_metric']:.4f} |",
+        f"| replay | {report['planner']} | {report['min_signed_distance']:.3f} | {report['metric']:.4f} |",
+        "",
+        (f"- scenario {report['scenario']}, objective {report['objective']}, seed {report['seed']}; closest approach "
+         f"to agent {report['closest_agent']} at frame {report['closest_frame']}; with perfect perception "
+         f"{report['ground_truth_min_signed_distance']:.3f} m"),
+        f"- config hash {report['config_hash']} (the attack's {report['attack_config_hash']})",
+        "",
+    ])
+
+
+def write_replay(output: Path, replayed: Replay) -> dict:
+    """The replay folder, written atomically: replay.json, replay.md and, when it still collides,
+    bev.png; returns the report."""
+    from advperc_ros import plots
+
+    output = Path(output)
+    if output.exists():
+        raise ParamsError(f"{output}: output folder exists already; choose another output")
+    staging = output.with_name(f".{output.name}.partial")
+    if staging.exists():
+        shutil.rmtree(staging)
+    staging.mkdir(parents=True)
+    try:
+        report = replay_report(replayed)
+        (staging / REPLAY_JSON).write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
+        (staging / REPLAY_MD).write_text(replay_markdown(report))
+        if report["collision"]:
+            evaluation = replayed.evaluation
+            outcome = AttackOutcome(scenario=replayed.scenario, params=replayed.params, heuristic_best=None,
+                                    best=evaluation, recorded=evaluation.rollout, log=[],
+                                    wall_time_s=replayed.wall_time_s)
+            plots.birds_eye_view(staging / BEV_PLOT, outcome)
+        staging.rename(output)
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging)
+    return report

@@ -162,7 +162,7 @@ def keeps_the_contract(case: dict) -> bool:
     frames = case["frames"]
     objects_ok = all(
         len(set(f["ids"].tolist())) == len(f["ids"])
-        and all(np.all(np.isfinite(f[name])) for name in ("x", "yaw", "vx"))
+        and all(np.all(np.isfinite(f[name])) for name in ("x", "yaw", "vx", "length", "width"))
         and all(np.all(f[name] > 0.0) for name in ("length", "width"))
         for f in frames)
     odometry, route, lanes = case["odometry"], case["route"], case["lanes"]

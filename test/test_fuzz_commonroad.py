@@ -144,8 +144,12 @@ def obstacle_484_round(root: ET.Element) -> None:
     (collapse_first_lanelet, ["'lanelet 534'", "two distinct points"]),
     (set_text("lanelet/leftBound/point/x", "inf"), ["'lanelet 534'", "finite"]),
     (set_text("planningProblem/initialState/position/point/x", "nan"), ["'planningProblem.initialState.position'"]),
+    # commonroad-io subtracts 2 pi from these until they are below 2 pi: a hang, were they read
+    (set_text("obstacle/initialState/orientation/exact", "1e308"), ["'obstacle 484.orientation'", "1e308"]),
+    (set_text("planningProblem/goalState/orientation/intervalEnd", "inf"), ["'planningProblem 482.orientation'"]),
     (lambda root: root.find("lanelet[@id='536']").set("id", "999"), ["'lanelet 534'", "lanelet 536", "does not exist"]),
     (lambda root: root.set("timeStepSize", "inf"), ["'timeStepSize'"]),
+    (lambda root: root.set("timeStepSize", "1e300"), ["'timeStepSize'", "1 h"]),  # int64 stamps overflowed
     (last_state_of_484_at_step_20000, ["'dynamicObstacle 484.time_step'", "20000"]),
     (first_state_of_484_twice, ["'dynamicObstacle 484'", "two states at time step 1"]),
     (obstacle_484_round, ["'dynamicObstacle 484.shape'", "rectangle"]),
@@ -164,3 +168,13 @@ def test_an_obstacle_without_a_trajectory_is_present_at_its_initial_step(importe
     slot = list(scenario.agents.ids[0]).index(484)
     assert scenario.agents.valid[:, slot].tolist() == [True] + [False] * (scenario.num_frames - 1)
     assert scenario.agents.x[0, slot] == 8.746
+
+
+@pytest.mark.parametrize("damage", [lambda data: data.replace(b'encoding="utf-8"', b'encoding="uuf-8"', 1),
+                                    lambda data: data[: len(data) // 2]])
+def test_unparseable_files_are_named(importer, seeds, tmp_path, damage):
+    path = tmp_path / "damaged.xml"
+    path.write_bytes(damage(seeds[SEEDS[0]]))
+    with pytest.raises(ScenarioError) as caught:
+        importer(path)
+    one_line_naming(caught.value, str(path), "not a readable CommonRoad scenario")

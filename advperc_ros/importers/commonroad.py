@@ -15,9 +15,11 @@
   the initial speed when the goal has none.
 - Refused with a ScenarioError naming the file and the field, rather than failing later: numbers
   that are not finite, shapes other than rectangles, predictions that are not trajectories, two
-  states at one time step, references to lanelets that do not exist, degenerate lanelets.
+  states at one time step, references to lanelets that do not exist, degenerate lanelets, and
+  orientations beyond +-1000 rad (commonroad-io itself would never finish reading those).
 """
 
+import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -29,6 +31,7 @@ from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane, Scenario, ScenarioError
 
 AGENT_HEIGHT = 1.5
+MAX_ANGLE = 1000.0  # rad: recorded orientations are within a few turns; see _check_orientations
 MAX_FRAMES = 10_000  # time steps of a recording: CommonRoad's run for seconds; a bogus step would only fill memory
 
 
@@ -46,10 +49,33 @@ def _read(path: Path):
         raise ScenarioError(f"{path}: reading CommonRoad needs commonroad-io (pip install '.[commonroad]')") from exc
     if not path.is_file():
         raise ScenarioError(f"{path}: no such CommonRoad file")
+    _check_orientations(path)
     try:
         return CommonRoadFileReader(str(path)).open()
     except Exception as exc:  # the reader raises many types for malformed XML
         raise ScenarioError(f"{path}: not a readable CommonRoad scenario: {exc}".replace("\n", " ")) from exc
+
+
+def _check_orientations(path: Path) -> None:
+    """Refuse an XML file whose orientations commonroad-io cannot read: it brings every angle into
+    [-2 pi, 2 pi] by subtracting 2 pi in a loop, which never ends for inf or 1e308 (and takes
+    minutes for 1e10). A file that does not parse is left to the reader to refuse."""
+    if path.suffix.lower() != ".xml":
+        return
+    try:
+        root = ET.parse(path).getroot()
+    except (SyntaxError, LookupError, ValueError):  # ParseError, an unknown encoding, bytes it cannot decode
+        return
+    for owner in root:  # lanelets, obstacles, planning problems: what the error can name
+        for orientation in owner.iter("orientation"):
+            for element in orientation.iter():
+                try:
+                    angle = float(element.text)
+                except (TypeError, ValueError):
+                    continue  # not a number: the reader's to refuse
+                if not abs(angle) <= MAX_ANGLE:
+                    raise ScenarioError(f"{path}: field '{owner.tag} {owner.get('id')}.orientation' must be within "
+                                        f"+-{MAX_ANGLE:g} rad, not {element.text.strip()[:30]}")
 
 
 def _finite(value, field: str, size: int | None = None) -> np.ndarray:
@@ -195,8 +221,8 @@ def _convert(cr_scenario, problems) -> ImportedScenario:
     problem = problems.planning_problem_dict[min(problems.planning_problem_dict)]
     network = cr_scenario.lanelet_network
     dt = float(_finite(cr_scenario.dt, "timeStepSize"))
-    if not dt >= 1e-9:
-        raise ScenarioError(f"field 'timeStepSize' must be positive (at least 1 ns), not {dt}")
+    if not 1e-9 <= dt <= 3600.0:  # stamps are int64 nanoseconds
+        raise ScenarioError(f"field 'timeStepSize' must be between 1 ns and 1 h, not {dt}")
     states = {o.obstacle_id: _states(o) for o in cr_scenario.dynamic_obstacles}
     num_frames = max((k for steps in states.values() for k in steps), default=0) + 1
     lanes = tuple(_lane(lanelet) for lanelet in network.lanelets)

@@ -34,11 +34,12 @@ class CellResult:
 
 def run_cell(cell: Cell, output: Path, progress: bool = False) -> CellResult:
     """Attack (or replay) one cell into output/<cell name>; an expected failure is the cell's result,
-    not the campaign's end."""
+    not the campaign's end. An attack a kill interrupted resumes from its checkpoint, so it costs
+    only the rollouts it had not run."""
     folder = output / cell.name
     try:
         if cell.attack is None:
-            attack_to_folder(cell.params, folder, progress=progress)
+            attack_to_folder(cell.params, folder, progress=progress, resume=True)  # a killed cell goes on from its checkpoint
         else:
             write_replay(folder, replay(load_attack(cell.attack), cell.params))
     except EXPECTED_TYPES as exc:

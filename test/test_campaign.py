@@ -161,6 +161,26 @@ def test_a_campaign_killed_midway_resumes_without_redoing_finished_cells(serial,
     assert (output / "summary.md").read_text() == (serial / "summary.md").read_text()
 
 
+@pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")
+def test_a_worker_killed_from_outside_costs_its_cell_one_more_run(serial, campaign, repo, tmp_path):
+    output = tmp_path / "worker-killed"
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, (str(repo), os.environ.get("PYTHONPATH")))))
+    process = subprocess.Popen([sys.executable, "-m", "advperc_ros.cli", "campaign", str(campaign), "--executor", "process",
+                                "--workers", "1", "--output", str(output), "--quiet"], cwd=repo, env=env,
+                               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    deadline = time.monotonic() + 300
+    while not (output / CELLS[0] / "report.json").is_file():
+        assert process.poll() is None and time.monotonic() < deadline, "the first cell never finished"
+        time.sleep(0.2)
+    (worker,) = [pid for pid in _children(process.pid)  # running the second cell (not the resource tracker)
+                 if b"resource_tracker" not in Path(f"/proc/{pid}/cmdline").read_bytes()]
+    os.kill(worker, signal.SIGKILL)
+    out, _ = process.communicate(timeout=300)
+    assert process.returncode == 0
+    assert json.loads(out)["errors"] == 0 and (output / CELLS[1] / "report.json").is_file()
+    assert (output / "summary.md").read_text() == (serial / "summary.md").read_text()
+
+
 def _junit(output: Path) -> dict[str, ET.Element]:
     """The test cases by name, once the file is checked to be one consistent suite."""
     root = ET.parse(output / "junit.xml").getroot()

@@ -13,6 +13,7 @@ import sys
 import traceback
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
@@ -90,21 +91,45 @@ def _die_with_the_campaign() -> None:
 
 class ProcessExecutor:
     """A pool of worker processes, started fresh (spawn) rather than forked from a process that has
-    loaded everything."""
+    loaded everything. A worker that dies under its cell (killed from outside, out of memory, a crash
+    in native code) takes the pool with it: a fresh pool runs each cell lost so once more, and a cell
+    lost twice is that cell's error, so the other cells go on."""
 
     def __init__(self, output: Path, workers: int) -> None:
-        self.output = output
-        self.pool = ProcessPoolExecutor(workers, mp_context=get_context("spawn"), initializer=_die_with_the_campaign)
-        self.futures: set[Future] = set()
+        self.output, self.workers = output, workers
+        self.pool = self._pool()
+        self.futures: dict[Future, Cell] = {}
+        self.lost: set[str] = set()  # cells a dead pool took once
+        self.failed: deque[CellResult] = deque()  # cells it took twice
+
+    def _pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), initializer=_die_with_the_campaign)
 
     def submit(self, cell: Cell) -> None:
-        self.futures.add(self.pool.submit(run_cell, cell, self.output))
+        self.futures[self.pool.submit(run_cell, cell, self.output)] = cell
 
     def next_done(self) -> CellResult:
-        done, _ = wait(self.futures, return_when=FIRST_COMPLETED)
-        future = done.pop()
-        self.futures.remove(future)
-        return future.result()
+        while not self.failed:
+            done, _ = wait(self.futures, return_when=FIRST_COMPLETED)
+            future = done.pop()
+            cell = self.futures.pop(future)
+            try:
+                return future.result()
+            except BrokenProcessPool:
+                self._replace_pool([cell, *self.futures.values()])
+        return self.failed.popleft()
+
+    def _replace_pool(self, lost: list[Cell]) -> None:
+        self.pool.shutdown(wait=True, cancel_futures=True)
+        self.futures.clear()
+        self.pool = self._pool()
+        for cell in lost:
+            if cell.name in self.lost:
+                self.failed.append(CellResult(cell.name, "its worker process died twice under it (killed from outside, "
+                                              "out of memory, or a crash in native code)"))
+            else:
+                self.lost.add(cell.name)
+                self.submit(cell)
 
     def close(self) -> None:
         self.pool.shutdown(wait=True, cancel_futures=True)

@@ -33,9 +33,9 @@ from advperc_ros.params import (
 from advperc_ros.results import (
     ERRORS,
     REPORT_JSON,
-    _rounded,
-    _scores,
     load_errors,
+    report_scores,
+    rounded,
     versions,
 )
 from advperc_ros.ros import bag as bags
@@ -140,12 +140,12 @@ def replay_report(replayed: Replay) -> dict:
         "collision": rollout.collided,
         "verdict": replayed.verdict,
         "inconclusive": rollout.inconclusive,
-        "min_signed_distance": _rounded("min_signed_distance", rollout.min_signed_distance),
+        "min_signed_distance": rounded("min_signed_distance", rollout.min_signed_distance),
         "closest_frame": frame,
         "closest_agent": int(replayed.scenario.agents.ids[frame, slot]),
-        "metric": _rounded("metric", replayed.evaluation.metric),
-        **_scores(replayed.evaluation),
-        "ground_truth_min_signed_distance": _rounded("min_signed_distance", replayed.truth_min_signed_distance),
+        "metric": rounded("metric", replayed.evaluation.metric),
+        **report_scores(replayed.evaluation),
+        "ground_truth_min_signed_distance": rounded("min_signed_distance", replayed.truth_min_signed_distance),
         "wall_time_s": replayed.wall_time_s,
         "config_hash": params.config_hash(),
         "params": params.canonical(),

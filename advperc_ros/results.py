@@ -51,14 +51,16 @@ def _finite_or_none(value: float) -> float | None:
     return None if value is None or (isinstance(value, float) and math.isnan(value)) else value
 
 
-def _rounded(name: str, value):
+def rounded(name: str, value):
+    """`value` as report.json holds it: trajectory-derived floats to REPORT_DIGITS (see above)."""
     if name in TRAJECTORY_FIELDS and isinstance(value, float) and math.isfinite(value):
         return float(f"{value:.{REPORT_DIGITS}g}")
     return value
 
 
-def _scores(evaluation: Evaluation) -> dict:
-    return {k: _rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
+def report_scores(evaluation: Evaluation) -> dict:
+    """An evaluation's scores as report.json holds them (NaN as null, rounded as `rounded`)."""
+    return {k: rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
 
 
 def _ids(ids: list[int], shown: int = 10) -> str:
@@ -94,14 +96,14 @@ def why_no_collision(log: list[LogRow]) -> dict:
         "message": text,
         "agents_tried": [row.agent for row in drops],
         "closest_approach": {
-            "min_signed_distance": _rounded("min_signed_distance", nearest.min_signed_distance),
+            "min_signed_distance": rounded("min_signed_distance", nearest.min_signed_distance),
             "agent": nearest.agent if nearest.agent >= 0 else None,
             "rollout": nearest.rollout,
         },
         "closest_approach_by_agent": {
-            str(row.agent): _rounded("min_signed_distance", row.min_signed_distance) for row in conclusive
+            str(row.agent): rounded("min_signed_distance", row.min_signed_distance) for row in conclusive
         },
-        "ground_truth_min_signed_distance": _rounded("min_signed_distance", truth.min_signed_distance),
+        "ground_truth_min_signed_distance": rounded("min_signed_distance", truth.min_signed_distance),
     }
 
 
@@ -136,15 +138,15 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         rollout = outcome.recorded
         frame, slot = rollout.closest_approach()
         report.update(
-            min_signed_distance=_rounded("min_signed_distance", rollout.min_signed_distance),
+            min_signed_distance=rounded("min_signed_distance", rollout.min_signed_distance),
             collision_frame=frame,
             collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
-            **_scores(best),
+            **report_scores(best),
         )
     else:
         report.update(why_no_collision(outcome.log))
     if outcome.heuristic_best is not None:
-        report["heuristic"] = {"metric": _rounded("metric", outcome.heuristic_best.metric), **_scores(outcome.heuristic_best)}
+        report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric), **report_scores(outcome.heuristic_best)}
     report.update(
         rollouts=len(outcome.log),
         inconclusive_rollouts=sum(1 for row in outcome.log if row.inconclusive),

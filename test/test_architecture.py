@@ -95,3 +95,19 @@ def test_node_executables_are_listed_once(repo):
 
     listed = re.search(r"^NODES = \(([^)]*)\)", (repo / "setup.py").read_text(), flags=re.M).group(1)
     assert tuple(re.findall(r'"(\w+)"', listed)) == ("orchestrator", *(spec.name for spec in SPECS))
+
+
+def test_readme_architecture_names_every_module():
+    """The README's Architecture block stays true to the code: every package (as `name/`) and module
+    (by name) of advperc_ros is in it, so a new module cannot land undocumented."""
+    block = (REPO / "README.md").read_text().split("\n## Architecture\n")[1].split("\n## ")[0]
+    missing = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        if "data" in path.relative_to(PACKAGE).parts:
+            continue
+        if path.name == "__init__.py":
+            if path.parent != PACKAGE and f"{path.parent.name}/" not in block:
+                missing.append(f"{path.parent.name}/")
+        elif not re.search(rf"\b{re.escape(path.stem)}\b", block):
+            missing.append(str(path.relative_to(REPO)))
+    assert not missing, f"README Architecture does not name: {missing}"

@@ -46,6 +46,7 @@ from advperc_ros.graph.client import SPIN, LockstepClient
 from advperc_ros.graph.errors import GraphError, RolloutFault
 from advperc_ros.graph.processes import NodeProcesses
 from advperc_ros.params import PLANNER_PARAMS, AttackParams, rollout_config
+from advperc_ros.ros.lockstep import Status
 from advperc_ros.ros.topics import ERRORS, PLAN
 from advperc_ros.ros.transport import Transport
 
@@ -136,14 +137,19 @@ class GraphRollouts:
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
-        allowed doubling each time (a lost first message costs little, a slow planner still passes)."""
+        allowed doubling each time (a lost first message costs little, a slow planner still passes).
+        One that ends inconclusive is re-sent too until the deadline: a node that has not yet got a
+        latched message (an external planner answering before /ego/route reached it) answers so;
+        one that stays inconclusive is left for the search's own ground-truth rollout to report."""
         none = PerceptionErrors.none(*self.scenario.agents.shape)
         stall = WARMUP_STALL
         while True:
             rollout = self._client.send(none)
             try:
-                self._client.collect(rollout, stall, self._recording, self.processes.dead)
-                return
+                done = self._client.collect(rollout, stall, self._recording, self.processes.dead)
+                if done.status != Status.INCONCLUSIVE or time.monotonic() > deadline:
+                    return
+                log.info(f"warm-up rollout {rollout} inconclusive ({done.reason}); sending another")
             except RolloutFault as fault:
                 if self.processes.dead() is not None or time.monotonic() > deadline:
                     raise GraphError(f"the graph did not complete a warm-up rollout: {fault}") from None

@@ -58,6 +58,22 @@ class HangingPlanner(IDMPlanner):
         return super().plan(t, ego, tracks)
 
 
+class UnreadyPlanner(IDMPlanner):
+    """The IDM planner, but failing every plan of the first two rollouts its process sees: a node
+    that answers before a latched input (an external planner's /ego/route) has reached it."""
+
+    rollouts_seen = -1  # IDMPlanner's constructor resets too
+
+    def reset(self) -> None:
+        UnreadyPlanner.rollouts_seen += 1
+        super().reset()
+
+    def plan(self, t, ego, tracks):
+        if UnreadyPlanner.rollouts_seen <= 2:
+            raise RuntimeError("not ready")
+        return super().plan(t, ego, tracks)
+
+
 def params_for(tmp: Path, **overrides) -> Path:
     document = yaml.safe_load((REPO / "config" / "idm_lane_following.yaml").read_text())
     params = document["orchestrator"]["ros__parameters"]
@@ -245,6 +261,15 @@ def test_graph_search_writes_the_embedded_report(tmp_path, capsys):
     for embedded, graph in zip(*logs):  # the log writes distances to 10 digits: the last may differ
         assert float(embedded.pop("min_signed_distance")) == pytest.approx(float(graph.pop("min_signed_distance")), abs=TOLERANCE)
         assert embedded == graph
+
+
+def test_an_inconclusive_warm_up_is_sent_again_before_the_search_starts(tmp_path, scenario, monkeypatch):
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
+    params = load_params(params_for(tmp_path, planner="test_graph:UnreadyPlanner"))
+    truth = PerceptionErrors.none(*scenario.agents.shape)
+    expected = Stack(scenario, params.with_values(planner="idm")).rollout(truth)
+    with GraphRollouts(scenario, params, BAG) as graph:
+        assert_same_rollout(graph.rollout(truth), expected)  # the first rollout after the warm-up
 
 
 # ----- (c) a dead or silent planner: that rollout is inconclusive, the next one proceeds ----------

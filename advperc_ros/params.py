@@ -318,15 +318,19 @@ def parse_params(document: Any, where: str, source: Path | None = None) -> Attac
     return params_from_values(_flatten(node["ros__parameters"]), source, where)
 
 
+def read_yaml(path: Path, kind: str) -> Any:
+    """A YAML document, or one line naming the file: missing, unreadable, not UTF-8 or not YAML."""
+    try:
+        return yaml.safe_load(path.read_text())
+    except FileNotFoundError:
+        raise ParamsError(f"{path}: no such {kind}") from None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise ParamsError(f"{path}: cannot read {kind}: {exc}".replace("\n", " ")) from exc
+
+
 def load_params(path: str | Path) -> AttackParams:
     path = Path(path)
-    try:
-        document = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ParamsError(f"{path}: no such params file") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ParamsError(f"{path}: cannot read params file: {exc}".replace("\n", " ")) from exc
-    return parse_params(document, str(path), path)
+    return parse_params(read_yaml(path, "params file"), str(path), path)
 
 
 def package_share() -> Path:

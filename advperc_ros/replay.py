@@ -9,7 +9,6 @@ into a hidden staging folder and renamed into place.
 """
 
 import json
-import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,6 +22,7 @@ from advperc_ros.core.search.problem import (
     GroundTruthFails,
     Phase,
 )
+from advperc_ros.core.staging import staged_folder
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import (
     AttackParams,
@@ -178,11 +178,8 @@ def write_replay(output: Path, replayed: Replay) -> dict:
     output = Path(output)
     if output.exists():
         raise ParamsError(f"{output}: output folder exists already; choose another output")
-    staging = output.with_name(f".{output.name}.partial")
-    if staging.exists():
-        shutil.rmtree(staging)
-    staging.mkdir(parents=True)
-    try:
+    with staged_folder(output) as staging:
+        staging.mkdir()
         report = replay_report(replayed)
         (staging / REPLAY_JSON).write_text(json.dumps(report, indent=2, sort_keys=True) + "\n")
         (staging / REPLAY_MD).write_text(replay_markdown(report))
@@ -192,8 +189,4 @@ def write_replay(output: Path, replayed: Replay) -> dict:
                                     best=evaluation, recorded=evaluation.rollout, log=[],
                                     wall_time_s=replayed.wall_time_s)
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
-        staging.rename(output)
-    finally:
-        if staging.exists():
-            shutil.rmtree(staging)
     return report

@@ -8,7 +8,6 @@ import csv
 import json
 import math
 import platform
-import shutil
 from dataclasses import asdict, fields
 from importlib import metadata
 from pathlib import Path
@@ -19,6 +18,7 @@ from advperc_ros import __version__
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
+from advperc_ros.core.staging import staged_folder
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, ParamsError, find_bag, nest, parse_params
 from advperc_ros.ros import bag as bags
@@ -348,12 +348,8 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
     """Write the whole folder atomically; returns the report."""
     from advperc_ros import plots
 
-    output = Path(output)
-    staging = output.with_name(f".{output.name}.partial")
-    if staging.exists():
-        shutil.rmtree(staging)
-    staging.mkdir(parents=True)
-    try:
+    with staged_folder(Path(output)) as staging:
+        staging.mkdir()
         report = build_report(outcome, bag_path)
         text = json.dumps(report, indent=2, sort_keys=True)
         (staging / REPORT_JSON).write_text(text + "\n")
@@ -367,8 +363,4 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
             write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.recorded.ego[frame, :2])))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
             plots.attack_animation(staging / ANIMATION, outcome)
-        staging.rename(output)
-    finally:
-        if staging.exists():
-            shutil.rmtree(staging)
     return report

@@ -1,4 +1,5 @@
-"""Hypothesis strategies the fuzz suites share: valid bytes damaged the ways files and messages get damaged."""
+"""What the fuzz suites share: valid bytes damaged the ways files and messages get damaged, and the
+one-line error they must end in."""
 
 from hypothesis import strategies as st
 
@@ -23,3 +24,11 @@ def damaged(draw, data: bytes, word: int, arbitrary: bool = False) -> bytes:
                                    | st.binary(min_size=word, max_size=word))
         return bytes(data)
     return draw(st.binary(max_size=300))
+
+
+def one_line_naming(exc: Exception, *names: str) -> None:
+    """The error is one line and names each of `names` (the file, the field)."""
+    text = str(exc)
+    assert "\n" not in text and "\r" not in text, text
+    for name in names:
+        assert name in text, (name, text)

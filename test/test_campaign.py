@@ -99,6 +99,17 @@ def test_a_finished_campaign_runs_no_cell_again(serial, campaign, capsys):
     assert _mtimes(serial) == before
 
 
+def assert_resumes_the_second_cell_only(campaign, output, serial, capsys) -> None:
+    """Running the campaign again runs the unfinished cell only, leaves the finished one's folder
+    untouched and no staging behind, and ends with the uninterrupted campaign's table."""
+    kept = (output / CELLS[0] / "report.json").stat().st_mtime_ns
+    summary = run(campaign, "--output", str(output), capsys=capsys)
+    assert (summary["ran"], summary["finished_before"]) == (1, 1)
+    assert (output / CELLS[0] / "report.json").stat().st_mtime_ns == kept
+    assert not list(output.glob(".*partial"))
+    assert (output / "summary.md").read_text() == (serial / "summary.md").read_text()
+
+
 def test_a_killed_cell_restarts_cleanly(serial, campaign, tmp_path, capsys):
     """What a kill leaves: a cell without its folder but with its staging folder, a summary's staging file."""
     output = tmp_path / "resumed"
@@ -107,12 +118,7 @@ def test_a_killed_cell_restarts_cleanly(serial, campaign, tmp_path, capsys):
     (output / f".{CELLS[1]}.partial").mkdir()
     (output / f".{CELLS[1]}.partial" / "report.json").write_text("{half")
     (output / ".summary.md.partial").write_text("half")
-    kept = (output / CELLS[0] / "report.json").stat().st_mtime_ns
-    summary = run(campaign, "--output", str(output), capsys=capsys)
-    assert (summary["ran"], summary["finished_before"]) == (1, 1)
-    assert (output / CELLS[0] / "report.json").stat().st_mtime_ns == kept
-    assert not list(output.glob(".*partial"))
-    assert (output / "summary.md").read_text() == (serial / "summary.md").read_text()
+    assert_resumes_the_second_cell_only(campaign, output, serial, capsys)
 
 
 def _children(pid: int) -> list[int]:
@@ -153,12 +159,7 @@ def test_a_campaign_killed_midway_resumes_without_redoing_finished_cells(serial,
     while any(_alive(worker) for worker in workers):
         assert time.monotonic() < deadline, "a worker outlived its campaign"
         time.sleep(0.2)
-    kept = (output / CELLS[0] / "report.json").stat().st_mtime_ns
-    summary = run(campaign, "--output", str(output), capsys=capsys)
-    assert (summary["ran"], summary["finished_before"]) == (1, 1)
-    assert (output / CELLS[0] / "report.json").stat().st_mtime_ns == kept
-    assert not list(output.glob(".*partial"))
-    assert (output / "summary.md").read_text() == (serial / "summary.md").read_text()
+    assert_resumes_the_second_cell_only(campaign, output, serial, capsys)
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="reads /proc")

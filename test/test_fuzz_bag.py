@@ -11,7 +11,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from mutations import damaged
+from mutations import damaged, one_line_naming
 from test_check_bag import DT, LANE, boxes, write_bag
 
 from advperc_ros.core.boxes import BOX_FIELDS
@@ -22,13 +22,6 @@ from advperc_ros.ros.bag import BagError, check_ground_truth, read_scenario, rea
 # hang guard, not a timing: writing and reading one small bag takes milliseconds
 FUZZ = settings(max_examples=60, deadline=10_000, suppress_health_check=[HealthCheck.too_slow])
 pytestmark = pytest.mark.filterwarnings("ignore::RuntimeWarning")  # arithmetic on NaN and inf written on purpose
-
-
-def one_line_naming(exc: Exception, *names: str) -> None:
-    text = str(exc)
-    assert "\n" not in text and "\r" not in text, text
-    for name in names:
-        assert name in text, (name, text)
 
 
 def check_usable(scenario) -> None:

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from mutations import one_line_naming
 
 from advperc_ros.core.scenario import ScenarioError
 
@@ -44,13 +45,6 @@ def importer():
 @pytest.fixture(scope="module")
 def seeds() -> dict[str, bytes]:
     return {name: (DATA / f"{name}.xml").read_bytes() for name in SEEDS}
-
-
-def one_line_naming(exc: Exception, *names: str) -> None:
-    text = str(exc)
-    assert "\n" not in text and "\r" not in text, text
-    for name in names:
-        assert name in text, (name, text)
 
 
 def check_usable(imported) -> None:

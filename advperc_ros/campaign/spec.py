@@ -16,7 +16,6 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
-import yaml
 
 from advperc_ros.backend import Stack
 from advperc_ros.core.planners.base import PlannerError
@@ -30,6 +29,7 @@ from advperc_ros.params import (
     find_bag,
     load_params,
     params_from_values,
+    read_yaml,
     resolve_bag,
 )
 from advperc_ros.replay import REPLAY_JSON, load_attack
@@ -189,12 +189,7 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
     """The campaign file, its fields checked (the cells are checked by `plan`); `changes` replace
     fields (the command line's --output, --executor, --workers) and are checked the same way."""
     path = Path(path)
-    try:
-        document = yaml.safe_load(path.read_text())
-    except FileNotFoundError:
-        raise ParamsError(f"{path}: no such campaign file") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
-        raise ParamsError(f"{path}: cannot read campaign file: {exc}".replace("\n", " ")) from exc
+    document = read_yaml(path, "campaign file")
     if not isinstance(document, dict):
         raise ParamsError(f"{path}: a campaign file is a mapping of the fields {', '.join(FIELDS)}")
     document = {**document, **changes}

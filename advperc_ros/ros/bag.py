@@ -6,7 +6,6 @@ sibling directory and renamed into place once complete: a killed run leaves no b
 """
 
 import hashlib
-import shutil
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -20,6 +19,7 @@ from rosbags.rosbag2.metadata import Qos, QosDurability, QosHistory, QosLiveline
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane, Scenario
+from advperc_ros.core.staging import staged_folder
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.topics import CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, ROUTE, TOPIC_TYPES, depth
@@ -72,11 +72,7 @@ def open_bag_for_writing(path: Path) -> Iterator[BagWriter]:
     path = Path(path)
     if path.exists():
         raise BagError(f"{path}: exists already, not overwriting")
-    staging = path.with_name(f".{path.name}.partial")
-    if staging.exists():
-        shutil.rmtree(staging)
-    staging.parent.mkdir(parents=True, exist_ok=True)
-    try:
+    with staged_folder(path) as staging:
         writer = Writer(staging, version=9, storage_plugin=StoragePlugin.MCAP)
         writer.open()
         try:
@@ -85,10 +81,6 @@ def open_bag_for_writing(path: Path) -> Iterator[BagWriter]:
             writer.close()
         (staging / f"{staging.name}.mcap").rename(staging / f"{path.name}.mcap")
         _finish_metadata(staging / "metadata.yaml", staging.name, path.name)
-        staging.rename(path)
-    finally:
-        if staging.exists():
-            shutil.rmtree(staging)
 
 
 def _finish_metadata(metadata: Path, staged: str, final: str) -> None:

@@ -1,4 +1,4 @@
-"""Open-loop rollout, collision rule and ego motion (DESIGN.md sections 6 and 8)."""
+"""Open-loop rollout, collision rule and ego motion."""
 
 import numpy as np
 import pytest

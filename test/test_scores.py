@@ -1,4 +1,4 @@
-"""Perception scores (DESIGN.md section 9): longest drop fraction, NDS-t, Table 1 counts, confidences."""
+"""Perception scores: longest drop fraction, NDS-t, Table 1 counts, confidences."""
 
 import math
 

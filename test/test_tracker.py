@@ -1,4 +1,4 @@
-"""The Kalman + Hungarian tracker (DESIGN.md section 7): association, gating, coasting, ageing, heading,
+"""The Kalman + Hungarian tracker: association, gating, coasting, ageing, heading,
 and its batched filter against a filterpy KalmanFilter per track."""
 
 import numpy as np

@@ -80,8 +80,11 @@ def _sourced(ws: Path, command: str, cwd: Path, background: bool = False, **pope
 
 
 def _orchestrator_lines(output: str) -> str:
-    """What the orchestrators and failing nodes of a launch said: where a missing report is explained."""
-    return "\n".join(line for line in output.splitlines() if "orchestrator" in line or "ERROR" in line)[-6000:]
+    """What the orchestrators and the nodes that died said in a launch (each node's lines start with
+    `[<executable>-<n>]`): where a missing report is explained."""
+    died = set(re.findall(r"\[ERROR\] \[([\w-]+)\]: process has died", output))
+    return "\n".join(line for line in output.splitlines() if "orchestrator" in line or "ERROR" in line
+                     or any(line.startswith(f"[{name}]") for name in died))[-6000:]
 
 
 def _share(ws: Path) -> Path:

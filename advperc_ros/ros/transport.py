@@ -86,11 +86,9 @@ class RclpyTransport:
     """The transport interface on an rclpy node (needs ROS 2 sourced; rclpy is imported here)."""
 
     def __init__(self, node: Any) -> None:
-        import rclpy
-
-        self._rclpy = rclpy
         self._node = node
         self._delivered = 0
+        self._executor: Any = None  # made by the first spin_once (a node that rclpy.spin()s needs none)
 
     def publisher(self, topic: str, msgtype: str, latched: bool = False) -> _RclpyPublication:
         return _RclpyPublication(self._node.create_publisher(_message_class(msgtype), topic, _rclpy_qos(latched)), msgtype)
@@ -113,5 +111,12 @@ class RclpyTransport:
 
     def spin_once(self, timeout: float) -> int:
         before = self._delivered
-        self._rclpy.spin_once(self._node, timeout_sec=timeout)
+        if self._executor is None:
+            # one executor holding the node for good: rclpy.spin_once(node) adds and removes the node
+            # on every call, and each of those rebuilds the wait set and wakes the next wait for nothing
+            from rclpy.executors import SingleThreadedExecutor
+
+            self._executor = SingleThreadedExecutor(context=self._node.context)
+            self._executor.add_node(self._node)
+        self._executor.spin_once(timeout_sec=timeout)
         return self._delivered - before

@@ -69,6 +69,7 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
     from advperc_ros.core.feasibility import unavoidable_collision
     from advperc_ros.importers.commonroad import import_commonroad
     from advperc_ros.params import SCHEMA
+    from advperc_ros.paths import check_output
     from advperc_ros.ros.bag import write_ground_truth_bag
 
     imported = import_commonroad(Path(args.scenario))
@@ -83,6 +84,7 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
     for target in (bag, *files.values()):
         if target.exists():
             raise BagError(f"{target}: exists already, not overwriting")
+        check_output(target, "bag folder" if target == bag else "params file")
     write_ground_truth_bag(bag, scenario)
     for planner, path in files.items():
         document = {

@@ -1,6 +1,7 @@
 """Where results go: checked before any work starts, so no long run is lost to an unwritable path."""
 
 import os
+import tempfile
 from pathlib import Path
 
 from advperc_ros.params import ParamsError
@@ -18,3 +19,7 @@ def check_output(output: Path, kind: str = "output folder") -> None:
         raise ParamsError(f"{output}: cannot create the {kind}: {parent} is not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise ParamsError(f"{output}: cannot create the {kind}: {parent} is not writable")
+    try:  # root passes access() everywhere: only making something there proves it (/proc, read-only mounts)
+        os.rmdir(tempfile.mkdtemp(prefix=".advperc-probe-", dir=parent))
+    except OSError as exc:
+        raise ParamsError(f"{output}: cannot create the {kind} in {parent}: {exc.strerror}") from None

@@ -156,12 +156,15 @@ def cmd_robustness(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
+    from advperc_ros.paths import check_output
     from advperc_ros.replay import load_attack, replay, replay_params, replay_report, write_replay
 
     attack = load_attack(Path(args.results))
     params = replay_params(attack, load_params(args.params) if args.params else None)
     if args.backend is not None:
         params = params.with_values(rollout_backend=args.backend)
+    if args.output:
+        check_output(Path(args.output))
     replayed = replay(attack, params)
     report = write_replay(Path(args.output), replayed) if args.output else replay_report(replayed)
     keys = ("attack", "scenario", "objective", "attack_planner", "planner", "collision", "verdict", "min_signed_distance",

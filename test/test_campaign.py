@@ -313,3 +313,17 @@ def test_the_readme_documents_every_campaign_field(repo):
     section = (repo / "README.md").read_text().split("\n## Campaigns\n")[1].split("\n## ")[0]
     for field in spec.FIELDS:
         assert f"`{field}`" in section, field
+
+
+@pytest.mark.parametrize("where", ["nothing can be made there", "a file"])
+def test_an_output_that_cannot_be_a_folder_is_refused_before_any_work(repo, tmp_path, capsys, where):
+    if where == "a file":
+        output = tmp_path / "file"
+        output.write_text("x")
+    else:
+        output = Path("/proc/advperc-campaign")  # root passes access() there: only trying tells
+    campaign = write_campaign(tmp_path / "bad.yaml", repo, output)
+    capsys.readouterr()
+    assert main(["campaign", str(campaign), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"advperc: error: {campaign}: field 'output' {output}"), err

@@ -68,3 +68,8 @@ def test_params_on_another_bag_are_refused(attack, repo, tmp_path, capsys):
 def test_a_folder_without_an_attack_is_refused(tmp_path, capsys):
     err = _refused([str(tmp_path)], capsys)
     assert "report.json" in err and str(tmp_path) in err
+
+
+def test_an_output_where_nothing_can_be_made_is_refused_before_the_replay(attack, capsys):
+    err = _refused([str(attack), "--output", "/proc/advperc-replay"], capsys)
+    assert "/proc/advperc-replay" in err and "cannot create the output folder" in err

@@ -32,6 +32,7 @@ from advperc_ros.params import (
     read_yaml,
     resolve_bag,
 )
+from advperc_ros.paths import check_output
 from advperc_ros.replay import REPLAY_JSON, load_attack
 from advperc_ros.results import ERRORS, REPORT_JSON
 from advperc_ros.ros.bag import read_scenario
@@ -309,6 +310,11 @@ def _replay_cells(campaign: Campaign) -> list[Cell]:
 def plan(campaign: Campaign) -> list[Cell]:
     """The campaign's cells in table order, checked: names unique and folder-safe, every bag read
     and every planner built once, and finished cells run with these very params."""
+    if not campaign.output.is_dir():  # a folder there is a campaign to resume
+        try:
+            check_output(campaign.output, "output folder")
+        except ParamsError as exc:
+            raise campaign.fail("output", str(exc)) from None
     cells = _replay_cells(campaign) if campaign.replay is not None else _attack_cells(campaign)
     names = [cell.name for cell in cells]
     for cell in cells:

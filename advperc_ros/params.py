@@ -126,8 +126,8 @@ class DdsParams:
 
 @dataclass(frozen=True)
 class GraphParams:
-    timeout: float = _param(10.0, "graph backend: seconds the player waits for a frame's plan and rule value "
-                            "before the rollout is inconclusive", positive=True)
+    timeout: float = _param(10.0, "seconds a frame's plan (graph backend: and rule value) may take before the "
+                            "rollout is inconclusive; embedded, one plan call", positive=True)
     spawn_nodes: bool = _param(True, "graph backend: start the five graph nodes as child processes (Cyclone DDS); "
                                "false uses nodes already running, e.g. from launch/attack.launch.py")
 
@@ -377,7 +377,8 @@ def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
 
 def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
     return RolloutConfig(ego_length=values["ego.length"], ego_width=values["ego.width"],
-                         stop_at_collision=values["stop_at_collision"], at_fault_only=values["rule.at_fault_only"])
+                         stop_at_collision=values["stop_at_collision"], at_fault_only=values["rule.at_fault_only"],
+                         plan_timeout=values["graph.timeout"])
 
 
 def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningContext:

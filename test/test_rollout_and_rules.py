@@ -1,5 +1,8 @@
 """Open-loop rollout, collision rule and ego motion."""
 
+import signal
+import time
+
 import numpy as np
 import pytest
 import shapely
@@ -213,6 +216,32 @@ def test_planner_raising_after_a_collision_gives_no_verdict():
     assert result.min_signed_distance < 0.0
     assert result.inconclusive is not None
     assert not result.collided
+
+
+class HangingPlanner(RaisingPlanner):
+    """Drives like the IDM planner, then hangs (a minute's sleep, or a busy loop) at a given time."""
+
+    def __init__(self, fail_at, busy):
+        super().__init__(fail_at)
+        self.busy = busy
+
+    def plan(self, t, ego, tracks):
+        if t >= self.fail_at - 1e-9:
+            end = time.monotonic() + 60.0
+            while time.monotonic() < end:
+                if not self.busy:
+                    time.sleep(60.0)
+        return self.inner.plan(t, ego, tracks)
+
+
+@pytest.mark.parametrize("busy", [False, True], ids=["sleeping", "busy"])
+def test_a_hung_planner_makes_its_rollout_inconclusive_and_the_next_one_runs(busy):
+    before = signal.getsignal(signal.SIGALRM)
+    result = run(NONE, planner=HangingPlanner(fail_at=0.5, busy=busy), plan_timeout=0.2)
+    assert result.inconclusive == "frame 5: planner raised PlanTimeout: no plan within 0.2 s"
+    assert not result.collided and result.num_frames == 6
+    assert signal.getsignal(signal.SIGALRM) is before and signal.getitimer(signal.ITIMER_REAL) == (0.0, 0.0)
+    assert run(NONE, plan_timeout=5.0).inconclusive is None  # a planner within its time is not disturbed
 
 
 def test_plan_not_covering_next_frame_is_inconclusive():

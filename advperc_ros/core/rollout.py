@@ -13,7 +13,11 @@ are written once here: `rollout` below runs them in one process, the graph's sce
 orchestrator (advperc_ros.nodes.scenario_player, advperc_ros.graph) run them over DDS.
 """
 
+import signal
+import threading
 import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -36,6 +40,7 @@ class RolloutConfig:
     ego_width: float = 1.9  # m
     stop_at_collision: bool = True
     at_fault_only: bool = False  # the verdict counts only collisions that are the ego's fault
+    plan_timeout: float | None = None  # s one plan call may take before the rollout is inconclusive
 
 
 @dataclass
@@ -131,6 +136,32 @@ def recorded_frames(frames: int, stopped_at_violation: bool, inconclusive: bool)
     return tracked, tracked - (1 if inconclusive else 0)
 
 
+class PlanTimeout(Exception):
+    """A plan call overran `RolloutConfig.plan_timeout` (raised inside it by the alarm)."""
+
+
+@contextmanager
+def plan_alarm(seconds: float | None) -> Iterator[Callable[[bool], None]]:
+    """`arm(True)` before a plan call, `arm(False)` after: a call still running `seconds` later gets
+    PlanTimeout raised inside it, so a hung plug-in makes its rollout inconclusive instead of
+    stalling the search. SIGALRM, so only in a process's main thread (elsewhere, and without
+    `seconds`, no limit), and only where Python runs: a call stuck inside C code is interrupted when
+    it returns to Python."""
+    if seconds is None or threading.current_thread() is not threading.main_thread():
+        yield lambda on: None
+        return
+
+    def expire(signum: int, frame: object) -> None:
+        raise PlanTimeout(f"no plan within {seconds:g} s")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    try:
+        yield lambda on: signal.setitimer(signal.ITIMER_REAL, seconds if on else 0.0)
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 def rollout(
     scenario: Scenario,
     errors: PerceptionErrors,
@@ -156,35 +187,39 @@ def rollout(
     plans_log: list[Trajectory] = []
     inconclusive = None
     last = num_frames - 1
-    for k in range(num_frames):
-        ego_states[k] = (ego.x, ego.y, ego.yaw, ego.v)
-        started = clock()
-        distances[k] = collision_distances(ego, config.ego_length, config.ego_width, agents, k)
-        stage_times["rule"] += clock() - started
-        if violates(distances[k].min(initial=np.inf), config.stop_at_collision):
-            last = k
-            break
-        started = clock()
-        tracks = tracker.step(float(times[k]), perceived.frame(k))
-        stage_times["tracker"] += clock() - started
-        started = clock()
-        try:
-            plan = planner.plan(float(times[k]), ego, tracks)
-        except Exception as exc:  # a plug-in planner that crashes gives no verdict, not a pass
-            inconclusive, last = f"frame {k}: planner raised {type(exc).__name__}: {exc}", k
-        else:
-            following = after_plan(plan, k, times)
-            if following.inconclusive is not None:
-                inconclusive, last = following.inconclusive, k
-            elif not following.done:
-                ego = following.ego
-        stage_times["planner"] += clock() - started
-        if record:
-            tracks_log.append(tracks)
-            if inconclusive is None:
-                plans_log.append(plan)
-        if inconclusive is not None:
-            break
+    with plan_alarm(config.plan_timeout) as arm:
+        for k in range(num_frames):
+            ego_states[k] = (ego.x, ego.y, ego.yaw, ego.v)
+            started = clock()
+            distances[k] = collision_distances(ego, config.ego_length, config.ego_width, agents, k)
+            stage_times["rule"] += clock() - started
+            if violates(distances[k].min(initial=np.inf), config.stop_at_collision):
+                last = k
+                break
+            started = clock()
+            tracks = tracker.step(float(times[k]), perceived.frame(k))
+            stage_times["tracker"] += clock() - started
+            started = clock()
+            try:
+                arm(True)
+                plan = planner.plan(float(times[k]), ego, tracks)
+                arm(False)
+            except Exception as exc:  # a plug-in planner that crashes or hangs gives no verdict, not a pass
+                arm(False)
+                inconclusive, last = f"frame {k}: planner raised {type(exc).__name__}: {exc}", k
+            else:
+                following = after_plan(plan, k, times)
+                if following.inconclusive is not None:
+                    inconclusive, last = following.inconclusive, k
+                elif not following.done:
+                    ego = following.ego
+            stage_times["planner"] += clock() - started
+            if record:
+                tracks_log.append(tracks)
+                if inconclusive is None:
+                    plans_log.append(plan)
+            if inconclusive is not None:
+                break
     stats = planner_stats(planner)
     return judge(RolloutResult(
         ego=ego_states[: last + 1],

@@ -335,15 +335,22 @@ def load_params(path: str | Path) -> AttackParams:
 
 def package_share() -> Path:
     """Where this package's shared files (bags/, config/, launch/) are installed: ament_index knows
-    a colcon or ROS install; a plain pip install puts them under Python's prefix."""
+    a colcon or ROS install; a plain pip install puts them under Python's prefix; an editable one
+    (`pip install -e .`) installs none and runs from its source tree, which holds them."""
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
     except ImportError:
-        return Path(sys.prefix) / "share" / PACKAGE
-    try:
-        return Path(get_package_share_directory(PACKAGE))
-    except PackageNotFoundError:
-        return Path(sys.prefix) / "share" / PACKAGE
+        pass
+    else:
+        try:
+            return Path(get_package_share_directory(PACKAGE))
+        except (PackageNotFoundError, OSError):  # not in the index; or no ROS environment sourced
+            pass
+    installed = Path(sys.prefix) / "share" / PACKAGE
+    source_tree = Path(__file__).resolve().parent.parent
+    if not installed.is_dir() and (source_tree / "package.xml").is_file():
+        return source_tree
+    return installed
 
 
 def find_bag(bag: str, source: Path | None) -> Path:

@@ -28,6 +28,18 @@ def test_flat_values_round_trip(repo):
     assert set(params.flat()) == set(SCHEMA)
 
 
+def test_an_editable_install_finds_the_bundled_files_in_its_source_tree(repo, tmp_path, monkeypatch):
+    """`pip install -e .` installs no share folder: the bundled params then find their bags from any
+    working directory, as after `pip install .`."""
+    monkeypatch.setattr(params_module.sys, "prefix", str(tmp_path / "venv"))
+    assert params_module.package_share() == repo
+    monkeypatch.chdir(tmp_path)
+    assert find_bag("bags/idm_lane_following", repo / "config" / "idm_lane_following.yaml") == \
+        repo / "bags" / "idm_lane_following"
+    (tmp_path / "venv" / "share" / "advperc_ros").mkdir(parents=True)  # an installed share comes first
+    assert params_module.package_share() == tmp_path / "venv" / "share" / "advperc_ros"
+
+
 def test_a_relative_bag_is_found_in_one_order(tmp_path, monkeypatch):
     share = tmp_path / "share"
     (share / "bags" / "b").mkdir(parents=True)

@@ -59,20 +59,26 @@ def reached(curve: list[float], figure: float | None) -> int | None:
     return hits[0] if hits else None
 
 
-def compare(scenarios, objectives, seeds, out: Path) -> list[dict]:
-    rows = []
+def compare(scenarios, objectives, seeds, out: Path) -> None:
+    """Appends to `out` the searches it does not hold yet (an ObP search takes minutes)."""
+    done = {(r["scenario"], r["objective"], r["seed"], r["method"]): r for r in load(out)}
     for name in scenarios:
         for objective in objectives:
             for seed in seeds:
-                paper = attack(name, objective, seed, "paper")
-                guided = attack(name, objective, seed, "guided", budget=paper["rollouts"])
-                for row in (paper, guided):
+                paper = done.get((name, objective, seed, "paper"))
+                for method in ("paper", "guided"):
+                    if (name, objective, seed, method) in done:
+                        continue
+                    row = attack(name, objective, seed, method, budget=paper["rollouts"] if paper else 0)
                     row["reached"] = reached(row["curve"], PAPER.get(objective, {}).get(name))
-                    rows.append(row)
+                    paper = paper or row
                     print(json.dumps({k: v for k, v in row.items() if k != "curve"}), flush=True)
                     with out.open("a") as handle:
                         handle.write(json.dumps(row) + "\n")
-    return rows
+
+
+def load(path: Path) -> list[dict]:
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()] if path.exists() else []
 
 
 def table(rows: list[dict]) -> None:
@@ -141,7 +147,7 @@ def main() -> None:
     parser.add_argument("--objectives", nargs="+", default=["nds_t"], choices=("nds", "nds_t", "pem_ll"))
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2, 3, 4])
     parser.add_argument("--results", type=Path, default=Path("search_bench.jsonl"),
-                        help="appends one JSON line per search; rows already there are reused (--table-only)")
+                        help="one JSON line per search, appended; searches already there are not run again")
     parser.add_argument("--table-only", action="store_true", help="print the tables and plot of --results only")
     parser.add_argument("--plot", type=Path, default=REPO / "docs" / "search_methods.png")
     parser.add_argument("--workers-scenario", choices=SCENARIOS)
@@ -150,8 +156,8 @@ def main() -> None:
     args = parser.parse_args()
     if not args.table_only and args.scenarios:
         compare(args.scenarios, args.objectives, args.seeds, args.results)
-    if args.results.exists():
-        rows = [json.loads(line) for line in args.results.read_text().splitlines() if line.strip()]
+    rows = load(args.results)
+    if rows:
         table(rows)
         plot([r for r in rows if r["objective"] == "nds_t"], args.plot)
     if args.workers_scenario:

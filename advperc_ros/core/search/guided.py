@@ -4,13 +4,13 @@ Algorithm 2 rolls out one random improving proposal per step, and none when no p
 so its budget is left unspent. Scoring a candidate needs no rollout, so each round here draws many
 candidates from the best attack so far, scores them all exactly on its rollout, and rolls out the
 `batch` with the largest expected gain: (metric - best) x P(still collides). P comes from a
-logistic model of the verdict against how far a candidate moves from its parent (the change of its
-error tensor relative to the parent's), fitted to this search's own rollouts, so it learns how big
-a step this scenario's failure boundary tolerates. Candidates are the paper's proposal (a dropped
-segment detected again, offset) and two moves towards zero along the boundary: shrinking the
-offsets of a segment, and perceiving the edge frames of an attacked run perfectly again. A round's
-rollouts are independent, so a backend may run them at once; the batch size is a param, so the
-attack does not depend on how many workers ran it.
+logistic model of the verdict against the move and the candidate's gain, fitted to this search's
+own rollouts, so it learns which moves and how bold a step this planner's failure boundary
+tolerates. Moves: the paper's proposal (a dropped segment detected again, offset), a lateral push
+that hides a car from a corridor at the least NDS cost, and two moves towards zero along the
+boundary: shrinking the offsets of a segment, and perceiving the edge frames of an attacked run
+perfectly again. A round's rollouts are independent, so a backend may run them at once; the batch
+size is a param, so the attack does not depend on how many workers ran it.
 """
 
 from dataclasses import dataclass
@@ -23,7 +23,6 @@ from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig, propose
 from advperc_ros.core.search.refine import dropped_runs
 
-DROP_OFFSET = 5.0  # m: a dropped detection counts as this far off when measuring a step
 # m: a push just inside the loosest match threshold: still a true positive, so it costs no more NDS
 # than a 2 m offset (both miss the tighter thresholds) and it is no drop, yet it moves a car furthest
 PUSH = 0.95 * max(DIST_THRESHOLDS)
@@ -36,23 +35,9 @@ class GuidedConfig:
     random: RandomSearchConfig = RandomSearchConfig()  # the paper's proposal: max offset, yaw noise
 
 
-def attack_size(errors: PerceptionErrors) -> np.ndarray:
-    """Per frame and agent, how far the perceived box is from the truth (a drop: DROP_OFFSET)."""
-    return np.where(errors.fn, DROP_OFFSET, np.hypot(errors.dx, errors.dy))
-
-
-def step_size(child: PerceptionErrors, parent: PerceptionErrors) -> float:
-    """How far a candidate moves from its parent, relative to the parent's whole attack."""
-    moved = np.where(child.fn | parent.fn, DROP_OFFSET * (child.fn != parent.fn),
-                     np.hypot(child.dx - parent.dx, child.dy - parent.dy))
-    return float(moved.sum() / max(attack_size(parent).sum(), 1e-9))
-
-
 def attacked_runs(errors: PerceptionErrors, frames: int) -> list[tuple[int, int, int]]:
     """(slot, first, last) of every run of attacked (dropped or displaced) frames."""
-    attacked = PerceptionErrors.none(*errors.shape)
-    attacked.fn[:frames] = attack_size(errors)[:frames] > 0
-    return dropped_runs(attacked.fn)
+    return dropped_runs((errors.fn | (errors.dx != 0) | (errors.dy != 0))[:frames])
 
 
 def shrink(errors: PerceptionErrors, frames: int, rng: np.random.Generator) -> PerceptionErrors | None:
@@ -190,7 +175,7 @@ def guided_search(problem: AttackProblem, rng: np.random.Generator, cfg: GuidedC
         chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)))
         batch = [scored[i][2] for i in chosen]
         tried.update(_key(c) for c in batch)
-        trials = problem.evaluate_many(batch, Phase.GUIDED)
+        trials = problem.evaluate_many([(c, Phase.GUIDED, -1) for c in batch])
         for i, trial in zip(chosen, trials):
             if not trial.rollout.inconclusive:
                 moves.append(int(move[i]))

@@ -51,12 +51,13 @@ def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
     problem.budget = budget(config, problem.scenario.agents.shape[1])
     heuristic = searched = refined = None
     try:
-        modes = heuristic_search(problem, config.heuristic_iterations)
+        guided = config.method == "guided"
+        modes = heuristic_search(problem, config.heuristic_iterations, batched=guided)
         heuristic = max(modes, key=lambda mode: mode.metric) if modes else None
         if heuristic is None:
             return SearchResult(None, None, None, None)
         rng = np.random.default_rng(config.seed)
-        if config.method == "guided":
+        if guided:
             guided_search(problem, rng, config.guided, problem.budget)
         else:
             searched = random_search(problem, heuristic, rng, config.random)

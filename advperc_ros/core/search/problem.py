@@ -110,17 +110,19 @@ class AttackProblem:
 
     def evaluate(self, errors: PerceptionErrors, phase: Phase, agent: int = -1) -> Evaluation:
         """Roll out errors, score them on that rollout, log the rollout."""
-        return self.evaluate_many([errors], phase, agent)[0]
+        return self.evaluate_many([(errors, phase, agent)])[0]
 
-    def evaluate_many(self, batch: list[PerceptionErrors], phase: Phase, agent: int = -1) -> list[Evaluation]:
-        """`evaluate` of each, in order; the rollouts may run at once (`run_rollouts`)."""
+    def evaluate_many(self, batch: list[tuple[PerceptionErrors, Phase, int]]) -> list[Evaluation]:
+        """`evaluate` of each (errors, phase, agent), logged in order; the rollouts may run at once
+        (`run_rollouts`)."""
         if self.budget is not None and len(self.log) + len(batch) > self.budget:
             raise BudgetSpent(f"{len(self.log)} of {self.budget} rollouts run; {len(batch)} more asked for")
+        errors = [item[0] for item in batch]
         if self.run_rollouts is not None and len(batch) > 1:
-            results = self.run_rollouts(batch)
+            results = self.run_rollouts(errors)
         else:
-            results = [self.run_rollout(errors) for errors in batch]
-        return [self._record(errors, result, phase, agent) for errors, result in zip(batch, results)]
+            results = [self.run_rollout(e) for e in errors]
+        return [self._record(e, result, phase, agent) for (e, phase, agent), result in zip(batch, results)]
 
     def _record(self, errors: PerceptionErrors, result: RolloutResult, phase: Phase, agent: int) -> Evaluation:
         scores = self.scores(errors, result.num_frames, result.ego_xy)

@@ -14,7 +14,8 @@ from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker
-from advperc_ros.params import AttackParams, planning_context, rollout_config, tracker_config
+from advperc_ros.params import (PLANNER_PARAMS, AttackParams, params_from_values, planning_context, rollout_config,
+                                tracker_config)
 
 EXTERNAL = "external"  # the `planner` of a report whose planner was a node of someone else's
 
@@ -60,7 +61,8 @@ class Stack:
             return [self.rollout(errors) for errors in batch]
         if self._pool is None:  # spawn: the parent may run threads (rclpy) that fork would copy mid-state
             self._pool = ProcessPoolExecutor(self.params.workers, multiprocessing.get_context("spawn"),
-                                             initializer=_start_worker, initargs=(self.scenario, self.params))
+                                             initializer=_start_worker, initargs=(self.scenario, _values(self.params),
+                                                                                   self.params.source))
         return list(self._pool.map(_worker_rollout, batch))
 
     def close(self) -> None:
@@ -72,9 +74,14 @@ class Stack:
 _worker_stack: Stack | None = None  # a pool worker's own stack
 
 
-def _start_worker(scenario: Scenario, params: AttackParams) -> None:
+def _values(params: AttackParams) -> dict:
+    """The params as plain values a worker process can be sent (their planner_params are read-only)."""
+    return {**params.flat(), PLANNER_PARAMS: dict(params.planner_params)}
+
+
+def _start_worker(scenario: Scenario, values: dict, source) -> None:
     global _worker_stack
-    _worker_stack = Stack(scenario, params)
+    _worker_stack = Stack(scenario, params_from_values(values, source))
 
 
 def _worker_rollout(errors: PerceptionErrors) -> RolloutResult:

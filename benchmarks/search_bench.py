@@ -106,7 +106,7 @@ def workers_ratio(name: str, objective: str, budget: int, repeats: int) -> None:
         for workers in (1, 2):
             results[workers] = attack(name, objective, 0, "guided", budget=budget, workers=workers)
             times[workers].append(results[workers]["wall_s"])
-        assert results[1]["curve"] == results[2]["curve"], "the attack depends on the workers"
+        assert np.array_equal(results[1]["curve"], results[2]["curve"], equal_nan=True), "the attack depends on the workers"
     one, two = statistics.median(times[1]), statistics.median(times[2])
     print(f"\n{name} {objective} guided, budget {budget}: 1 worker {times[1]} s, 2 workers {times[2]} s; "
           f"median ratio {two / one:.2f}")
@@ -127,12 +127,12 @@ def plot(rows: list[dict], path: Path) -> None:
                 continue
             length = max(len(c) for c in curves)
             padded = np.array([c + [c[-1]] * (length - len(c)) for c in curves], dtype=float)
-            ax.plot(np.arange(1, length + 1), np.nanmedian(padded, axis=0), color=colour,
-                    label=f"{method} ({len(curves)} seeds)")
+            ax.plot(np.arange(1, length + 1), np.nanmedian(padded, axis=0), color=colour, label=method)
         figure = PAPER.get(objective, {}).get(name)
         if figure is not None:
             ax.axhline(figure, color="grey", linestyle=":", label="paper Table 1")
-        ax.set_title(f"{name}\n{objective}", fontsize=8)
+        seeds = len({r["seed"] for r in rows if (r["scenario"], r["objective"]) == (name, objective)})
+        ax.set_title(f"{name}\n{objective}, {seeds} seeds", fontsize=8)
         ax.set_xlabel("rollouts", fontsize=8)
         ax.tick_params(labelsize=7)
     axes[0][0].set_ylabel("best metric (median over seeds)", fontsize=8)

@@ -15,7 +15,8 @@ from tqdm import tqdm
 from advperc_ros.backend import EXTERNAL, Rollouts, Stack
 from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.search.pipeline import SearchConfig, run_search
+from advperc_ros.core.search.guided import GuidedConfig
+from advperc_ros.core.search.pipeline import SearchConfig, budget, run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.search.refine import dropped_runs
@@ -29,12 +30,16 @@ from advperc_ros.ros.bag import read_scenario
 
 def search_config(params: AttackParams) -> SearchConfig:
     search = params.search
+    random = RandomSearchConfig(steps=search.random.steps, proposals=search.random.proposals,
+                                max_offset=search.random.max_offset, yaw_std=search.random.yaw_std)
     return SearchConfig(
         heuristic_iterations=search.heuristic.iterations,
-        random=RandomSearchConfig(steps=search.random.steps, proposals=search.random.proposals,
-                                  max_offset=search.random.max_offset, yaw_std=search.random.yaw_std),
+        random=random,
         refine_iterations=search.refine.iterations,
         seed=params.seed,
+        method=search.method,
+        guided=GuidedConfig(candidates=search.guided.candidates, batch=search.guided.batch, random=random),
+        budget=search.budget,
     )
 
 
@@ -43,7 +48,11 @@ def open_rollouts(scenario: Scenario, params: AttackParams, bag_path: Path, tran
     """The backend `rollout_backend` names, ready to use and shut down on exit. `transport`
     (graph backend, nodes not spawned) lets an rclpy orchestrator reach nodes over its own node."""
     if params.rollout_backend != "graph":
-        yield Stack(scenario, params)
+        stack = Stack(scenario, params)
+        try:
+            yield stack
+        finally:
+            stack.close()
         return
     from advperc_ros.graph.rollouts import GraphRollouts
 
@@ -55,9 +64,10 @@ class RolloutProgress:
     """The progress bar of a search, counting the rollouts that run. Its total is the rollouts run
     so far plus those still to come as far as the search has shown them: every agent's drop, the
     bisections (2 x iterations at most) of each agent whose drop collided, and once an agent is
-    influential the random steps and refine's bisections of the best attack's dropped runs. The
-    search's budget would leave the bar at 12-39 %: most agents are not influential, and a bisection
-    or a random step can end early; `close` ends the bar at the count."""
+    influential the random steps and refine's bisections of the best attack's dropped runs (the
+    guided method: the rest of its budget, which it spends), never past the budget. The paper's
+    bound would leave the bar at 12-39 %: most agents are not influential, and a bisection or a
+    random step can end early; `close` ends the bar at the count."""
 
     def __init__(self, name: str, config: SearchConfig, num_agents: int, best: Callable[[], Evaluation | None],
                  enabled: bool = True) -> None:
@@ -83,12 +93,19 @@ class RolloutProgress:
         if phase != Phase.REFINE and best is not None:  # refine bisects the runs of the best before it
             self.refine_runs = len(dropped_runs(best.errors.fn[: best.rollout.num_frames]))
         self.bar.total = self.bar.n + 1 + self._still_to_run(phase)
-        name = "heuristic" if phase.heuristic else {Phase.RANDOM: "random search"}.get(phase, str(phase))
+        name = "heuristic" if phase.heuristic else {Phase.RANDOM: "random search", Phase.GUIDED: "guided search"}.get(
+            phase, str(phase))
         self.bar.set_description(f"{self.name} ({name})", refresh=False)
         self.bar.set_postfix(best="none yet" if best is None else f"{best.metric:.4f}", refresh=False)
         self.bar.update()
 
     def _still_to_run(self, phase: Phase) -> int:
+        left = budget(self.config, self.num_agents) - self.bar.n - 1
+        if self.config.method == "guided" and self.influential:  # it spends its whole budget
+            return left
+        return min(left, self._paper_still_to_run(phase))
+
+    def _paper_still_to_run(self, phase: Phase) -> int:
         config = self.config
         refine = config.refine_iterations * self.refine_runs
         if phase == Phase.REFINE:
@@ -112,11 +129,14 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     config = search_config(params)
     problem: AttackProblem | None = None
     counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], lambda: problem.best, progress)
-    problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter)
+    problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter,
+                            run_rollouts=getattr(backend, "rollout_many", None))
     try:
         result = run_search(problem, config)
     finally:
         counter.close()
+        if rollouts is None:  # this function's own stack: its worker pool ends here
+            backend.close()
     recorded = backend.rollout(result.best.errors, record=True) if result.best is not None else None
     attacked = backend.attacked_planner
     if attacked.node is not None:

@@ -4,6 +4,8 @@ The search only needs `rollout(errors, record)` and to know which planner it att
 it in this process, `advperc_ros.graph.rollouts.GraphRollouts` through the node graph over DDS.
 """
 
+import multiprocessing
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -12,7 +14,8 @@ from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker
-from advperc_ros.params import AttackParams, planning_context, rollout_config, tracker_config
+from advperc_ros.params import (PLANNER_PARAMS, AttackParams, params_from_values, planning_context, rollout_config,
+                                tracker_config)
 
 EXTERNAL = "external"  # the `planner` of a report whose planner was a node of someone else's
 
@@ -35,15 +38,51 @@ class Rollouts(Protocol):
 
 
 class Stack:
-    """The system under attack in this process, built from the params: tracker, planner, rollout."""
+    """The system under attack in this process, built from the params: tracker, planner, rollout.
+    With `workers` > 1, `rollout_many` runs a batch on that many processes, each of which builds
+    its own stack once (a planner is costly to build: ObP compiles its NLP)."""
 
     def __init__(self, scenario: Scenario, params: AttackParams) -> None:
         values = params.flat()
         self.scenario = scenario
+        self.params = params
         self.config = rollout_config(values)
         self.tracker = Tracker(tracker_config(values))
         self.planner = load_planner(params.planner, planning_context(values, scenario), params.planner_params)
         self.attacked_planner = AttackedPlanner(params.planner)
+        self._pool: ProcessPoolExecutor | None = None
 
     def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult:
         return rollout(self.scenario, errors, self.tracker, self.planner, self.config, record=record)
+
+    def rollout_many(self, batch: list[PerceptionErrors]) -> list[RolloutResult]:
+        """The rollouts of a batch, in its order; the same results whatever the workers."""
+        if self.params.workers == 1:
+            return [self.rollout(errors) for errors in batch]
+        if self._pool is None:  # spawn: the parent may run threads (rclpy) that fork would copy mid-state
+            self._pool = ProcessPoolExecutor(self.params.workers, multiprocessing.get_context("spawn"),
+                                             initializer=_start_worker, initargs=(self.scenario, _values(self.params),
+                                                                                   self.params.source))
+        return list(self._pool.map(_worker_rollout, batch))
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+
+
+_worker_stack: Stack | None = None  # a pool worker's own stack
+
+
+def _values(params: AttackParams) -> dict:
+    """The params as plain values a worker process can be sent (their planner_params are read-only)."""
+    return {**params.flat(), PLANNER_PARAMS: dict(params.planner_params)}
+
+
+def _start_worker(scenario: Scenario, values: dict, source) -> None:
+    global _worker_stack
+    _worker_stack = Stack(scenario, params_from_values(values, source))
+
+
+def _worker_rollout(errors: PerceptionErrors) -> RolloutResult:
+    return _worker_stack.rollout(errors)

@@ -127,13 +127,23 @@ class ResumedRollouts:
     def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult:
         if record:
             return self._backend.rollout(errors, record=True)
-        index, self._next = self._next, self._next + 1
-        if index < len(self._checkpoint.done):
-            stored = self._checkpoint.done[index]
-            if stored["errors"] != _digest(errors):
-                raise ParamsError(f"{self._checkpoint.folder}: rollout {index + 1} differs from the one recorded: "
+        return self.rollout_many([errors])[0]
+
+    def rollout_many(self, batch: list[PerceptionErrors]) -> list[RolloutResult]:
+        """A batch's rollouts in order: those checkpointed from the checkpoint, the rest on the
+        backend (at once where it can), each appended as the batch completes."""
+        stored = []
+        while len(stored) < len(batch) and self._next < len(self._checkpoint.done):
+            record, errors = self._checkpoint.done[self._next], batch[len(stored)]
+            if record["errors"] != _digest(errors):
+                raise ParamsError(f"{self._checkpoint.folder}: rollout {self._next + 1} differs from the one recorded: "
                                   "the checkpoint is of another attack (or another version of this tool)")
-            return judge(_result(stored), self._agents, self._config)
-        result = self._backend.rollout(errors)
-        self._checkpoint.append(errors, result)
-        return result
+            stored.append(judge(_result(record), self._agents, self._config))
+            self._next += 1
+        rest = batch[len(stored):]
+        many = getattr(self._backend, "rollout_many", None)
+        fresh = many(rest) if many is not None and len(rest) > 1 else [self._backend.rollout(e) for e in rest]
+        for errors, result in zip(rest, fresh):
+            self._checkpoint.append(errors, result)
+        self._next += len(rest)
+        return stored + fresh

@@ -112,10 +112,21 @@ class RefineParams:
 
 
 @dataclass(frozen=True)
+class GuidedParams:
+    candidates: int = _param(400, "guided method: candidates scored exactly per round", low=1, high=1_000_000)
+    batch: int = _param(2, "guided method: rollouts per round (they may run at once on `workers`)", low=1, high=1024)
+
+
+@dataclass(frozen=True)
 class SearchParams:
+    method: str = _param("paper", "paper: heuristic, random search, refine (README Search); guided: heuristic, then "
+                         "rounds that score many candidates and roll out the most promising", choices=("paper", "guided"))
+    budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound", low=0,
+                         high=1_000_000)
     heuristic: HeuristicParams = HeuristicParams()
     random: RandomParams = RandomParams()
     refine: RefineParams = RefineParams()
+    guided: GuidedParams = GuidedParams()
 
 
 @dataclass(frozen=True)
@@ -146,6 +157,8 @@ class AttackParams:
     ego: EgoParams = EgoParams()
     tracker: TrackerParams = TrackerParams()
     search: SearchParams = SearchParams()
+    workers: int = _param(1, "embedded backend: processes that run a guided round's rollouts at once; the attack "
+                          "is the same whatever the number", low=1, high=256)
     rollout_backend: str = _param("embedded", "how rollouts run: in this process (embedded) or through the node graph "
                                   "over DDS (graph); both give the same results", choices=("embedded", "graph"))
     dds: DdsParams = DdsParams()
@@ -204,7 +217,7 @@ def _schema(cls: type, prefix: str = "") -> dict[str, Param]:
 
 
 SCHEMA: dict[str, Param] = _schema(AttackParams)
-EXECUTION = ("rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes")
+EXECUTION = ("workers", "rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes")
 """How rollouts are executed, not what they compute: left out of the report's params and the config
 hash, so the graph and embedded backends give the same report."""
 

@@ -24,6 +24,7 @@ class Phase(str, Enum):
     HEURISTIC_END = "heuristic_end"  # Algorithm 1: bisecting its earliest end
     RANDOM = "random"  # Algorithm 2
     REFINE = "refine"  # beyond the paper: re-detecting the start of dropped runs
+    GUIDED = "guided"  # beyond the paper: the guided search's rounds
     ROBUSTNESS = "robustness"  # perturbations of a found attack (paper figure 5)
 
     def __str__(self) -> str:
@@ -32,6 +33,10 @@ class Phase(str, Enum):
     @property
     def heuristic(self) -> bool:
         return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END)
+
+
+class BudgetSpent(RuntimeError):
+    """A rollout was asked for beyond the search's rollout budget: the search ends there."""
 
 
 class GroundTruthFails(RuntimeError):
@@ -76,6 +81,9 @@ class AttackProblem:
     run_rollout: Callable[[PerceptionErrors], RolloutResult]
     objective: str
     on_rollout: Callable[[LogRow], None] | None = None
+    # several rollouts at once (a backend's worker pool); None: one after another
+    run_rollouts: Callable[[list[PerceptionErrors]], list[RolloutResult]] | None = None
+    budget: int | None = None  # rollouts allowed; one more raises BudgetSpent
     log: list[LogRow] = field(default_factory=list)
     best: Evaluation | None = None
     _reference: RolloutResult | None = field(default=None, repr=False)
@@ -102,7 +110,21 @@ class AttackProblem:
 
     def evaluate(self, errors: PerceptionErrors, phase: Phase, agent: int = -1) -> Evaluation:
         """Roll out errors, score them on that rollout, log the rollout."""
-        result = self.run_rollout(errors)
+        return self.evaluate_many([(errors, phase, agent)])[0]
+
+    def evaluate_many(self, batch: list[tuple[PerceptionErrors, Phase, int]]) -> list[Evaluation]:
+        """`evaluate` of each (errors, phase, agent), logged in order; the rollouts may run at once
+        (`run_rollouts`)."""
+        if self.budget is not None and len(self.log) + len(batch) > self.budget:
+            raise BudgetSpent(f"{len(self.log)} of {self.budget} rollouts run; {len(batch)} more asked for")
+        errors = [item[0] for item in batch]
+        if self.run_rollouts is not None and len(batch) > 1:
+            results = self.run_rollouts(errors)
+        else:
+            results = [self.run_rollout(e) for e in errors]
+        return [self._record(e, result, phase, agent) for (e, phase, agent), result in zip(batch, results)]
+
+    def _record(self, errors: PerceptionErrors, result: RolloutResult, phase: Phase, agent: int) -> Evaluation:
         scores = self.scores(errors, result.num_frames, result.ego_xy)
         evaluation = Evaluation(errors, result, scores, getattr(scores, self.objective))
         if evaluation.adversarial and (self.best is None or evaluation.metric > self.best.metric):

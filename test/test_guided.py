@@ -1,0 +1,110 @@
+"""The guided search and rollout budgets (README "Search"): budget kept and spent, the same attack
+on 1 and 2 workers, resumable mid-batch, and the paper's method unchanged."""
+
+import json
+
+import numpy as np
+import pytest
+
+from advperc_ros.application import attack_to_folder, run_attack
+from advperc_ros.backend import Stack
+from advperc_ros.core.search.guided import pick_batch
+from advperc_ros.core.search.problem import Phase
+from advperc_ros.exits import Interrupted
+from advperc_ros.params import load_params
+from advperc_ros.ros.bag import read_scenario
+from conftest import REPO
+
+# idm_lane_following: ground truth, 5 drops (one batch under the guided method), 6 bisections
+HEURISTIC_ROLLOUTS = 12
+
+
+@pytest.fixture(scope="module")
+def lane_following():
+    return read_scenario(REPO / "bags" / "idm_lane_following"), load_params(REPO / "config" / "idm_lane_following.yaml")
+
+
+def _guided(params, budget, **values):
+    return params.with_values(**{"search.method": "guided", "search.budget": budget, **values})
+
+
+def _trace(outcome):
+    return [(row.phase, row.metric, row.min_signed_distance, row.collided) for row in outcome.log]
+
+
+@pytest.fixture(scope="module")
+def guided_runs(lane_following):
+    """A guided search of budget 18 on 1 worker and on 2."""
+    scenario, params = lane_following
+    return {workers: run_attack(scenario, _guided(params, 18, workers=workers), progress=False) for workers in (1, 2)}
+
+
+def test_guided_spends_exactly_its_budget(guided_runs):
+    outcome = guided_runs[1]
+    assert len(outcome.log) == 18
+    assert [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]] == [Phase.GUIDED] * 6
+    assert outcome.best.metric == max(row.metric for row in outcome.log if row.collided)
+
+
+def test_guided_improves_on_the_heuristic(guided_runs):
+    outcome = guided_runs[1]
+    assert outcome.best.metric > outcome.heuristic_best.metric
+
+
+def test_two_workers_give_the_same_attack_bit_for_bit(guided_runs):
+    one, two = guided_runs[1], guided_runs[2]
+    assert _trace(one) == _trace(two)
+    assert one.best.errors.equals(two.best.errors)
+
+
+@pytest.mark.parametrize("method, budget, used", [("paper", 5, 5), ("paper", 13, 13), ("guided", 9, 9),
+                                                  ("guided", 5, 0)])
+def test_a_budget_ends_the_search_there(lane_following, method, budget, used):
+    """Mid-heuristic (paper 5 and guided 9, mid-bisection) or in the paper's random search (13): the
+    best attack so far reported; never past the budget, so a guided budget of 5 ends before the
+    ground truth and the 5 drops batched with it."""
+    scenario, params = lane_following
+    outcome = run_attack(scenario, _guided(params, budget).with_values(**{"search.method": method}), progress=False)
+    assert len(outcome.log) == used
+    assert (outcome.best is not None and outcome.best.rollout.collided) == (used > 0)
+
+
+def test_paper_method_unchanged(lane_following):
+    """README Table 1: idm_lane_following, nds_t, seed 0, paper-sized search: NDS-t 0.933 in 33 rollouts."""
+    scenario, params = lane_following
+    outcome = run_attack(scenario, params.with_values(**{"search.method": "paper"}), progress=False)
+    assert len(outcome.log) == 33
+    assert round(outcome.best.scores.nds_t, 3) == 0.933
+
+
+def test_guided_attack_resumes_mid_batch_to_the_same_report(lane_following, tmp_path, monkeypatch):
+    _, params = lane_following
+    params = _guided(params, 19).with_values(bag=str(REPO / "bags" / "idm_lane_following"))
+    whole, _ = attack_to_folder(params, tmp_path / "whole")
+    calls, rollout = [0], Stack.rollout
+
+    def killed_at_the_sixteenth(self, errors, record=False):  # the second rollout of the first guided batch
+        calls[0] += 1
+        if calls[0] == HEURISTIC_ROLLOUTS + 2:
+            raise KeyboardInterrupt
+        return rollout(self, errors, record)
+
+    monkeypatch.setattr(Stack, "rollout", killed_at_the_sixteenth)
+    with pytest.raises(Interrupted):
+        attack_to_folder(params, tmp_path / "cut")
+    monkeypatch.setattr(Stack, "rollout", rollout)
+    attack_to_folder(params, tmp_path / "cut", resume=True)
+    reports = [json.loads((folder / "report.json").read_text()) for folder in (whole, tmp_path / "cut")]
+    for report in reports:
+        report.pop("wall_time_s")
+    assert reports[0] == reports[1]
+
+
+def test_pick_batch_pairs_a_bold_candidate_with_a_safe_one():
+    gain = np.array([1.0, 0.9, 0.3])
+    chance = np.array([0.5, 0.5, 0.99])
+    # first the largest expected gain alone (0.5 > 0.45 > 0.297); then what pays where it fails:
+    # 0.5 + 0.5 * 0.5 * 0.9 = 0.725 for the second bold one against 0.5 + 0.5 * 0.99 * 0.3 = 0.6485
+    assert pick_batch(gain, chance, 2) == [0, 1]
+    # a second bold one that rarely collides: 0.5 + 0.5 * 0.1 * 0.9 = 0.545, the safe one is worth more
+    assert pick_batch(gain, np.array([0.5, 0.1, 0.99]), 2) == [0, 2]

@@ -5,16 +5,18 @@
     python benchmarks/recordings_bench.py --markdown            # the README's table
 
 Per recording: `advperc import-commonroad X.xml --output DIR/bag` once, then `advperc attack
-DIR/bag.yaml` (IDM), `DIR/bag.obp.yaml` (ObP) or, for the third-party planner, DIR/bag.yaml with
-`planner: advperc_ros.contrib.reactive:ReactivePlanner`. The outcome is the command's: an attack
-(NDS / NDS-t of the attack found), no attack and why (report.json's message), refused (exit 1),
-rejected (exit 3, import-commonroad's reason). Attacks run on a process pool (default 2 workers:
+DIR/bag.yaml` (IDM), `DIR/bag.obp.yaml` (ObP) or `DIR/bag.reactive.yaml` (the third-party
+commonroad-reactive-planner: run this script with the python of the venv holding the `reactive`
+extra). The outcome is the command's: an attack (NDS / NDS-t of the attack found), no attack and
+why (report.json's message), refused (exit 1), rejected (exit 3, import-commonroad's reason). Attacks run on a process pool (default 2 workers:
 the machine is shared); wall time is each attack command's, import excluded.
 """
 
 import argparse
 import json
 import os
+import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -23,11 +25,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import yaml
-
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data" / "commonroad"
-REACTIVE = "advperc_ros.contrib.reactive:ReactivePlanner"
 PLANNERS = ("idm", "obp", "reactive")
 
 
@@ -52,7 +51,10 @@ def advperc(*args: str) -> subprocess.CompletedProcess:
 
 
 def import_recording(xml: Path, folder: Path) -> tuple[Path | None, str]:
-    """(bag, message): the bag imported into `folder`, or None and why it was rejected."""
+    """(bag, message): the bag imported into `folder` (kept from an earlier run with --keep), or None and why
+    it was rejected."""
+    if (folder / "bag").is_dir():
+        return folder / "bag", "imported before"
     done = advperc("import-commonroad", str(xml), "--output", str(folder / "bag"))
     if done.returncode != 0:
         return None, done.stderr.strip().splitlines()[-1] if done.stderr.strip() else f"exit {done.returncode}"
@@ -60,18 +62,22 @@ def import_recording(xml: Path, folder: Path) -> tuple[Path | None, str]:
 
 
 def params_file(bag: Path, planner: str) -> Path:
-    if planner == "idm":
-        return bag.with_name("bag.yaml")
-    if planner == "obp":
-        return bag.with_name("bag.obp.yaml")
-    document = yaml.safe_load(bag.with_name("bag.yaml").read_text())
-    document["orchestrator"]["ros__parameters"]["planner"] = REACTIVE
-    path = bag.with_name("bag.reactive.yaml")
-    path.write_text(yaml.safe_dump(document))
-    return path
+    """The params file import-commonroad wrote beside the bag for `planner`."""
+    return bag.with_name({"idm": "bag.yaml", "obp": "bag.obp.yaml", "reactive": "bag.reactive.yaml"}[planner])
 
 
 def attack(recording: str, planner: str, bag: Path | None, rejected: str) -> Row:
+    """The row of one attack; with --keep, a row written by an earlier run is read back instead (so a
+    killed benchmark resumes)."""
+    if bag is not None and bag.with_name(f"row-{planner}.json").is_file():
+        return Row(**json.loads(bag.with_name(f"row-{planner}.json").read_text()))
+    row = _attack(recording, planner, bag, rejected)
+    if bag is not None and row.outcome != "error":
+        bag.with_name(f"row-{planner}.json").write_text(json.dumps(asdict(row)))
+    return row
+
+
+def _attack(recording: str, planner: str, bag: Path | None, rejected: str) -> Row:
     if bag is None:
         return Row(recording, planner, None, None, "rejected", rejected, None, None, None, 0.0)
     from advperc_ros.ros.bag import read_scenario  # noqa: PLC0415 (the parent process needs no ROS types)
@@ -79,6 +85,8 @@ def attack(recording: str, planner: str, bag: Path | None, rejected: str) -> Row
     scenario = read_scenario(bag)
     vehicles, frames = scenario.agents.shape[1], scenario.num_frames
     out = bag.with_name(f"res-{planner}")
+    if out.exists():  # left by a killed run: its attack starts again
+        shutil.rmtree(out)
     started = time.perf_counter()
     done = advperc("attack", str(params_file(bag, planner)), "--output", str(out), "--quiet")
     wall = time.perf_counter() - started
@@ -96,9 +104,23 @@ def attack(recording: str, planner: str, bag: Path | None, rejected: str) -> Row
 
 
 def short(row: Row) -> str:
+    """The outcome in a few words, for the table (the whole reason is in --json)."""
     if row.outcome == "attack":
         return f"attack, NDS {row.nds:.3f} / NDS-t {row.nds_t:.3f}"
-    return f"{row.outcome}: {row.reason}"
+    if row.outcome == "no attack":
+        closest = re.findall(r"closest approach (-?[\d.]+) m", row.reason)
+        if "even with every vehicle hidden" in row.reason:
+            return f"none: clear even blind ({closest[-1]} m)"
+        if "hiding every vehicle does make" in row.reason:
+            return "none: blind collides, no single drop does"
+        return f"none: no influential vehicle ({closest[0]} m)" if closest else "none"
+    if row.outcome == "refused":
+        found = re.search(r"min signed distance (-?[\d.]+) m", row.reason)
+        return f"refused: at-fault collision unattacked ({found.group(1) if found else '?'} m)"
+    if row.outcome == "rejected":
+        found = re.search(r"overlaps by ([\d.]+) m", row.reason)
+        return f"rejected: unavoidable (overlap {found.group(1) if found else '?'} m)"
+    return f"error: {row.reason}"
 
 
 def main() -> None:
@@ -130,8 +152,8 @@ def main() -> None:
     for name in names:
         first = by[name, args.planners[0]]
         cells = [name, str(first.vehicles or "-"), str(first.frames or "-")]
-        cells += [f"{short(by[name, p])} ({by[name, p].rollouts or 0} rollouts, {by[name, p].wall_s:.0f} s)"
-                  for p in args.planners]
+        cells += [short(by[name, p]) + (f"; {by[name, p].rollouts or 0} rollouts, {by[name, p].wall_s:.0f} s"
+                                         if by[name, p].outcome != "rejected" else "") for p in args.planners]
         print(("| " + " | ".join(cells) + " |") if args.markdown else "\t".join(cells))
     found = sum(any(by[n, p].outcome == "attack" for p in args.planners) for n in names)
     print(f"\n{found}/{len(names)} recordings attacked by at least one planner")

@@ -85,12 +85,14 @@ def _attack(recording: str, planner: str, bag: Path | None, rejected: str) -> Ro
     scenario = read_scenario(bag)
     vehicles, frames = scenario.agents.shape[1], scenario.num_frames
     out = bag.with_name(f"res-{planner}")
-    if out.exists():  # left by a killed run: its attack starts again
-        shutil.rmtree(out)
+    for left in (out, out.with_name(f".{out.name}.checkpoint")):  # by a killed run: its attack starts again
+        if left.exists():
+            shutil.rmtree(left)
     started = time.perf_counter()
     done = advperc("attack", str(params_file(bag, planner)), "--output", str(out), "--quiet")
     wall = time.perf_counter() - started
-    last = done.stderr.strip().splitlines()[-1] if done.stderr.strip() else ""
+    said = [line for line in done.stderr.splitlines() if line.startswith("advperc: ")]  # not a library's noise
+    last = said[-1] if said else ""
     if done.returncode != 0:
         kind = {1: "refused"}.get(done.returncode, "error")
         return Row(recording, planner, vehicles, frames, kind, last, None, None, None, wall)

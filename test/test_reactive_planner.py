@@ -60,6 +60,15 @@ def test_the_reactive_planner_avoids_a_car_it_sees_and_hits_it_when_the_car_is_h
     assert hidden.inconclusive is None and hidden.collided  # at fault: it drives into the car from behind
 
 
+def test_a_standing_ego_drives_off(stopped_ahead):
+    """At exactly 0 m/s the package reads its desired speed from a CommonRoad planning problem, which
+    the interface does not carry (it raised AttributeError on three Peachtree recordings)."""
+    standing = build_scenario({**STOPPED_AHEAD, "duration": 3.0, "ego": {**STOPPED_AHEAD["ego"], "speed": 0.0}})
+    result, _ = _rollout(standing, hide_the_car=False)
+    assert result.inconclusive is None and result.num_frames == standing.num_frames
+    assert result.ego[-1, 3] > 1.0  # it accelerates towards its target speed
+
+
 def test_the_reactive_planner_refuses_bad_parameters_as_any_plug_in_does(stopped_ahead):
     with pytest.raises(PlannerError, match="target_speed"):
         load_planner(REACTIVE, _context(stopped_ahead), {"target_speed": -1.0})

@@ -13,6 +13,8 @@ the protocol does not carry:
 - its full initial state: the protocol's ego has pose and speed only, so acceleration and steering
   come from the previous plan at t (0 at the first call), and positions move between the ego's
   centre and the planner's rear axle;
+- a desired speed at standstill: at exactly 0 m/s the planner reads it from the planning problem
+  (the goal), which the interface does not carry, so a standing ego is passed as creeping at 1 mm/s;
 - an answer when every sample collides: the planner returns nothing, and a plan is needed, so the
   adapter brakes at `emergency_decel` along the previous plan's path (or the route) and counts a
   failure (stats()).
@@ -43,6 +45,7 @@ except ImportError as exc:
 
 
 REFERENCE_BEYOND = 200.0  # m: 6 s at 33 m/s, any horizon this adapter is given at highway speed
+STANDING = 1e-3  # m/s, the speed a standing ego is given to the planner's speed sampling (see plan)
 
 
 @dataclass(frozen=True)
@@ -108,7 +111,9 @@ class ReactivePlanner:
         )
         self._sampler.reset(initial_state_cart=state, initial_state_curv=None,
                             collision_checker=self._collision_checker(tracks))
-        self._sampler.set_desired_velocity(self.config.target_speed, current_speed=state.velocity)
+        # at exactly 0 m/s it looks its desired speed up in the CommonRoad planning problem, which the
+        # interface does not carry: a standing ego is given as creeping at STANDING
+        self._sampler.set_desired_velocity(self.config.target_speed, current_speed=max(state.velocity, STANDING))
         result = self._sampler.plan()
         self._solve_times.append(time.perf_counter() - started)
         if result is None:

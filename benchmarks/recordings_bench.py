@@ -118,7 +118,8 @@ def short(row: Row) -> str:
         return f"none: no influential vehicle ({closest[0]} m)" if closest else "none"
     if row.outcome == "refused":
         found = re.search(r"min signed distance (-?[\d.]+) m", row.reason)
-        return f"refused: at-fault collision unattacked ({found.group(1) if found else '?'} m)"
+        return (f"refused: at-fault collision unattacked ({found.group(1)} m)" if found
+                else f"refused: {row.reason.removeprefix('advperc: ')}")
     if row.outcome == "rejected":
         found = re.search(r"overlaps by ([\d.]+) m", row.reason)
         return f"rejected: unavoidable (overlap {found.group(1) if found else '?'} m)"

@@ -39,6 +39,9 @@ setup(
         # ray pins protobuf>=3.20.3 and commonroad-io protobuf==3.20.2: they cannot share one environment, so
         # the Ray tests run in a venv of their own (.ci/run) and skip, saying so, where ray is missing
         "ray": ["ray>=2.9"],  # advperc campaign's executor ray
+        # TUM's sampling-based planner, attacked through advperc_ros.contrib.reactive; it pins commonroad-io<2025
+        # (the importer is tested with 2026.1) and Python<3.12, so it too runs in a venv of its own (.ci/run)
+        "reactive": ["commonroad-reactive-planner==2025.1"],
         "test": ["pytest>=7", "hypothesis>=6", "shapely>=2.0", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],
     },
     zip_safe=True,

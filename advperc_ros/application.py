@@ -14,6 +14,7 @@ from tqdm import tqdm
 
 from advperc_ros.backend import EXTERNAL, Rollouts, Stack
 from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
+from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.guided import GuidedConfig
 from advperc_ros.core.search.pipeline import SearchConfig, budget, run_search
@@ -138,12 +139,17 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         if rollouts is None:  # this function's own stack: its worker pool ends here
             backend.close()
     recorded = backend.rollout(result.best.errors, record=True) if result.best is not None else None
+    blind = None
+    if result.best is None and scenario.agents.shape[1]:  # why nothing was found: what would hiding everything do?
+        everything = PerceptionErrors.none(*scenario.agents.shape)
+        everything.fn[:] = True
+        blind = backend.rollout(everything)
     attacked = backend.attacked_planner
     if attacked.node is not None:
         params = replace(params, planner=EXTERNAL, planner_params={})
     return AttackOutcome(scenario=scenario, params=params, heuristic_best=result.heuristic, best=result.best,
                          recorded=recorded, log=problem.log, wall_time_s=time.perf_counter() - started,
-                         planner_node=attacked.node)
+                         planner_node=attacked.node, blind=blind)
 
 
 def default_output(params: AttackParams, scenario_name: str) -> Path:

@@ -19,3 +19,5 @@ class AttackOutcome:
     log: list[LogRow]
     wall_time_s: float
     planner_node: str | None = None  # the external planner node, when one planned
+    # when nothing was found: the ego's rollout with every vehicle hidden, the most any drop can take away
+    blind: RolloutResult | None = None

@@ -16,6 +16,7 @@ import numpy as np
 
 from advperc_ros import __version__
 from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.core.staging import staged_folder
@@ -68,9 +69,10 @@ def _ids(ids: list[int], shown: int = 10) -> str:
     return text + (f", ... ({len(ids)} in all)" if len(ids) > shown else "")
 
 
-def why_no_collision(log: list[LogRow]) -> dict:
+def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, agent_ids: np.ndarray | None = None) -> dict:
     """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
-    refines only a drop that collides) and how close the ego came, hidden agent or not."""
+    refines only a drop that collides) and how close the ego came, hidden agent or not; and, from the
+    `blind` rollout (every vehicle hidden; `agent_ids` its slots' ids), whether any drop could matter."""
     truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
     drops = [row for row in log if row.phase == "heuristic_drop"]
     conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]
@@ -92,8 +94,14 @@ def why_no_collision(log: list[LogRow]) -> dict:
         nearest = truth
         text += (f"; {'no single drop brought the ego closer than perfect perception does: ' if conclusive else ''}"
                  f"closest approach {truth.min_signed_distance:.2f} m")
+    blind_report = None
+    if blind is not None:
+        text += "; " + _blind_clause(blind, agent_ids)
+        blind_report = {"collided": blind.collided, "inconclusive": blind.inconclusive,
+                        "min_signed_distance": rounded("min_signed_distance", blind.min_signed_distance)}
     return {
         "message": text,
+        "blind": blind_report,
         "agents_tried": [row.agent for row in drops],
         "closest_approach": {
             "min_signed_distance": rounded("min_signed_distance", nearest.min_signed_distance),
@@ -105,6 +113,20 @@ def why_no_collision(log: list[LogRow]) -> dict:
         },
         "ground_truth_min_signed_distance": rounded("min_signed_distance", truth.min_signed_distance),
     }
+
+
+def _blind_clause(blind: RolloutResult, agent_ids: np.ndarray) -> str:
+    """What hiding every vehicle does, which tells whether missed detections can matter at all: an ego
+    that stays clear of the recorded traffic even blind to it is not put in its way by hiding some."""
+    if blind.inconclusive is not None:
+        return f"with every vehicle hidden the rollout was inconclusive ({blind.inconclusive})"
+    if blind.collided:
+        counted = blind.distances < 0.0 if blind.excused is None else (blind.distances < 0.0) & ~blind.excused
+        frame, slot = np.argwhere(counted)[0]
+        return (f"hiding every vehicle does make the ego collide at fault (agent {int(agent_ids[frame, slot])}, frame "
+                f"{frame}), though no single vehicle's whole-track drop does")
+    return (f"even with every vehicle hidden the ego collides with none at its fault (closest approach "
+            f"{blind.min_signed_distance:.2f} m): unseen, the recorded traffic still does not come into its way")
 
 
 def versions() -> dict[str, str]:
@@ -144,7 +166,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             **report_scores(best),
         )
     else:
-        report.update(why_no_collision(outcome.log))
+        report.update(why_no_collision(outcome.log, outcome.blind, outcome.scenario.agents.ids))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric), **report_scores(outcome.heuristic_best)}
     report.update(

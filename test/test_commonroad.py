@@ -93,10 +93,12 @@ def test_urban_turn_imports_for_both_planners_and_obp_drives_it(tmp_path, common
     assert main(["import-commonroad", str(DATA / "USA_Lanker-2_3_T-1.xml"), "--output", str(bag),
                  "--params", str(params)]) == 0
     idm, obp = load_params(params), load_params(tmp_path / "lanker.obp.yaml")
-    assert (idm.planner, obp.planner) == ("idm", "obp")
-    assert idm.planner_params == obp.planner_params and obp.planner_params["target_speed"] > 1.0
-    assert idm.rule.at_fault_only and obp.rule.at_fault_only
-    assert idm.bag == obp.bag == str(bag.resolve())
+    reactive = load_params(tmp_path / "lanker.reactive.yaml")  # loads without the plug-in: it is built at attack
+    assert (idm.planner, obp.planner, reactive.planner) == ("idm", "obp", "advperc_ros.contrib.reactive:ReactivePlanner")
+    assert idm.planner_params == obp.planner_params == reactive.planner_params
+    assert obp.planner_params["target_speed"] > 1.0
+    assert idm.rule.at_fault_only and obp.rule.at_fault_only and reactive.rule.at_fault_only
+    assert idm.bag == obp.bag == reactive.bag == str(bag.resolve())
 
     scenario = read_scenario(bag)
     result = Stack(scenario, obp).rollout(PerceptionErrors.none(*scenario.agents.shape))
@@ -137,7 +139,7 @@ def test_unavoidable_recording_is_rejected_and_nothing_written(tmp_path, capsys,
     err = capsys.readouterr().err.strip()
     assert code == 3
     assert "blocked.xml" in err and "rejected" in err and len(err.splitlines()) == 1
-    assert not any(tmp_path / name for name in ("bag", "p.yaml", "p.obp.yaml") if (tmp_path / name).exists())
+    assert not any(tmp_path / name for name in ("bag", "p.yaml", "p.obp.yaml", "p.reactive.yaml") if (tmp_path / name).exists())
 
 
 def test_feasibility_tells_unavoidable_from_avoidable():

@@ -11,8 +11,11 @@
   region. Multi-lane roads: if the goal needs a lane change, the route stays in the ego's lane up
   to the lanelet beside the goal (the IDM planner cannot change lanes); if nothing is reachable,
   the route is the longest successor chain ahead.
-- Target speed (for the generated params file): the middle of the goal's velocity interval, or
-  the initial speed when the goal has none.
+- Target speed (for the generated params file): the top of the goal's velocity interval, the
+  fastest speed at which the ego still meets its goal (an ego given the middle drives at the
+  recorded car's own speed and never closes on the traffic ahead, so no hidden vehicle matters);
+  with no interval, the operating speed of the route's traffic (see `operating_speed`), else the
+  initial speed.
 - Refused with a ScenarioError naming the file and the field, rather than failing later: numbers
   that are not finite, shapes other than rectangles, predictions that are not trajectories, two
   states at one time step, references to lanelets that do not exist, degenerate lanelets, and
@@ -202,6 +205,36 @@ def _route(network, start_xy: np.ndarray, goal) -> tuple[list[int], str]:
     return longest, "goal not reachable along successors: route is the longest successor chain ahead"
 
 
+OPERATING_PERCENTILE = 85.0  # traffic engineering's operating speed, the basis of speed limits
+ON_ROUTE = 1.75  # m from the route's centre line, half a lane: a vehicle driving in the route's lane
+ALONG_ROUTE = np.pi / 4  # rad between a vehicle's heading and the route's: driving along it, not across
+
+
+def operating_speed(route: Polyline, agents: BoxSequence) -> float | None:
+    """The 85th percentile of the recorded speeds of vehicles in the route's lane and driving along
+    it, over the whole recording; None when no vehicle ever is."""
+    frames, slots = np.nonzero(agents.valid)
+    xy = np.stack([agents.x[frames, slots], agents.y[frames, slots]], axis=1)
+    s, lateral = route.project(xy)
+    heading = np.angle(np.exp(1j * (agents.yaw[frames, slots] - route.heading(s))))
+    along = (np.abs(lateral) < ON_ROUTE) & (np.abs(heading) < ALONG_ROUTE)
+    if not along.any():
+        return None
+    speeds = np.hypot(agents.vx[frames, slots], agents.vy[frames, slots])[along]
+    return float(np.percentile(speeds, OPERATING_PERCENTILE))
+
+
+def _target_speed(goal, route: Polyline, agents: BoxSequence, initial_speed: float) -> float:
+    """The planner's target speed (module docstring): the goal interval's top, else the route
+    traffic's operating speed, else the initial speed; at least 1 m/s (a target of 0 only brakes)."""
+    for state in goal.state_list:
+        velocity = getattr(state, "velocity", None)
+        if velocity is not None and hasattr(velocity, "end"):
+            return max(float(_finite([velocity.start, velocity.end], "planningProblem.goalState.velocity", 2)[1]), 1.0)
+    traffic = operating_speed(route, agents)
+    return max(initial_speed if traffic is None else traffic, 1.0)
+
+
 def import_commonroad(path: str | Path) -> ImportedScenario:
     """A CommonRoad recording as a validated Scenario; a ScenarioError naming the file and the
     field for anything that cannot be used (one line)."""
@@ -235,17 +268,14 @@ def _convert(cr_scenario, problems) -> ImportedScenario:
     on_route = route.position(s0)
     speed = _speed(initial, "planningProblem.initialState.velocity")
     ego = EgoState(x=float(on_route[0]), y=float(on_route[1]), yaw=float(route.heading(s0)), v=speed)
-    target = speed
-    for state in problem.goal.state_list:
-        velocity = getattr(state, "velocity", None)
-        if velocity is not None and hasattr(velocity, "start"):
-            target = float(np.mean(_finite([velocity.start, velocity.end], "planningProblem.goalState.velocity", 2)))
+    agents = _agents(cr_scenario, num_frames, states)
+    target = _target_speed(problem.goal, route, agents, speed)
     scenario = Scenario(
         name=str(cr_scenario.scenario_id),
         stamps_ns=np.arange(num_frames, dtype=np.int64) * int(round(dt * 1e9)),
-        agents=_agents(cr_scenario, num_frames, states),
+        agents=agents,
         lanes=lanes,
         route=route,
         ego_start=ego,
     )
-    return ImportedScenario(scenario=scenario, target_speed=max(target, 1.0), route_note=note)
+    return ImportedScenario(scenario=scenario, target_speed=target, route_note=note)

@@ -1,0 +1,80 @@
+"""Every CommonRoad recording, attacked through the CLI: the contract of each outcome (README,
+"Recorded traffic (CommonRoad)").
+
+- an attack found is a collision the ego is at fault for, and its ground-truth rollout has none;
+- no attack: report.json says why, including what hiding every vehicle does;
+- refused (exit 1): the planner collides at fault with perfect perception, said on stderr;
+- rejected (exit 3, import): the reason is on stderr and nothing is written.
+
+All 24 recordings with both bundled planners take over an hour (ObP: minutes per recording), so by
+default this runs three small ones with IDM (a few minutes); ADVPERC_ALL_RECORDINGS=1 runs the lot,
+as benchmarks/recordings_bench.py does. Skips with a reason without the data or commonroad-io.
+"""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+import yaml
+
+from advperc_ros.backend import Stack
+from advperc_ros.cli import main
+from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.params import load_params
+from advperc_ros.results import load_errors
+from advperc_ros.ros.bag import read_scenario
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "commonroad"
+EVERYTHING = os.environ.get("ADVPERC_ALL_RECORDINGS") == "1"
+SMALL = ("USA_US101-1_1_T-1", "USA_Peach-3_2_T-1", "USA_Lanker-1_6_T-1")  # 2, 8, 34 vehicles; 1 s to 6 s
+RECORDINGS = sorted(p.stem for p in DATA.glob("*.xml")) if EVERYTHING and DATA.is_dir() else list(SMALL)
+PLANNERS = ("idm", "obp") if EVERYTHING else ("idm",)
+
+pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"CommonRoad recordings not found at {DATA}")
+
+
+@pytest.fixture(scope="module")
+def commonroad():
+    return pytest.importorskip("commonroad", reason="commonroad-io is not installed (pip install '.[commonroad]')")
+
+
+def _import(name: str, folder: Path, capsys) -> tuple[Path | None, int, str]:
+    capsys.readouterr()
+    code = main(["import-commonroad", str(DATA / f"{name}.xml"), "--output", str(folder / "bag")])
+    return (folder / "bag" if code == 0 else None), code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize("planner", PLANNERS)
+@pytest.mark.parametrize("name", RECORDINGS)
+def test_a_recording_is_attacked_or_says_why_not(name, planner, tmp_path, capsys, commonroad):
+    bag, code, err = _import(name, tmp_path, capsys)
+    if code == 3:
+        assert "rejected, not attacked: recorded traffic hits the ego whatever it does" in err
+        assert not any(tmp_path.iterdir())
+        return
+    assert code == 0, err
+    params_path = tmp_path / ("bag.yaml" if planner == "idm" else f"bag.{planner}.yaml")
+    document = yaml.safe_load(params_path.read_text())
+    assert document["orchestrator"]["ros__parameters"]["rule"]["at_fault_only"] is True
+
+    code = main(["attack", str(params_path), "--output", str(tmp_path / "out"), "--quiet"])
+    err = capsys.readouterr().err
+    params = load_params(params_path)
+    scenario = read_scenario(bag)
+    truth = Stack(scenario, params).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    if code == 1:  # refused: the planner collides at fault unattacked
+        assert "already collides with perfect perception" in err and truth.collided
+        return
+    assert code == 0, err
+    assert not truth.collided  # what was attacked had no at-fault collision to begin with
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    if report["collision"]:
+        attacked = Stack(scenario, params).rollout(load_errors(tmp_path / "out" / "attack_errors.npz"))
+        # at fault: with rule.at_fault_only, excused contacts (rear-ended, hit while stopped) do not count
+        assert attacked.collided and attacked.excused is not None
+        assert report["nds"] is not None and report["nds_t"] is not None
+    else:
+        assert report["message"].startswith("no collision found")
+        assert report["blind"] is not None and "every vehicle hidden" in report["message"]
+

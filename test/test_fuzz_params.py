@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from mutations import damaged
 
 from advperc_ros.exits import EXIT_INPUT, expected_failure
-from advperc_ros.params import NODE, PLANNER_PARAMS, SCHEMA, ParamsError, load_params
+from advperc_ros.params import NODE, PLANNER_PARAMS, SCHEMA, ParamsError, load_params, nest
 
 FUZZ = settings(max_examples=150, deadline=5000, suppress_health_check=[HealthCheck.too_slow])  # deadline: hang guard
 NAMES = sorted(SCHEMA)
@@ -20,18 +20,6 @@ NAMES = sorted(SCHEMA)
 scalars = (st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=8)
            | st.sampled_from([math.nan, math.inf, -math.inf, 0.0, -0.0, 0, -1]))
 yaml_values = scalars | st.lists(scalars, max_size=3) | st.dictionaries(st.text(max_size=6), scalars, max_size=3)
-
-
-def nest(flat: dict) -> dict:
-    """Dotted names as the nested mappings of a params file."""
-    tree: dict = {}
-    for name, value in flat.items():
-        *parents, leaf = name.split(".")
-        node = tree
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = value
-    return tree
 
 
 def one_line_naming(exc: ParamsError, path) -> None:

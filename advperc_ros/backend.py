@@ -14,7 +14,7 @@ from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker
-from advperc_ros.params import (PLANNER_PARAMS, AttackParams, params_from_values, planning_context, rollout_config,
+from advperc_ros.params import (AttackParams, params_from_values, planning_context, rollout_config,
                                 tracker_config)
 
 EXTERNAL = "external"  # the `planner` of a report whose planner was a node of someone else's
@@ -61,7 +61,7 @@ class Stack:
             return [self.rollout(errors) for errors in batch]
         if self._pool is None:  # spawn: the parent may run threads (rclpy) that fork would copy mid-state
             self._pool = ProcessPoolExecutor(self.params.workers, multiprocessing.get_context("spawn"),
-                                             initializer=_start_worker, initargs=(self.scenario, _values(self.params),
+                                             initializer=_start_worker, initargs=(self.scenario, self.params.values(),
                                                                                    self.params.source))
         return list(self._pool.map(_worker_rollout, batch))
 
@@ -72,11 +72,6 @@ class Stack:
 
 
 _worker_stack: Stack | None = None  # a pool worker's own stack
-
-
-def _values(params: AttackParams) -> dict:
-    """The params as plain values a worker process can be sent (their planner_params are read-only)."""
-    return {**params.flat(), PLANNER_PARAMS: dict(params.planner_params)}
 
 
 def _start_worker(scenario: Scenario, values: dict, source) -> None:

@@ -193,12 +193,16 @@ class AttackParams:
         unknown = sorted(set(changes) - set(SCHEMA) - {PLANNER_PARAMS})
         if unknown:
             raise ParamsError(f"{self.source or 'params'}: unknown parameter '{unknown[0]}'")
-        return params_from_values({**self.flat(), PLANNER_PARAMS: dict(self.planner_params), **changes}, self.source)
+        return params_from_values({**self.values(), **changes}, self.source)
+
+    def values(self) -> dict[str, Any]:
+        """Every value by dotted name and the planner's as a plain dict: what `params_from_values`
+        takes back (in another process too: it pickles and serialises as JSON)."""
+        return {**self.flat(), PLANNER_PARAMS: dict(self.planner_params)}
 
     def canonical(self) -> dict[str, Any]:
         """What determines the results: every value but the EXECUTION ones, and the planner's."""
-        values = {name: value for name, value in self.flat().items() if name not in EXECUTION}
-        return {**values, PLANNER_PARAMS: dict(self.planner_params)}
+        return {name: value for name, value in self.values().items() if name not in EXECUTION}
 
     def config_hash(self) -> str:
         return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()[:16]

@@ -45,7 +45,7 @@ from advperc_ros.graph.assembly import assemble, frames_in, kept_frames
 from advperc_ros.graph.client import SPIN, LockstepClient
 from advperc_ros.graph.errors import GraphError, RolloutFault
 from advperc_ros.graph.processes import NodeProcesses
-from advperc_ros.params import PLANNER_PARAMS, AttackParams, rollout_config
+from advperc_ros.params import AttackParams, rollout_config
 from advperc_ros.ros.lockstep import Status
 from advperc_ros.ros.topics import ERRORS, PLAN
 from advperc_ros.ros.transport import Transport
@@ -73,8 +73,7 @@ class GraphRollouts:
         self._agent_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]
         self._slots = {int(agent): j for j, agent in enumerate(self._agent_ids)}
         self._stamps = [int(s) for s in scenario.stamps_ns]
-        params_json = json.dumps({**params.flat(), "bag": str(Path(bag_path).resolve()),
-                                  PLANNER_PARAMS: dict(params.planner_params)})
+        params_json = json.dumps({**params.values(), "bag": str(Path(bag_path).resolve())})
         # a graph we start talks in a DDS partition of its own: any number of them share a domain
         self._partition = f"advperc-{os.getpid()}-{secrets.token_hex(4)}" if params.graph.spawn_nodes else ""
         self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only, self._partition)

@@ -10,7 +10,7 @@ import shapely
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
-from advperc_ros.core.geometry import box_corners, signed_box_distance
+from advperc_ros.core.geometry import box_corners, signed_box_distance, wrap_angle
 from advperc_ros.core.planners.base import PlanningContext, Trajectory
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.rollout import RolloutConfig, rollout
@@ -345,6 +345,37 @@ def test_follow_plan_interpolates_yaw_across_the_wrap():
     assert abs(abs(state.yaw) - np.pi) < 1e-9  # halfway is pi, not 0
 
 
+def _follow_plan_with_numpy(plan, t_next):
+    """follow_plan as it was written with np.unwrap and np.interp: the reference for its floats."""
+    t = np.asarray(plan.t, dtype=float)
+    values = np.stack([plan.x, plan.y, np.unwrap(plan.yaw)])
+    x, y, yaw = (float(np.interp(t_next, t, row)) for row in values)
+    half = 0.5 * float(np.min(np.diff(t)))
+    before, after = max(t[0], t_next - half), min(t[-1], t_next + half)
+    moved = np.hypot(np.interp(after, t, values[0]) - np.interp(before, t, values[0]),
+                     np.interp(after, t, values[1]) - np.interp(before, t, values[1]))
+    return EgoState(x=x, y=y, yaw=float(wrap_angle(yaw)), v=float(moved / (after - before)))
+
+
+def test_follow_plan_equals_numpy_interp_and_unwrap_bit_for_bit():
+    rng = np.random.default_rng(0)
+    for case in range(3000):
+        size = int(rng.integers(2, 40))
+        t = np.cumsum(rng.uniform(0.01, 0.3, size)) + rng.uniform(-5, 5)
+        if case % 4 == 0:  # a heading turning through the wrap at +-pi, also by steps of about pi
+            yaw = wrap_angle(np.cumsum(rng.uniform(-3.5, 3.5, size)))
+        else:
+            yaw = rng.uniform(-0.5, 0.5) + np.cumsum(rng.normal(0.0, 0.05, size))
+        yaw[rng.random(size) < 0.1] = -0.0
+        x, y = np.cumsum(rng.uniform(0.0, 2.0, (2, size)), axis=1) * rng.uniform(-1e3, 1e3, (2, 1))
+        if case % 5 == 0:  # standing still on some poses
+            x[1:] = np.where(rng.random(size - 1) < 0.5, x[:-1], x[1:])
+        plan = Trajectory(t=t, x=x, y=y, yaw=yaw)
+        nexts = np.concatenate([t[[0, -1]], t[rng.integers(0, size, 2)], rng.uniform(t[0], t[-1], 4)])
+        for t_next in (*nexts.tolist(), float(t[0]) - 5e-10, float(t[-1]) + 5e-10):
+            assert follow_plan(plan, t_next) == _follow_plan_with_numpy(plan, t_next), (case, t_next)
+
+
 def test_follow_plan_rejects_bad_plans():
     plan = constant_speed_plan(t0=1.0)
     with pytest.raises(PlanError, match="next frame"):
@@ -357,3 +388,6 @@ def test_follow_plan_rejects_bad_plans():
     nan_pose = Trajectory(t=np.array([0.0, 0.1]), x=np.array([0.0, np.nan]), y=np.zeros(2), yaw=np.zeros(2))
     with pytest.raises(PlanError):
         follow_plan(nan_pose, 0.05)
+    short_poses = Trajectory(t=np.array([0.0, 0.1, 0.2]), x=np.zeros(2), y=np.zeros(2), yaw=np.zeros(2))
+    with pytest.raises(PlanError, match="3 timestamps but 2 poses"):
+        follow_plan(short_poses, 0.05)

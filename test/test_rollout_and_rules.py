@@ -14,7 +14,7 @@ from advperc_ros.core.geometry import box_corners, signed_box_distance, wrap_ang
 from advperc_ros.core.planners.base import PlanningContext, Trajectory
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.rollout import RolloutConfig, rollout
-from advperc_ros.core.rules import collision_distances
+from advperc_ros.core.rules import CollisionRule
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker
@@ -127,10 +127,10 @@ def test_collision_distances_inf_for_absent_agents():
     spec = dict(SPEC, agents=[dict(SPEC["agents"][0], appear=2.0, disappear=5.0), SPEC["agents"][1]])
     scenario = build_scenario(spec)
     ego = scenario.ego_start
-    d = collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 0)
-    assert d[0] == np.inf and np.isfinite(d[1])
-    assert np.isfinite(collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 30)[0])
-    assert collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 60)[0] == np.inf
+    d = CollisionRule(scenario.agents, EGO_LENGTH, EGO_WIDTH).distances(np.array([[ego.x, ego.y, ego.yaw]] * 3), [0, 30, 60])
+    assert d[0, 0] == np.inf and np.isfinite(d[0, 1])
+    assert np.isfinite(d[1, 0])
+    assert d[2, 0] == np.inf
     result = rollout(scenario, PerceptionErrors.none(*scenario.agents.shape), Tracker(),
                      IDMPlanner(CONTEXT, target_speed=14.0))
     assert np.all(np.isinf(result.distances[:20, 0]))
@@ -148,7 +148,7 @@ def test_collision_distances_equal_shapely_on_random_agents():
     agents.yaw[0] = rng.uniform(-np.pi, np.pi, n)
     agents.length[0], agents.width[0] = rng.uniform(3.0, 6.0, n), rng.uniform(1.5, 2.5, n)
     ego = EgoState(0.3, -0.2, 0.7, 5.0)
-    got = collision_distances(ego, EGO_LENGTH, EGO_WIDTH, agents, 0)
+    got = CollisionRule(agents, EGO_LENGTH, EGO_WIDTH).distances(np.array([[ego.x, ego.y, ego.yaw]]), [0])[0]
     assert np.all(got[~agents.valid[0]] == np.inf)
     valid = agents.valid[0]
     ego_poly = shapely.Polygon(ego_box((ego.x, ego.y, ego.yaw)))
@@ -161,6 +161,30 @@ def test_collision_distances_equal_shapely_on_random_agents():
     corners = box_corners(agents.x[0, valid], agents.y[0, valid], agents.yaw[0, valid], agents.length[0, valid], agents.width[0, valid])
     np.testing.assert_allclose(got[valid], signed_box_distance(ego_box((ego.x, ego.y, ego.yaw))[None], corners), atol=1e-12)
     assert (valid & hit).sum() > 50 and apart.sum() > 50
+
+
+def test_collision_rule_many_frames_at_once_equal_one_at_a_time_and_may_touch_misses_no_contact():
+    """A rollout measures most frames in one pass and, during the drive, only those where the ego
+    may touch an agent: the values must be those of one frame at a time, bit for bit, and a frame
+    may_touch passes over must have no contact."""
+    rng = np.random.default_rng(11)
+    passed_over = []
+    for frames, slots in ((1, 1), (7, 3), (60, 5), (40, 83)):
+        agents = BoxSequence.empty(frames, slots)
+        agents.valid[:] = rng.random((frames, slots)) > 0.2
+        agents.x[:], agents.y[:] = rng.uniform(-15.0, 15.0, (2, frames, slots))
+        agents.x[~agents.valid] = np.nan  # padding may be nan
+        agents.yaw[:] = rng.uniform(-np.pi, np.pi, (frames, slots))
+        agents.length[:], agents.width[:] = rng.uniform(0.5, 12.0, (2, frames, slots))
+        ego = np.column_stack([rng.uniform(-5.0, 5.0, (frames, 2)), rng.uniform(-4.0, 4.0, frames), np.full(frames, 3.0)])
+        rule = CollisionRule(agents, EGO_LENGTH, EGO_WIDTH)
+        together = rule.distances(ego, np.arange(frames))
+        one_at_a_time = np.concatenate([rule.distances(ego[k : k + 1], [k]) for k in range(frames)])
+        np.testing.assert_array_equal(together.view(np.int64), one_at_a_time.view(np.int64))
+        passed = np.array([not rule.may_touch(EgoState(*row), k) for k, row in enumerate(ego)])
+        assert np.all(together[passed] > 0.0)
+        passed_over.append(passed)
+    assert 0 < np.concatenate(passed_over).mean() < 1
 
 
 def test_ego_footprint_from_config():

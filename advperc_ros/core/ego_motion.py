@@ -21,8 +21,8 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
     side), so a plan received as a nav_msgs/Path, which has no speeds, is followed identically.
     """
     t = np.asarray(plan.t, dtype=float)
-    steps = t[1:] - t[:-1]
-    if t.size < 2 or not np.isfinite(t).all() or not (steps > 0).all():
+    shortest = float((t[1:] - t[:-1]).min()) if t.size > 1 else 0.0
+    if not (np.isfinite(t).all() and shortest > 0.0):
         raise PlanError("plan timestamps must be finite and strictly increasing, at least two poses")
     times = t.tolist()
     if not (times[0] - 1e-9 <= t_next <= times[-1] + 1e-9):
@@ -36,7 +36,7 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
         values[2] = np.unwrap(values[2])
     rows = values.tolist()
     x, y, yaw = _interp(t_next, times, rows)
-    half = 0.5 * float(steps.min())
+    half = 0.5 * shortest
     before, after = max(times[0], t_next - half), min(times[-1], t_next + half)
     (x_before, y_before, _), (x_after, y_after, _) = _interp(before, times, rows), _interp(after, times, rows)
     moved = np.hypot(x_after - x_before, y_after - y_before)

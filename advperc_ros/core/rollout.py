@@ -193,10 +193,12 @@ def rollout(
         for k in range(num_frames):
             ego_states[k] = (ego.x, ego.y, ego.yaw, ego.v)
             started = clock()
+            ends = False
             if config.stop_at_collision and rule.may_touch(ego, k):  # else frame k cannot end the rollout
                 distances[k], measured[k] = rule.distances(ego_states[k : k + 1], [k])[0], True
+                ends = violates(distances[k].min(initial=np.inf), config.stop_at_collision)
             stage_times["rule"] += clock() - started
-            if violates(distances[k].min(initial=np.inf), config.stop_at_collision):
+            if ends:
                 last = k
                 break
             started = clock()

@@ -10,11 +10,11 @@ import shapely
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
-from advperc_ros.core.geometry import box_corners, signed_box_distance
+from advperc_ros.core.geometry import box_corners, signed_box_distance, wrap_angle
 from advperc_ros.core.planners.base import PlanningContext, Trajectory
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.rollout import RolloutConfig, rollout
-from advperc_ros.core.rules import collision_distances
+from advperc_ros.core.rules import CollisionRule
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker
@@ -127,10 +127,10 @@ def test_collision_distances_inf_for_absent_agents():
     spec = dict(SPEC, agents=[dict(SPEC["agents"][0], appear=2.0, disappear=5.0), SPEC["agents"][1]])
     scenario = build_scenario(spec)
     ego = scenario.ego_start
-    d = collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 0)
-    assert d[0] == np.inf and np.isfinite(d[1])
-    assert np.isfinite(collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 30)[0])
-    assert collision_distances(ego, EGO_LENGTH, EGO_WIDTH, scenario.agents, 60)[0] == np.inf
+    d = CollisionRule(scenario.agents, EGO_LENGTH, EGO_WIDTH).distances(np.array([[ego.x, ego.y, ego.yaw]] * 3), [0, 30, 60])
+    assert d[0, 0] == np.inf and np.isfinite(d[0, 1])
+    assert np.isfinite(d[1, 0])
+    assert d[2, 0] == np.inf
     result = rollout(scenario, PerceptionErrors.none(*scenario.agents.shape), Tracker(),
                      IDMPlanner(CONTEXT, target_speed=14.0))
     assert np.all(np.isinf(result.distances[:20, 0]))
@@ -148,7 +148,7 @@ def test_collision_distances_equal_shapely_on_random_agents():
     agents.yaw[0] = rng.uniform(-np.pi, np.pi, n)
     agents.length[0], agents.width[0] = rng.uniform(3.0, 6.0, n), rng.uniform(1.5, 2.5, n)
     ego = EgoState(0.3, -0.2, 0.7, 5.0)
-    got = collision_distances(ego, EGO_LENGTH, EGO_WIDTH, agents, 0)
+    got = CollisionRule(agents, EGO_LENGTH, EGO_WIDTH).distances(np.array([[ego.x, ego.y, ego.yaw]]), [0])[0]
     assert np.all(got[~agents.valid[0]] == np.inf)
     valid = agents.valid[0]
     ego_poly = shapely.Polygon(ego_box((ego.x, ego.y, ego.yaw)))
@@ -161,6 +161,30 @@ def test_collision_distances_equal_shapely_on_random_agents():
     corners = box_corners(agents.x[0, valid], agents.y[0, valid], agents.yaw[0, valid], agents.length[0, valid], agents.width[0, valid])
     np.testing.assert_allclose(got[valid], signed_box_distance(ego_box((ego.x, ego.y, ego.yaw))[None], corners), atol=1e-12)
     assert (valid & hit).sum() > 50 and apart.sum() > 50
+
+
+def test_collision_rule_many_frames_at_once_equal_one_at_a_time_and_may_touch_misses_no_contact():
+    """A rollout measures most frames in one pass and, during the drive, only those where the ego
+    may touch an agent: the values must be those of one frame at a time, bit for bit, and a frame
+    may_touch passes over must have no contact."""
+    rng = np.random.default_rng(11)
+    passed_over = []
+    for frames, slots in ((1, 1), (7, 3), (60, 5), (40, 83)):
+        agents = BoxSequence.empty(frames, slots)
+        agents.valid[:] = rng.random((frames, slots)) > 0.2
+        agents.x[:], agents.y[:] = rng.uniform(-15.0, 15.0, (2, frames, slots))
+        agents.x[~agents.valid] = np.nan  # padding may be nan
+        agents.yaw[:] = rng.uniform(-np.pi, np.pi, (frames, slots))
+        agents.length[:], agents.width[:] = rng.uniform(0.5, 12.0, (2, frames, slots))
+        ego = np.column_stack([rng.uniform(-5.0, 5.0, (frames, 2)), rng.uniform(-4.0, 4.0, frames), np.full(frames, 3.0)])
+        rule = CollisionRule(agents, EGO_LENGTH, EGO_WIDTH)
+        together = rule.distances(ego, np.arange(frames))
+        one_at_a_time = np.concatenate([rule.distances(ego[k : k + 1], [k]) for k in range(frames)])
+        np.testing.assert_array_equal(together.view(np.int64), one_at_a_time.view(np.int64))
+        passed = np.array([not rule.may_touch(EgoState(*row), k) for k, row in enumerate(ego)])
+        assert np.all(together[passed] > 0.0)
+        passed_over.append(passed)
+    assert 0 < np.concatenate(passed_over).mean() < 1
 
 
 def test_ego_footprint_from_config():
@@ -345,6 +369,37 @@ def test_follow_plan_interpolates_yaw_across_the_wrap():
     assert abs(abs(state.yaw) - np.pi) < 1e-9  # halfway is pi, not 0
 
 
+def _follow_plan_with_numpy(plan, t_next):
+    """follow_plan as it was written with np.unwrap and np.interp: the reference for its floats."""
+    t = np.asarray(plan.t, dtype=float)
+    values = np.stack([plan.x, plan.y, np.unwrap(plan.yaw)])
+    x, y, yaw = (float(np.interp(t_next, t, row)) for row in values)
+    half = 0.5 * float(np.min(np.diff(t)))
+    before, after = max(t[0], t_next - half), min(t[-1], t_next + half)
+    moved = np.hypot(np.interp(after, t, values[0]) - np.interp(before, t, values[0]),
+                     np.interp(after, t, values[1]) - np.interp(before, t, values[1]))
+    return EgoState(x=x, y=y, yaw=float(wrap_angle(yaw)), v=float(moved / (after - before)))
+
+
+def test_follow_plan_equals_numpy_interp_and_unwrap_bit_for_bit():
+    rng = np.random.default_rng(0)
+    for case in range(3000):
+        size = int(rng.integers(2, 40))
+        t = np.cumsum(rng.uniform(0.01, 0.3, size)) + rng.uniform(-5, 5)
+        if case % 4 == 0:  # a heading turning through the wrap at +-pi, also by steps of about pi
+            yaw = wrap_angle(np.cumsum(rng.uniform(-3.5, 3.5, size)))
+        else:
+            yaw = rng.uniform(-0.5, 0.5) + np.cumsum(rng.normal(0.0, 0.05, size))
+        yaw[rng.random(size) < 0.1] = -0.0
+        x, y = np.cumsum(rng.uniform(0.0, 2.0, (2, size)), axis=1) * rng.uniform(-1e3, 1e3, (2, 1))
+        if case % 5 == 0:  # standing still on some poses
+            x[1:] = np.where(rng.random(size - 1) < 0.5, x[:-1], x[1:])
+        plan = Trajectory(t=t, x=x, y=y, yaw=yaw)
+        nexts = np.concatenate([t[[0, -1]], t[rng.integers(0, size, 2)], rng.uniform(t[0], t[-1], 4)])
+        for t_next in (*nexts.tolist(), float(t[0]) - 5e-10, float(t[-1]) + 5e-10):
+            assert follow_plan(plan, t_next) == _follow_plan_with_numpy(plan, t_next), (case, t_next)
+
+
 def test_follow_plan_rejects_bad_plans():
     plan = constant_speed_plan(t0=1.0)
     with pytest.raises(PlanError, match="next frame"):
@@ -357,3 +412,6 @@ def test_follow_plan_rejects_bad_plans():
     nan_pose = Trajectory(t=np.array([0.0, 0.1]), x=np.array([0.0, np.nan]), y=np.zeros(2), yaw=np.zeros(2))
     with pytest.raises(PlanError):
         follow_plan(nan_pose, 0.05)
+    short_poses = Trajectory(t=np.array([0.0, 0.1, 0.2]), x=np.zeros(2), y=np.zeros(2), yaw=np.zeros(2))
+    with pytest.raises(PlanError, match="3 timestamps but 2 poses"):
+        follow_plan(short_poses, 0.05)

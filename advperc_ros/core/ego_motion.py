@@ -1,5 +1,8 @@
 """Ego motion in the open-loop rollout: the ego follows its latest plan exactly."""
 
+from bisect import bisect_right
+from math import isnan
+
 import numpy as np
 
 from advperc_ros.core.geometry import wrap_angle
@@ -18,16 +21,42 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
     side), so a plan received as a nav_msgs/Path, which has no speeds, is followed identically.
     """
     t = np.asarray(plan.t, dtype=float)
-    if t.size < 2 or not np.all(np.isfinite(t)) or np.any(np.diff(t) <= 0):
+    shortest = float((t[1:] - t[:-1]).min()) if t.size > 1 else 0.0
+    if not (np.isfinite(t).all() and shortest > 0.0):
         raise PlanError("plan timestamps must be finite and strictly increasing, at least two poses")
-    if not (t[0] - 1e-9 <= t_next <= t[-1] + 1e-9):
-        raise PlanError(f"plan covers [{t[0]:.3f}, {t[-1]:.3f}] s, not the next frame at {t_next:.3f} s")
-    values = np.stack([plan.x, plan.y, np.unwrap(plan.yaw)])
-    if not np.all(np.isfinite(values)):
+    times = t.tolist()
+    if not (times[0] - 1e-9 <= t_next <= times[-1] + 1e-9):
+        raise PlanError(f"plan covers [{times[0]:.3f}, {times[-1]:.3f}] s, not the next frame at {t_next:.3f} s")
+    values = np.array([plan.x, plan.y, plan.yaw], dtype=float)
+    if values.shape[1] != t.size:
+        raise PlanError(f"plan holds {t.size} timestamps but {values.shape[1]} poses")
+    if not np.isfinite(values).all():
         raise PlanError("plan holds non-finite poses")
-    x, y, yaw = (float(np.interp(t_next, t, row)) for row in values)
-    half = 0.5 * float(np.min(np.diff(t)))
-    before, after = max(t[0], t_next - half), min(t[-1], t_next + half)
-    moved = np.hypot(np.interp(after, t, values[0]) - np.interp(before, t, values[0]),
-                     np.interp(after, t, values[1]) - np.interp(before, t, values[1]))
+    if values[2].max() - values[2].min() >= np.pi:  # else no step reaches pi and np.unwrap changes nothing
+        values[2] = np.unwrap(values[2])
+    rows = values.tolist()
+    x, y, yaw = _interp(t_next, times, rows)
+    half = 0.5 * shortest
+    before, after = max(times[0], t_next - half), min(times[-1], t_next + half)
+    (x_before, y_before, _), (x_after, y_after, _) = _interp(before, times, rows), _interp(after, times, rows)
+    moved = np.hypot(x_after - x_before, y_after - y_before)
     return EgoState(x=x, y=y, yaw=float(wrap_angle(yaw)), v=float(moved / (after - before)))
+
+
+def _interp(x: float, xp: list[float], rows: list[list[float]]) -> list[float]:
+    """np.interp(x, xp, row) of every row, by numpy's own float operations (test_rollout_and_rules
+    compares them): one search for all rows, and on a short plan numpy's per-call overhead is most
+    of the cost of np.interp. xp increasing; np.interp's default ends: the end values."""
+    j = bisect_right(xp, x) - 1
+    if j < 0 or j == len(xp) - 1 or xp[j] == x:
+        return [row[max(j, 0)] for row in rows]
+    out = []
+    for row in rows:
+        slope = (row[j + 1] - row[j]) / (xp[j + 1] - xp[j])
+        value = slope * (x - xp[j]) + row[j]
+        if isnan(value):  # as numpy: from the other end, then the flat segment's value
+            value = slope * (x - xp[j + 1]) + row[j + 1]
+            if isnan(value) and row[j] == row[j + 1]:
+                value = row[j]
+        out.append(value)
+    return out

@@ -26,7 +26,7 @@ from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
-from advperc_ros.core.rules import collision_distances, not_at_fault
+from advperc_ros.core.rules import CollisionRule, not_at_fault
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker
 
@@ -183,6 +183,8 @@ def rollout(
     ego = scenario.ego_start
     ego_states = np.zeros((num_frames, 4))
     distances = np.full((num_frames, agents.shape[1]), np.inf)
+    rule = CollisionRule(agents, config.ego_length, config.ego_width)
+    measured = np.zeros(num_frames, dtype=bool)  # frames measured during the drive: they could end it
     tracks_log: list[dict[str, np.ndarray]] = []
     plans_log: list[Trajectory] = []
     inconclusive = None
@@ -191,9 +193,12 @@ def rollout(
         for k in range(num_frames):
             ego_states[k] = (ego.x, ego.y, ego.yaw, ego.v)
             started = clock()
-            distances[k] = collision_distances(ego, config.ego_length, config.ego_width, agents, k)
+            ends = False
+            if config.stop_at_collision and rule.may_touch(ego, k):  # else frame k cannot end the rollout
+                distances[k], measured[k] = rule.distances(ego_states[k : k + 1], [k])[0], True
+                ends = violates(distances[k].min(initial=np.inf), config.stop_at_collision)
             stage_times["rule"] += clock() - started
-            if violates(distances[k].min(initial=np.inf), config.stop_at_collision):
+            if ends:
                 last = k
                 break
             started = clock()
@@ -220,6 +225,10 @@ def rollout(
                     plans_log.append(plan)
             if inconclusive is not None:
                 break
+    started = clock()
+    rest = np.flatnonzero(~measured[: last + 1])
+    distances[rest] = rule.distances(ego_states[rest], rest)
+    stage_times["rule"] += clock() - started
     stats = planner_stats(planner)
     return judge(RolloutResult(
         ego=ego_states[: last + 1],

@@ -19,16 +19,38 @@ from advperc_ros.core.scenario import EgoState
 STOPPED_SPEED = 0.05  # m/s: below it the ego is stopped (nuPlan's stopped-speed threshold)
 
 
-def collision_distances(
-    ego: EgoState, ego_length: float, ego_width: float, agents: BoxSequence, k: int
-) -> np.ndarray:
-    """Signed distance from the ego to every agent slot at frame k; +inf for absent agents."""
-    pairs = np.empty((2, agents.shape[1], 5))
-    pairs[0] = ego.x, ego.y, ego.yaw, ego_length, ego_width
-    pairs[1] = np.array([agents.x[k], agents.y[k], agents.yaw[k], agents.length[k], agents.width[k]]).T
-    distance = signed_box_distance_pairs(pairs)
-    # absent slots hold padding (zeros, or nan): cheaper to measure along than to leave out
-    return np.where(agents.valid[k], distance, np.inf)
+class CollisionRule:
+    """The collision rule against one scenario's agents, for an ego of the given footprint.
+
+    `distances` measures any number of frames in one numpy pass, so a rollout measures its frames
+    together after the drive; during it, `may_touch` tells the few frames where the ego comes near
+    enough to an agent that a contact could end the rollout, and only those are measured at once.
+    """
+
+    def __init__(self, agents: BoxSequence, ego_length: float, ego_width: float) -> None:
+        self.agents, self.ego_length, self.ego_width = agents, ego_length, ego_width
+        # centre distance beyond which the boxes cannot touch (half diagonals; the margin is far above
+        # rounding), squared; never for absent agents
+        reach = 0.5 * (np.hypot(agents.length, agents.width) + np.hypot(ego_length, ego_width)) + 0.1
+        self._reach2 = np.where(agents.valid, reach * reach, -1.0)
+
+    def may_touch(self, ego: EgoState, k: int) -> bool:
+        """Whether the ego's box may touch an agent's at frame k; if not, every distance there is > 0."""
+        dx, dy = self.agents.x[k] - ego.x, self.agents.y[k] - ego.y
+        return bool((dx * dx + dy * dy <= self._reach2[k]).any())
+
+    def distances(self, ego: np.ndarray, frames: np.ndarray) -> np.ndarray:
+        """(K, N) signed distance from the ego to every agent slot at the K frames `frames`, the ego's
+        states at them `ego` (K, >= 3: x, y, yaw, ...); +inf for absent agents."""
+        agents = self.agents
+        pairs = np.empty((2, len(frames), agents.shape[1], 5))
+        pairs[0, ..., :3] = ego[:, None, :3]
+        pairs[0, ..., 3:] = self.ego_length, self.ego_width
+        for i, field in enumerate((agents.x, agents.y, agents.yaw, agents.length, agents.width)):
+            pairs[1, ..., i] = field[frames]
+        distance = signed_box_distance_pairs(pairs.reshape(2, -1, 5)).reshape(pairs.shape[1:3])
+        # absent slots hold padding (zeros, or nan): cheaper to measure along than to leave out
+        return np.where(agents.valid[frames], distance, np.inf)
 
 
 def not_at_fault(ego: np.ndarray, ego_length: float, agents: BoxSequence, distances: np.ndarray) -> np.ndarray:

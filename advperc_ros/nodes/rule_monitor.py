@@ -9,8 +9,10 @@ Inputs left unpaired when a new rollout starts (`StampPairs`) are dropped.
 import sys
 from typing import Any
 
+import numpy as np
+
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.rules import collision_distances
+from advperc_ros.core.rules import CollisionRule
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
@@ -42,7 +44,8 @@ class RuleMonitor:
 
     def _answer(self, stamp: int, truth: dict, ego: Any) -> None:
         self._pairs.clock.answer(stamp)
-        distances = collision_distances(ego, self._ego_length, self._ego_width, BoxSequence.stack([truth]), 0)
+        rule = CollisionRule(BoxSequence.stack([truth]), self._ego_length, self._ego_width)
+        distances = rule.distances(np.array([[ego.x, ego.y, ego.yaw]]), [0])[0]
         self._rule.publish(cdr.encode_float64(float(distances.min(initial=float("inf")))))
         self._diagnostics.publish(rule_diagnostics(stamp, truth["ids"], distances))
 

@@ -8,7 +8,9 @@ import pytest
 
 from advperc_ros.application import attack_to_folder, run_attack
 from advperc_ros.backend import Stack
-from advperc_ros.core.search.guided import pick_batch
+from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
+from advperc_ros.core.search.guided import merge, pick_batch, push
 from advperc_ros.core.search.problem import Phase
 from advperc_ros.exits import Interrupted
 from advperc_ros.params import load_params
@@ -108,3 +110,45 @@ def test_pick_batch_pairs_a_bold_candidate_with_a_safe_one():
     assert pick_batch(gain, chance, 2) == [0, 1]
     # a second bold one that rarely collides: 0.5 + 0.5 * 0.1 * 0.9 = 0.545, the safe one is worth more
     assert pick_batch(gain, np.array([0.5, 0.1, 0.99]), 2) == [0, 2]
+
+
+def _dropped_run(frames=20, agents=2, first=5, last=14, slot=1):
+    return PerceptionErrors.none(frames, agents).with_drop(slot, first, last)
+
+
+@pytest.mark.parametrize("axis, along, beside", [(0, 1, 0), (1, -1, 0), (2, 0, 1), (3, 0, -1)])
+def test_a_push_displaces_a_run_along_its_axis_just_inside_a_match_threshold(axis, along, beside):
+    """Ahead, behind, left and right of the car's own heading, by 0.95 x one of the 0.5/1/2/4 m
+    thresholds: detected again (no drop), on the run's frames only."""
+    errors = _dropped_run()
+    yaw = np.tile(np.linspace(-3.0, 3.0, 20)[:, None], (1, 2))
+    seen = set()
+    for seed in range(40):
+        out = push(errors, 20, np.random.default_rng(seed), yaw, axis)
+        moved = (out.dx != 0) | (out.dy != 0)
+        assert not out.fn[moved].any() and moved[:, 0].sum() == 0
+        frames = np.flatnonzero(moved[:, 1])
+        assert 5 <= frames[0] and frames[-1] <= 14
+        heading = np.column_stack([np.cos(yaw[frames, 1]), np.sin(yaw[frames, 1])])
+        left = np.column_stack([-heading[:, 1], heading[:, 0]])
+        offset = np.column_stack([out.dx[frames, 1], out.dy[frames, 1]])
+        distance = np.hypot(offset[:, 0], offset[:, 1])
+        assert np.allclose(distance, distance[0])
+        assert np.allclose(np.sum(offset * heading, axis=1), along * distance[0])
+        assert np.allclose(np.sum(offset * left, axis=1), beside * distance[0])
+        seen.add(round(float(distance[0]), 6))
+    assert seen == {round(0.95 * t, 6) for t in DIST_THRESHOLDS}
+
+
+def test_a_merge_puts_a_siblings_change_on_the_best_attack():
+    parent = _dropped_run()
+    best = parent.copy()
+    best.fn[5:8, 1] = False
+    best.dx[5:8, 1] = 0.4  # the round's best: the run's first frames detected again, offset
+    sibling = parent.copy()
+    sibling.fn[12:15, 1] = False
+    sibling.dy[12:15, 1] = -1.9  # another collision of the round: the last frames detected again
+    merged = merge(best, sibling, parent)
+    assert not merged.fn[5:8, 1].any() and not merged.fn[12:15, 1].any() and merged.fn[8:12, 1].all()
+    assert np.all(merged.dx[5:8, 1] == 0.4) and np.all(merged.dy[12:15, 1] == -1.9)
+    assert merge(best, parent.copy(), parent) is None  # a sibling that changed nothing adds nothing

@@ -6,11 +6,16 @@ candidates from the best attack so far, scores them all exactly on its rollout, 
 `batch` with the largest expected gain: (metric - best) x P(still collides). P comes from a
 logistic model of the verdict against the move and the candidate's gain, fitted to this search's
 own rollouts, so it learns which moves and how bold a step this planner's failure boundary
-tolerates. Moves: the paper's proposal (a dropped segment detected again, offset), a lateral push
-that hides a car from a corridor at the least NDS cost, and two moves towards zero along the
-boundary: shrinking the offsets of a segment, and perceiving the edge frames of an attacked run
-perfectly again. A round's rollouts are independent, so a backend may run them at once; the batch
-size is a param, so the attack does not depend on how many workers ran it.
+tolerates. Moves: the paper's proposal (a dropped segment detected again, offset); pushes, which
+perceive a run of a car displaced ahead of, behind or beside itself by just under a match threshold
+(within a threshold's band every offset costs the same average precision, so the largest moves the
+car furthest for that cost: sideways out of a corridor, or ahead or behind so that it seems to
+arrive earlier or later); and two moves towards zero along the boundary: shrinking the offsets of
+a segment, and perceiving the edge frames of an attacked run perfectly again. Each push axis is a
+move of its own, so the model learns which way this planner's decision turns. When two rollouts
+of a round collide, the next round also tries the best with the other's change merged in. A
+round's rollouts are independent, so a backend may run them at once; the batch size is a param,
+so the attack does not depend on how many workers ran it.
 """
 
 from dataclasses import dataclass
@@ -23,9 +28,8 @@ from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig, propose
 from advperc_ros.core.search.refine import dropped_runs
 
-# m: a push just inside the loosest match threshold: still a true positive, so it costs no more NDS
-# than a 2 m offset (both miss the tighter thresholds) and it is no drop, yet it moves a car furthest
-PUSH = 0.95 * max(DIST_THRESHOLDS)
+# m: pushes just inside each match threshold (a true positive at that threshold and every looser one)
+PUSHES = 0.95 * np.asarray(DIST_THRESHOLDS, dtype=float)
 
 
 @dataclass(frozen=True)
@@ -68,59 +72,106 @@ def restore(errors: PerceptionErrors, frames: int, rng: np.random.Generator) -> 
     return out
 
 
-def push(errors: PerceptionErrors, frames: int, rng: np.random.Generator, yaw: np.ndarray) -> PerceptionErrors | None:
-    """Perceive an attacked run (half the time a uniform sub-run of it) PUSH metres to one side of the
-    car's heading: out of a corridor it occupied, at no more cost than a smaller offset."""
+MOVES = ("flip", "push_ahead", "push_behind", "push_left", "push_right", "shrink", "restore", "merge")
+AXES = ((1, 0), (-1, 0), (0, 1), (0, -1))  # (along, beside) the car's heading of each push move, in order
+
+
+def push(
+    errors: PerceptionErrors, frames: int, rng: np.random.Generator, yaw: np.ndarray, axis: int
+) -> PerceptionErrors | None:
+    """Perceive an attacked run (half the time a uniform sub-run of it) displaced along AXES[axis] of
+    the car by just under one of the match thresholds."""
     runs = attacked_runs(errors, frames)
     if not runs:
         return None
     j, a, b = runs[rng.integers(len(runs))]
     if rng.integers(2):
         a, b = np.sort(rng.integers(a, b + 1, size=2))
-    side = PUSH if rng.integers(2) else -PUSH
+    distance = PUSHES[rng.integers(PUSHES.size)]
+    along, side = np.array(AXES[axis], dtype=float) * distance
     out = errors.copy()
     out.fn[a : b + 1, j] = False
-    out.dx[a : b + 1, j] = -np.sin(yaw[a : b + 1, j]) * side
-    out.dy[a : b + 1, j] = np.cos(yaw[a : b + 1, j]) * side
+    cos, sin = np.cos(yaw[a : b + 1, j]), np.sin(yaw[a : b + 1, j])
+    out.dx[a : b + 1, j] = cos * along - sin * side
+    out.dy[a : b + 1, j] = sin * along + cos * side
     out.dyaw[a : b + 1, j] = 0.0
     return out
 
 
-MOVES = ("flip", "push", "shrink", "restore")
-
-
 def candidate(errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: GuidedConfig, yaw: np.ndarray):
     """(move index, candidate) by a move chosen uniformly; the candidate is None when that move has
-    nothing to act on (flip: the paper's proposal, which needs a dropped frame)."""
-    move = int(rng.integers(len(MOVES)))
+    nothing to act on (flip: the paper's proposal, which needs a dropped frame). Merges are not
+    drawn: they come from a round's other collisions."""
+    move = int(rng.integers(len(MOVES) - 1))
     if move == 0:
         return move, propose(errors, frames, rng, cfg.random)
-    if move == 1:
-        return move, push(errors, frames, rng, yaw)
-    return move, (shrink if move == 2 else restore)(errors, frames, rng)
+    if 1 <= move <= 4:
+        return move, push(errors, frames, rng, yaw, move - 1)
+    return move, (shrink if move == 5 else restore)(errors, frames, rng)
+
+
+FIELDS = ("fn", "dx", "dy", "dyaw")
+
+
+def changed_cells(errors: PerceptionErrors, parent: PerceptionErrors) -> np.ndarray:
+    """(frames x slots) mask of the object-frames whose errors differ from the parent's."""
+    return np.logical_or.reduce([getattr(errors, name) != getattr(parent, name) for name in FIELDS])
+
+
+def merge(best: PerceptionErrors, sibling: PerceptionErrors, parent: PerceptionErrors) -> PerceptionErrors | None:
+    """The best attack with what a sibling (another collision of the round that made it) changed in
+    their parent: both changes kept the collision alone, so together they are a likely larger step."""
+    changed = changed_cells(sibling, parent)
+    if not changed.any():
+        return None
+    out = best.copy()
+    for name in FIELDS:
+        getattr(out, name)[changed] = getattr(sibling, name)[changed]
+    return out
 
 
 def _key(errors: PerceptionErrors) -> bytes:
     return b"".join(np.ascontiguousarray(a).tobytes() for a in (errors.dx, errors.dy, errors.dyaw, errors.fn))
 
 
-def _features(moves: np.ndarray, gains: np.ndarray) -> np.ndarray:
-    """One intercept per move and the gain (as a fraction of the round's largest)."""
-    return np.column_stack([np.eye(len(MOVES))[moves], gains])
+def falsity(c: PerceptionErrors, parent: PerceptionErrors) -> float:
+    """How far from the truth a candidate shows what it changes in its parent, in [0, 1]: the mean
+    offset of its changed object-frames over the loosest match threshold, a drop counting as 1.
+    What keeps a planner fooled is how wrong it is shown a car, whichever move did it."""
+    changed = changed_cells(c, parent)
+    if not changed.any():
+        return 0.0
+    offset = np.minimum(np.hypot(c.dx[changed], c.dy[changed]) / max(DIST_THRESHOLDS), 1.0)
+    return float(np.where(c.fn[changed], 1.0, offset).mean())
 
 
-def fit_still_fails(moves: np.ndarray, gains: np.ndarray, failed: np.ndarray) -> np.ndarray:
-    """Weights of P(collides) = sigmoid(features . w), by maximum likelihood with a weak prior for
-    every move that no gain keeps the verdict and the round's largest gain loses it."""
-    prior = np.arange(len(MOVES))
-    x = _features(np.concatenate([moves, prior, prior]).astype(int),
-                  np.concatenate([gains, np.zeros(len(MOVES)), np.ones(len(MOVES))]))
-    y = np.concatenate([failed.astype(float), np.ones(len(MOVES)), np.zeros(len(MOVES))])
+def _features(moves: np.ndarray, gains: np.ndarray, falsities: np.ndarray) -> np.ndarray:
+    """A common intercept, one per move (its departure from the common one), the gain (as a
+    fraction of the round's largest) and the falsity. A move of index -1 has no move term (the
+    prior's rows)."""
+    onehot = np.zeros((len(moves), len(MOVES)))
+    known = moves >= 0
+    onehot[np.flatnonzero(known), moves[known]] = 1.0
+    return np.column_stack([np.ones(len(moves)), onehot, gains, falsities])
+
+
+# L2 penalties of the model's weights: the common intercept and the gain slope are learnt from few
+# rollouts, a move's departure from the common intercept only once that move has evidence of its own
+PENALTY = np.array([0.1, *[1.0] * len(MOVES), 0.1, 0.1])
+
+
+def fit_still_fails(moves: np.ndarray, gains: np.ndarray, falsities: np.ndarray, failed: np.ndarray) -> np.ndarray:
+    """Weights of P(collides) = sigmoid(features . w), by maximum likelihood with a weak prior that
+    no gain keeps the verdict and the round's largest gain loses it. Every rollout informs the
+    common intercept, so a few failures of any moves make the next round more careful."""
+    x = _features(np.concatenate([moves, [-1, -1]]).astype(int), np.concatenate([gains, [0.0, 1.0]]),
+                  np.concatenate([falsities, [0.5, 0.5]]))
+    y = np.concatenate([failed.astype(float), [1.0, 0.0]])
     w = np.zeros(x.shape[1])
     for _ in range(100):  # Newton on an L2-regularised logistic regression
         p = 1.0 / (1.0 + np.exp(-x @ w))
-        grad = x.T @ (y - p) - 0.1 * w
-        hess = -(x.T * (p * (1.0 - p))) @ x - 0.1 * np.eye(x.shape[1])
+        grad = x.T @ (y - p) - PENALTY * w
+        hess = -(x.T * (p * (1.0 - p))) @ x - np.diag(PENALTY)
         delta = np.linalg.solve(hess, grad)
         w -= delta
         if np.abs(delta).max() < 1e-9:
@@ -152,13 +203,20 @@ def guided_search(problem: AttackProblem, rng: np.random.Generator, cfg: GuidedC
     """Rounds from the problem's best attack until it has logged `budget` rollouts; the best attack."""
     moves: list[int] = []  # of every conclusive guided rollout: its move,
     gains: list[float] = []  # its scored gain over its parent as a fraction of its round's largest,
+    falsities: list[float] = []  # how far from the truth it showed what it changed,
     failed: list[bool] = []  # and whether it still collided
     tried: set[bytes] = set()
+    siblings: list[PerceptionErrors] = []  # the last round's collisions that did not become the best
+    grandparent = None  # the parent of the last round
     yaw = problem.scenario.agents.yaw
     while len(problem.log) < budget:
         parent = problem.best
         frames = parent.rollout.num_frames
         pool = {}
+        for sibling in siblings:
+            c = merge(parent.errors, sibling, grandparent)
+            if c is not None and _key(c) not in tried:
+                pool.setdefault(_key(c), (MOVES.index("merge"), c))
         for _ in range(cfg.candidates):  # distinct candidates never rolled out, in the order drawn
             move, c = candidate(parent.errors, frames, rng, cfg, yaw)
             if c is not None and _key(c) not in tried:
@@ -170,15 +228,19 @@ def guided_search(problem: AttackProblem, rng: np.random.Generator, cfg: GuidedC
         gain = np.array([g for g, _, _ in scored])
         relative = gain / gain.max()
         move = np.array([m for _, m, _ in scored])
-        w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(failed, dtype=bool))
-        chance = 1.0 / (1.0 + np.exp(-_features(move, relative) @ w))
+        false = np.array([falsity(c, parent.errors) for _, _, c in scored])
+        w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(falsities), np.array(failed, dtype=bool))
+        chance = 1.0 / (1.0 + np.exp(-_features(move, relative, false) @ w))
         chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)))
         batch = [scored[i][2] for i in chosen]
         tried.update(_key(c) for c in batch)
         trials = problem.evaluate_many([(c, Phase.GUIDED, -1) for c in batch])
+        grandparent = parent.errors
+        siblings = [trial.errors for trial in trials if trial.adversarial and trial is not problem.best]
         for i, trial in zip(chosen, trials):
             if not trial.rollout.inconclusive:
                 moves.append(int(move[i]))
                 gains.append(float(relative[i]))
+                falsities.append(float(false[i]))
                 failed.append(trial.adversarial)
     return problem.best

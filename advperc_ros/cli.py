@@ -16,6 +16,7 @@ import numpy as np
 from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
+from advperc_ros.core.search.pipeline import METHODS as SEARCH_METHODS
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.exits import (EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES,
                                expected_failure)
@@ -33,6 +34,8 @@ def cmd_attack(args: argparse.Namespace) -> int:
         params = params.with_values(rollout_backend=args.backend)
     if args.objective is not None:
         params = params.with_values(objective=args.objective)
+    if args.method is not None:
+        params = params.with_values(**{"search.method": args.method})
     if args.resume is not None and args.output is not None and Path(args.resume) != Path(args.output):
         raise ParamsError(f"--resume {args.resume} and --output {args.output}: give the folder once")
     output = args.resume or args.output
@@ -318,6 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
     attack.add_argument("--output", help="results folder to create (default results/<params>-seed<N>)")
     attack.add_argument("--seed", type=int, help="override the params file's seed")
     attack.add_argument("--objective", choices=OBJECTIVES, help="override the params file's objective")
+    attack.add_argument("--method", choices=SEARCH_METHODS, help="override the params file's search.method (paper: the "
+                        "paper's Algorithms 1 and 2, for reproducing it)")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
     attack.add_argument("--resume", metavar="OUTPUT", help="finish the interrupted attack whose results folder was to be "
                         "OUTPUT (same params): rollouts already run are not run again, and the report is the one an "

@@ -25,6 +25,7 @@ import yaml
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.rollout import RolloutConfig
 from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.pipeline import METHODS
 from advperc_ros.core.tracker import TrackerConfig
 
 NODE = "orchestrator"
@@ -120,7 +121,7 @@ class GuidedParams:
 @dataclass(frozen=True)
 class SearchParams:
     method: str = _param("paper", "paper: heuristic, random search, refine (README Search); guided: heuristic, then "
-                         "rounds that score many candidates and roll out the most promising", choices=("paper", "guided"))
+                         "rounds that score many candidates and roll out the most promising", choices=METHODS)
     budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound", low=0,
                          high=1_000_000)
     heuristic: HeuristicParams = HeuristicParams()

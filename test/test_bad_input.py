@@ -177,6 +177,7 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml --seed", "`--seed abc`", attack_flags("--seed", "abc"), "--seed", None),
         Case("advperc attack P.yaml --objective", "`--objective map`", attack_flags("--objective", "map"), "--objective", None),
         Case("advperc attack P.yaml --backend", "`--backend gpu`", attack_flags("--backend", "gpu"), "--backend", None),
+        Case("advperc attack P.yaml --method", "`--method random`", attack_flags("--method", "random"), "--method", None),
         Case("advperc attack P.yaml --output", "output folder exists", lambda f: (f / "out").mkdir() or ["attack", _params(f), "--output", str(f / "out")], "exists already", "out"),
         Case("advperc attack P.yaml --output", "output under a file", lambda f: (f / "file").write_text("x") and ["attack", _params(f), "--output", str(f / "file" / "out")], "is not a folder", "file"),
         Case("advperc attack P.yaml --output", "output where nothing can be made (`/proc`, a read-only mount: root passes access() there)", lambda f: ["attack", _params(f), "--output", "/proc/advperc-out"], "cannot create the output folder", "/proc/advperc-out"),

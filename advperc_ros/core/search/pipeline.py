@@ -14,6 +14,10 @@ from advperc_ros.core.search.random_search import RandomSearchConfig, random_sea
 from advperc_ros.core.search.refine import refine_drops
 
 
+# paper: the paper's Algorithms 1 and 2 and the refine phase; guided: Algorithm 1, then the guided search
+METHODS = ("paper", "guided")
+
+
 @dataclass(frozen=True)
 class SearchConfig:
     heuristic_iterations: int = 3  # bisection iterations per bound (paper: 3)

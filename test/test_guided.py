@@ -10,7 +10,7 @@ from advperc_ros.application import attack_to_folder, run_attack
 from advperc_ros.backend import Stack
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
-from advperc_ros.core.search.guided import merge, pick_batch, push
+from advperc_ros.core.search.guided import falsity, merge, pick_batch, push, revealed
 from advperc_ros.core.search.problem import Phase
 from advperc_ros.exits import Interrupted
 from advperc_ros.params import load_params
@@ -42,9 +42,11 @@ def guided_runs(lane_following):
 
 
 def test_guided_spends_exactly_its_budget(guided_runs):
+    """6 rollouts after the heuristic, no more than the refine phase may use (2 x 4): the heuristic's
+    drop is refined first (one run: 4 bisection rollouts), then rounds spend the rest."""
     outcome = guided_runs[1]
     assert len(outcome.log) == 18
-    assert [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]] == [Phase.GUIDED] * 6
+    assert [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]] == [Phase.REFINE] * 4 + [Phase.GUIDED] * 2
     assert outcome.best.metric == max(row.metric for row in outcome.log if row.collided)
 
 
@@ -81,7 +83,7 @@ def test_paper_method_unchanged(lane_following):
 
 def test_guided_attack_resumes_mid_batch_to_the_same_report(lane_following, tmp_path, monkeypatch):
     _, params = lane_following
-    params = _guided(params, 19).with_values(bag=str(REPO / "bags" / "idm_lane_following"))
+    params = _guided(params, 23).with_values(bag=str(REPO / "bags" / "idm_lane_following"))
     whole, _ = attack_to_folder(params, tmp_path / "whole")
     calls, rollout = [0], Stack.rollout
 
@@ -152,3 +154,26 @@ def test_a_merge_puts_a_siblings_change_on_the_best_attack():
     assert not merged.fn[5:8, 1].any() and not merged.fn[12:15, 1].any() and merged.fn[8:12, 1].all()
     assert np.all(merged.dx[5:8, 1] == 0.4) and np.all(merged.dy[12:15, 1] == -1.9)
     assert merge(best, parent.copy(), parent) is None  # a sibling that changed nothing adds nothing
+
+
+def test_what_a_candidate_shows_drives_the_collision_model():
+    """Falsity: how wrong the changed object-frames are shown; revealed: the share of the parent's
+    wrongness taken back. Restoring 1 frame of a 10-frame drop reveals a tenth and shows the truth;
+    a 3.8 m push of the whole run reveals 5 % and shows it 95 % wrong; a 0.475 m push reveals most."""
+    parent = _dropped_run()  # frames 5..14 of slot 1 dropped
+    one = parent.copy()
+    one.fn[5, 1] = False
+    assert falsity(one, parent) == 0.0 and revealed(one, parent) == pytest.approx(0.1)
+    far, near = parent.copy(), parent.copy()
+    for errors, metres in ((far, 3.8), (near, 0.475)):
+        errors.fn[5:15, 1] = False
+        errors.dy[5:15, 1] = metres
+    assert falsity(far, parent) == pytest.approx(0.95) and revealed(far, parent) == pytest.approx(0.05)
+    assert falsity(near, parent) == pytest.approx(0.11875) and revealed(near, parent) == pytest.approx(0.88125)
+    assert revealed(parent, far) < 0  # hiding a shown car again takes nothing back
+
+
+def test_without_refine_iterations_every_rollout_after_the_heuristic_is_a_round(lane_following):
+    scenario, params = lane_following
+    outcome = run_attack(scenario, _guided(params, 16, **{"search.refine.iterations": 0}), progress=False)
+    assert [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]] == [Phase.GUIDED] * 4

@@ -26,7 +26,7 @@ from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig, propose
-from advperc_ros.core.search.refine import dropped_runs
+from advperc_ros.core.search.refine import dropped_runs, refine_drops
 
 # m: pushes just inside each match threshold (a true positive at that threshold and every looser one)
 PUSHES = 0.95 * np.asarray(DIST_THRESHOLDS, dtype=float)
@@ -134,38 +134,55 @@ def _key(errors: PerceptionErrors) -> bytes:
     return b"".join(np.ascontiguousarray(a).tobytes() for a in (errors.dx, errors.dy, errors.dyaw, errors.fn))
 
 
+def wrongness(errors: PerceptionErrors) -> np.ndarray:
+    """(frames x slots) how wrong each object-frame is shown, in [0, 1]: its offset over the loosest
+    match threshold, a drop counting as 1."""
+    offset = np.minimum(np.hypot(errors.dx, errors.dy) / max(DIST_THRESHOLDS), 1.0)
+    return np.where(errors.fn, 1.0, offset)
+
+
 def falsity(c: PerceptionErrors, parent: PerceptionErrors) -> float:
-    """How far from the truth a candidate shows what it changes in its parent, in [0, 1]: the mean
-    offset of its changed object-frames over the loosest match threshold, a drop counting as 1.
-    What keeps a planner fooled is how wrong it is shown a car, whichever move did it."""
+    """How wrong a candidate shows what it changes in its parent: the mean wrongness of its changed
+    object-frames (a car shown 3.8 m aside fools a corridor where one shown 1.9 m aside does not)."""
     changed = changed_cells(c, parent)
-    if not changed.any():
-        return 0.0
-    offset = np.minimum(np.hypot(c.dx[changed], c.dy[changed]) / max(DIST_THRESHOLDS), 1.0)
-    return float(np.where(c.fn[changed], 1.0, offset).mean())
+    return float(wrongness(c)[changed].mean()) if changed.any() else 0.0
 
 
-def _features(moves: np.ndarray, gains: np.ndarray, falsities: np.ndarray) -> np.ndarray:
+def revealed(c: PerceptionErrors, parent: PerceptionErrors) -> float:
+    """The share of its parent's wrongness a candidate takes back, whichever move did it; with the
+    falsity, what decides whether a planner is still fooled (restoring one frame of a long drop
+    reveals little; a car shown 0.5 m off where it was hidden reveals most of it). Negative when
+    the candidate shows things more wrongly than its parent."""
+    before = wrongness(parent)
+    return float((before - wrongness(c)).sum() / max(before.sum(), 1e-12))
+
+
+def shown(c: PerceptionErrors, parent: PerceptionErrors) -> tuple[float, float]:
+    """What the collision model reads of a candidate besides its move and gain."""
+    return falsity(c, parent), revealed(c, parent)
+
+
+def _features(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray) -> np.ndarray:
     """A common intercept, one per move (its departure from the common one), the gain (as a
-    fraction of the round's largest) and the falsity. A move of index -1 has no move term (the
-    prior's rows)."""
+    fraction of the round's largest), and the falsity and share revealed (`seen`, a row each). A
+    move of index -1 has no move term (the prior's rows)."""
     onehot = np.zeros((len(moves), len(MOVES)))
     known = moves >= 0
     onehot[np.flatnonzero(known), moves[known]] = 1.0
-    return np.column_stack([np.ones(len(moves)), onehot, gains, falsities])
+    return np.column_stack([np.ones(len(moves)), onehot, gains, seen])
 
 
 # L2 penalties of the model's weights: the common intercept and the gain slope are learnt from few
 # rollouts, a move's departure from the common intercept only once that move has evidence of its own
-PENALTY = np.array([0.1, *[1.0] * len(MOVES), 0.1, 0.1])
+PENALTY = np.array([0.1, *[1.0] * len(MOVES), 0.1, 0.1, 0.1])
 
 
-def fit_still_fails(moves: np.ndarray, gains: np.ndarray, falsities: np.ndarray, failed: np.ndarray) -> np.ndarray:
+def fit_still_fails(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray, failed: np.ndarray) -> np.ndarray:
     """Weights of P(collides) = sigmoid(features . w), by maximum likelihood with a weak prior that
     no gain keeps the verdict and the round's largest gain loses it. Every rollout informs the
     common intercept, so a few failures of any moves make the next round more careful."""
     x = _features(np.concatenate([moves, [-1, -1]]).astype(int), np.concatenate([gains, [0.0, 1.0]]),
-                  np.concatenate([falsities, [0.5, 0.5]]))
+                  np.concatenate([seen.reshape(-1, 2), [[0.5, 0.5], [0.5, 0.5]]]))
     y = np.concatenate([failed.astype(float), [1.0, 0.0]])
     w = np.zeros(x.shape[1])
     for _ in range(100):  # Newton on an L2-regularised logistic regression
@@ -199,17 +216,29 @@ def pick_batch(gain: np.ndarray, chance: np.ndarray, size: int) -> list[int]:
     return chosen
 
 
-def guided_search(problem: AttackProblem, rng: np.random.Generator, cfg: GuidedConfig, budget: int) -> Evaluation:
-    """Rounds from the problem's best attack until it has logged `budget` rollouts; the best attack."""
+def guided_search(
+    problem: AttackProblem, rng: np.random.Generator, cfg: GuidedConfig, budget: int, refine_iterations: int = 0
+) -> Evaluation:
+    """Rounds from the problem's best attack until it has logged `budget` rollouts; the best attack.
+
+    Once the rollouts left come down to what the refine phase may use (2 x `refine_iterations`), or
+    no candidate scores above the best, the refine phase runs once on the best attack: a bisection
+    re-detects the first frames of a drop more cheaply than random restores do, and under NDS,
+    where displacing a car scores below dropping it, the last gains are there. Rounds then go on."""
     moves: list[int] = []  # of every conclusive guided rollout: its move,
     gains: list[float] = []  # its scored gain over its parent as a fraction of its round's largest,
-    falsities: list[float] = []  # how far from the truth it showed what it changed,
+    shows: list[tuple[float, float]] = []  # what it showed (falsity, share revealed),
     failed: list[bool] = []  # and whether it still collided
     tried: set[bytes] = set()
     siblings: list[PerceptionErrors] = []  # the last round's collisions that did not become the best
     grandparent = None  # the parent of the last round
     yaw = problem.scenario.agents.yaw
+    refined = refine_iterations == 0
     while len(problem.log) < budget:
+        if not refined and budget - len(problem.log) <= 2 * refine_iterations:
+            refined = True
+            refine_drops(problem, problem.best, refine_iterations)
+            continue
         parent = problem.best
         frames = parent.rollout.num_frames
         pool = {}
@@ -223,14 +252,19 @@ def guided_search(problem: AttackProblem, rng: np.random.Generator, cfg: GuidedC
                 pool.setdefault(_key(c), (move, c))
         scored = [(problem.metric(c, parent.rollout) - parent.metric, move, c) for move, c in pool.values()]
         scored = [entry for entry in scored if entry[0] > 0]
-        if not scored:
-            break  # nothing scores above the best attack: no rollout can improve it
+        if not scored:  # nothing scores above the best attack: no round can improve it
+            if refined:
+                break
+            refined = True
+            refine_drops(problem, problem.best, refine_iterations)
+            continue
         gain = np.array([g for g, _, _ in scored])
         relative = gain / gain.max()
         move = np.array([m for _, m, _ in scored])
-        false = np.array([falsity(c, parent.errors) for _, _, c in scored])
-        w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(falsities), np.array(failed, dtype=bool))
-        chance = 1.0 / (1.0 + np.exp(-_features(move, relative, false) @ w))
+        seen = np.array([shown(c, parent.errors) for _, _, c in scored])
+        w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(shows).reshape(-1, 2),
+                            np.array(failed, dtype=bool))
+        chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen) @ w))
         chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)))
         batch = [scored[i][2] for i in chosen]
         tried.update(_key(c) for c in batch)
@@ -241,6 +275,6 @@ def guided_search(problem: AttackProblem, rng: np.random.Generator, cfg: GuidedC
             if not trial.rollout.inconclusive:
                 moves.append(int(move[i]))
                 gains.append(float(relative[i]))
-                falsities.append(float(false[i]))
+                shows.append(tuple(seen[i]))
                 failed.append(trial.adversarial)
     return problem.best

@@ -62,7 +62,7 @@ def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
             return SearchResult(None, None, None, None)
         rng = np.random.default_rng(config.seed)
         if guided:
-            guided_search(problem, rng, config.guided, problem.budget)
+            guided_search(problem, rng, config.guided, problem.budget, config.refine_iterations)
         else:
             searched = random_search(problem, heuristic, rng, config.random)
             if config.refine_iterations > 0:

@@ -56,16 +56,20 @@ def metric_figure(log: list[LogRow], objective: str) -> Figure:
 
 
 def _best_metric(ax, log: list[LogRow], index: np.ndarray, collided: np.ndarray, objective: str) -> None:
-    """Best adversarial metric after each rollout; heuristic solid, random search dashed, refine dotted."""
+    """Best adversarial metric after each rollout; heuristic solid, random search dashed, refine
+    dotted, guided rounds dash-dotted (refine may run between two stretches of rounds)."""
     best = np.array([row.best_metric for row in log])
-    phases = np.array([{"random": 1, "refine": 2}.get(row.phase, 0) for row in log])
-    styles = {0: ("heuristic", "tab:orange", "-"), 1: ("random search", "tab:cyan", "--"), 2: ("refine", "tab:green", ":")}
-    for phase, (label, color, line) in styles.items():
-        rows = np.flatnonzero(phases == phase)
-        if rows.size:
-            start = max(rows[0] - 1, 0)  # join the previous phase's curve
-            ax.step(index[start : rows[-1] + 1], best[start : rows[-1] + 1], where="post", color=color,
-                    linestyle=line, label=label)
+    phases = np.array([{"random": 1, "refine": 2, "guided": 3}.get(row.phase, 0) for row in log])
+    styles = {0: ("heuristic", "tab:orange", "-"), 1: ("random search", "tab:cyan", "--"), 2: ("refine", "tab:green", ":"),
+              3: ("guided rounds", "tab:purple", "-.")}
+    starts = np.flatnonzero(np.diff(phases, prepend=-1))  # each stretch of one phase
+    labelled = set()
+    for start, end in zip(starts, [*starts[1:], len(log)]):
+        label, color, line = styles[int(phases[start])]
+        first = max(start - 1, 0)  # join the previous stretch's curve
+        ax.step(index[first:end], best[first:end], where="post", color=color, linestyle=line,
+                label=None if label in labelled else label)
+        labelled.add(label)
     metric = np.array([row.metric for row in log])
     ax.scatter(index[collided], metric[collided], s=10, color="tab:red", label="adversarial rollout", zorder=3)
     if (~collided).any():

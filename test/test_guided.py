@@ -42,12 +42,20 @@ def guided_runs(lane_following):
 
 
 def test_guided_spends_exactly_its_budget(guided_runs):
-    """6 rollouts after the heuristic, no more than the refine phase may use (2 x 4): the heuristic's
-    drop is refined first (one run: 4 bisection rollouts), then rounds spend the rest."""
+    """6 rollouts after the heuristic: too few to give the refine phase its share (2 x 4) after
+    rounds have had as many, so all 6 are rounds."""
     outcome = guided_runs[1]
     assert len(outcome.log) == 18
-    assert [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]] == [Phase.REFINE] * 4 + [Phase.GUIDED] * 2
-    assert outcome.best.metric == max(row.metric for row in outcome.log if row.collided)
+    assert [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]] == [Phase.GUIDED] * 6
+
+
+def test_refine_runs_once_when_the_rollouts_left_are_its_share(lane_following):
+    """Budget 30 under NDS (drops stay): rounds until 8 rollouts are left (10 rounds by then), one
+    refine bisection of the dropped run (4 rollouts), then rounds again."""
+    scenario, params = lane_following
+    outcome = run_attack(scenario, _guided(params, 30, objective="nds"), progress=False)
+    phases = [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]]
+    assert phases == [Phase.GUIDED] * 10 + [Phase.REFINE] * 4 + [Phase.GUIDED] * 4
 
 
 def test_guided_improves_on_the_heuristic(guided_runs):
@@ -83,7 +91,7 @@ def test_paper_method_unchanged(lane_following):
 
 def test_guided_attack_resumes_mid_batch_to_the_same_report(lane_following, tmp_path, monkeypatch):
     _, params = lane_following
-    params = _guided(params, 23).with_values(bag=str(REPO / "bags" / "idm_lane_following"))
+    params = _guided(params, 19).with_values(bag=str(REPO / "bags" / "idm_lane_following"))
     whole, _ = attack_to_folder(params, tmp_path / "whole")
     calls, rollout = [0], Stack.rollout
 

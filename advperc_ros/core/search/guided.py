@@ -221,10 +221,11 @@ def guided_search(
 ) -> Evaluation:
     """Rounds from the problem's best attack until it has logged `budget` rollouts; the best attack.
 
-    Once the rollouts left come down to what the refine phase may use (2 x `refine_iterations`), or
-    no candidate scores above the best, the refine phase runs once on the best attack: a bisection
-    re-detects the first frames of a drop more cheaply than random restores do, and under NDS,
-    where displacing a car scores below dropping it, the last gains are there. Rounds then go on."""
+    Once the rollouts left come down to what the refine phase may use (2 x `refine_iterations`)
+    after rounds have had as many, or no candidate scores above the best, the refine phase runs once
+    on the best attack: a bisection re-detects the first frames of a drop more cheaply than random
+    restores do, and under NDS, where displacing a car scores below dropping it, the last gains are
+    there. Rounds then go on. A small budget stays with the rounds, where the large gains are."""
     moves: list[int] = []  # of every conclusive guided rollout: its move,
     gains: list[float] = []  # its scored gain over its parent as a fraction of its round's largest,
     shows: list[tuple[float, float]] = []  # what it showed (falsity, share revealed),
@@ -235,7 +236,7 @@ def guided_search(
     yaw = problem.scenario.agents.yaw
     refined = refine_iterations == 0
     while len(problem.log) < budget:
-        if not refined and budget - len(problem.log) <= 2 * refine_iterations:
+        if not refined and budget - len(problem.log) <= 2 * refine_iterations <= len(moves):
             refined = True
             refine_drops(problem, problem.best, refine_iterations)
             continue

@@ -64,5 +64,6 @@ def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
             if config.refine_iterations > 0:
                 refined = refine_drops(problem, problem.best, config.refine_iterations)
     except BudgetSpent:
-        pass
+        if heuristic is None:  # spent within the heuristic: its best failing rollout so far
+            heuristic = problem.best
     return SearchResult(heuristic, searched, refined, problem.best)

@@ -91,11 +91,11 @@ def heuristic_search(problem: AttackProblem, iterations: int = 3, batched: bool 
     as one batch, which a backend may run at once; the same rollouts and failure modes either way."""
     scenario = problem.scenario
     num_frames, num_agents = scenario.agents.shape
+    perfect = (PerceptionErrors.none(num_frames, num_agents), Phase.GROUND_TRUTH, -1)
     whole = [(dropping(scenario.agents.shape, {j: (0, num_frames - 1)}), Phase.HEURISTIC_DROP, scenario.agent_id(j))
              for j in range(num_agents)]
-    upfront = problem.evaluate_many([(PerceptionErrors.none(num_frames, num_agents), Phase.GROUND_TRUTH, -1), *whole]) \
-        if batched else None
-    truth = upfront[0] if upfront else problem.evaluate(PerceptionErrors.none(num_frames, num_agents), Phase.GROUND_TRUTH)
+    upfront = problem.evaluate_many([perfect, *whole]) if batched else None
+    truth = upfront[0] if upfront else problem.evaluate(*perfect)
     check_ground_truth(truth)
     drops, modes = [], []
     for j in range(num_agents):

@@ -34,11 +34,11 @@ class Joint:
 
 
 def worst_case(max_agents: int, num_agents: int) -> int:
-    """Rollouts the joint phase adds to Algorithm 1's at most: the blind rollout, and per agent kept a
-    bisection over prefixes and a rollout of the kept set (the first set of two kept at the latest: one
-    kept agent is a single drop, already rolled out). The bisections of the set's segments, 2 x
-    iterations per agent, are not added: they stand in for the single agents' bisections, none of which
-    ran."""
+    """Rollouts the joint phase adds to Algorithm 1's at most: the blind rollout; per agent kept, a
+    bisection over prefixes (ceil(log2 N)); and a rollout of each kept set from two agents on (one kept
+    agent is a single drop, rolled out already): 1 + M ceil(log2 N) + M - 1. The bisections of the
+    set's segments, 2 x iterations per agent, are not added: they stand in for the single agents'
+    bisections, none of which ran."""
     if max_agents == 0 or num_agents < 2:
         return 0
     return max_agents * (1 + math.ceil(math.log2(num_agents)))
@@ -55,9 +55,8 @@ def whole_drops(problem: AttackProblem, known: dict[frozenset[int], Evaluation],
     """The rollout of the slots' whole tracks dropped together, rolled out unless `known` holds it."""
     key = frozenset(slots)
     if key not in known:
-        num_frames = problem.scenario.num_frames
-        known[key] = problem.evaluate(dropping(problem.scenario.agents.shape, dict.fromkeys(sorted(key), (0, num_frames - 1))),
-                                      Phase.JOINT)
+        shape = problem.scenario.agents.shape
+        known[key] = problem.evaluate(dropping(shape, dict.fromkeys(sorted(key), (0, shape[0] - 1))), Phase.JOINT)
     return known[key]
 
 

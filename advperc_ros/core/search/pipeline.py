@@ -1,7 +1,7 @@
-"""The whole search and its rollout budget: the paper's heuristic (Algorithm 1) with joint drops when
-no single agent's drop collides, then either the paper's random search (Algorithm 2) and the refine phase beyond the paper (method `paper`), or the
-guided search (method `guided`). What `advperc attack` and the orchestrator node run, whatever
-backend rolls out."""
+"""The whole search and its rollout budget: the paper's heuristic (Algorithm 1), with joint drops when
+no single agent's drop collides, then either the paper's random search (Algorithm 2) and the refine
+phase beyond the paper (method `paper`), or the guided search (method `guided`). What `advperc
+attack` and the orchestrator node run, whatever backend rolls out."""
 
 from dataclasses import dataclass
 

@@ -33,7 +33,8 @@ class Phase(str, Enum):
 
     @property
     def heuristic(self) -> bool:
-        return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END, Phase.JOINT)
+        return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END,
+                        Phase.JOINT)
 
 
 class BudgetSpent(RuntimeError):

@@ -14,7 +14,6 @@ from tqdm import tqdm
 
 from advperc_ros.backend import EXTERNAL, Rollouts, Stack
 from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
-from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.guided import GuidedConfig
 from advperc_ros.core.search.pipeline import SearchConfig, budget, run_search
@@ -35,6 +34,7 @@ def search_config(params: AttackParams) -> SearchConfig:
                                 max_offset=search.random.max_offset, yaw_std=search.random.yaw_std)
     return SearchConfig(
         heuristic_iterations=search.heuristic.iterations,
+        joint_max_agents=search.joint.max_agents,
         random=random,
         refine_iterations=search.refine.iterations,
         seed=params.seed,
@@ -66,7 +66,8 @@ class RolloutProgress:
     so far plus those still to come as far as the search has shown them: every agent's drop, the
     bisections (2 x iterations at most) of each agent whose drop collided, and once an agent is
     influential the random steps and refine's bisections of the best attack's dropped runs (the
-    guided method: the rest of its budget, which it spends), never past the budget. The paper's
+    guided method: the rest of its budget, which it spends), never past the budget; the joint drops,
+    when no single drop collided, show one rollout at a time. The paper's
     bound would leave the bar at 12-39 %: most agents are not influential, and a bisection or a
     random step can end early; `close` ends the bar at the count."""
 
@@ -75,6 +76,7 @@ class RolloutProgress:
         self.name, self.config, self.num_agents, self.best = name, config, num_agents, best
         self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
         self.bisecting = False  # the last agent dropped collided: its bisections are under way
+        self.joint = False  # a joint drop has run
         self.bar = tqdm(total=1 + num_agents, desc=name, unit="rollout", disable=not enabled, file=sys.stderr,
                         mininterval=1.0)
 
@@ -83,6 +85,9 @@ class RolloutProgress:
         if phase == Phase.HEURISTIC_DROP:
             self.drops += 1
             self.bisecting, self.bisections = row.collided, 0
+            self.influential += row.collided
+        elif phase == Phase.JOINT:  # no single drop collided: the joint drops run, within their own bound
+            self.joint = True
             self.influential += row.collided
         elif phase in (Phase.HEURISTIC_START, Phase.HEURISTIC_END):
             self.bisections += 1
@@ -101,7 +106,7 @@ class RolloutProgress:
         self.bar.update()
 
     def _still_to_run(self, phase: Phase) -> int:
-        left = budget(self.config, self.num_agents) - self.bar.n - 1
+        left = budget(self.config, self.num_agents, self.joint) - self.bar.n - 1
         if self.config.method == "guided" and self.influential:  # it spends its whole budget
             return left
         return min(left, self._paper_still_to_run(phase))
@@ -139,17 +144,12 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         if rollouts is None:  # this function's own stack: its worker pool ends here
             backend.close()
     recorded = backend.rollout(result.best.errors, record=True) if result.best is not None else None
-    blind = None
-    if result.best is None and scenario.agents.shape[1]:  # why nothing was found: what would hiding everything do?
-        everything = PerceptionErrors.none(*scenario.agents.shape)
-        everything.fn[:] = True
-        blind = backend.rollout(everything)
     attacked = backend.attacked_planner
     if attacked.node is not None:
         params = replace(params, planner=EXTERNAL, planner_params={})
     return AttackOutcome(scenario=scenario, params=params, heuristic_best=result.heuristic, best=result.best,
                          recorded=recorded, log=problem.log, wall_time_s=time.perf_counter() - started,
-                         planner_node=attacked.node, blind=blind)
+                         planner_node=attacked.node, joint=result.joint)
 
 
 def default_output(params: AttackParams, scenario_name: str) -> Path:

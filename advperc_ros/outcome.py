@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.joint import Joint
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.params import AttackParams
 
@@ -19,5 +20,6 @@ class AttackOutcome:
     log: list[LogRow]
     wall_time_s: float
     planner_node: str | None = None  # the external planner node, when one planned
-    # when nothing was found: the ego's rollout with every vehicle hidden, the most any drop can take away
-    blind: RolloutResult | None = None
+    # when no single drop collided: the joint drops, with the ego's rollout with every vehicle hidden
+    # (the most any drop can take away) and the agents of the failure mode they found, if any
+    joint: Joint | None = None

@@ -99,6 +99,13 @@ class HeuristicParams:
 
 
 @dataclass(frozen=True)
+class JointParams:
+    max_agents: int = _param(8, "beyond the paper, when no single agent's drop collides: agents the joint drops "
+                             "keep at most (README Search); 0: no joint drops (nor the blind rollout)", low=0,
+                             high=1_000_000)
+
+
+@dataclass(frozen=True)
 class RandomParams:
     steps: int = _param(40, "random search steps N_steps (paper: 40)", low=0, high=1_000_000)
     proposals: int = _param(100, "proposals per step N_proposal (paper: 100)", low=1, high=1_000_000)
@@ -125,6 +132,7 @@ class SearchParams:
     budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound", low=0,
                          high=1_000_000)
     heuristic: HeuristicParams = HeuristicParams()
+    joint: JointParams = JointParams()
     random: RandomParams = RandomParams()
     refine: RefineParams = RefineParams()
     guided: GuidedParams = GuidedParams()

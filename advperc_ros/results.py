@@ -69,10 +69,10 @@ def _ids(ids: list[int], shown: int = 10) -> str:
     return text + (f", ... ({len(ids)} in all)" if len(ids) > shown else "")
 
 
-def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, agent_ids: np.ndarray | None = None) -> dict:
+def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None) -> dict:
     """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
     refines only a drop that collides) and how close the ego came, hidden agent or not; and, from the
-    `blind` rollout (every vehicle hidden; `agent_ids` its slots' ids), whether any drop could matter."""
+    joint drops' `blind` rollout (every vehicle hidden), whether any drop could matter."""
     truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
     drops = [row for row in log if row.phase == "heuristic_drop"]
     conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]
@@ -96,7 +96,7 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, agen
                  f"closest approach {truth.min_signed_distance:.2f} m")
     blind_report = None
     if blind is not None:
-        text += "; " + _blind_clause(blind, agent_ids)
+        text += "; " + _blind_clause(blind)
         blind_report = {"collided": blind.collided, "inconclusive": blind.inconclusive,
                         "min_signed_distance": rounded("min_signed_distance", blind.min_signed_distance)}
     return {
@@ -115,17 +115,13 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, agen
     }
 
 
-def _blind_clause(blind: RolloutResult, agent_ids: np.ndarray) -> str:
+def _blind_clause(blind: RolloutResult) -> str:
     """What hiding every vehicle does, which tells whether missed detections can matter at all: an ego
-    that stays clear of the recorded traffic even blind to it is not put in its way by hiding some."""
+    that stays clear of the recorded traffic even blind to it is not put in its way by hiding some. (A
+    blind rollout that collides is an attack: the joint drops narrow it.)"""
     if blind.inconclusive is not None:
-        return f"with every vehicle hidden the rollout was inconclusive ({blind.inconclusive})"
-    if blind.collided:
-        counted = blind.distances < 0.0 if blind.excused is None else (blind.distances < 0.0) & ~blind.excused
-        frame, slot = np.argwhere(counted)[0]
-        return (f"hiding every vehicle does make the ego collide at fault (agent {int(agent_ids[frame, slot])}, frame "
-                f"{frame}), though no single vehicle's whole-track drop does")
-    return (f"even with every vehicle hidden the ego collides with none at its fault (closest approach "
+        return f"with every vehicle hidden at once the rollout was inconclusive ({blind.inconclusive})"
+    return (f"even with every vehicle hidden at once the ego collides with none at its fault (closest approach "
             f"{blind.min_signed_distance:.2f} m): unseen, the recorded traffic still does not come into its way")
 
 
@@ -166,9 +162,11 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             **report_scores(best),
         )
     else:
-        report.update(why_no_collision(outcome.log, outcome.blind, outcome.scenario.agents.ids))
+        report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric), **report_scores(outcome.heuristic_best)}
+    # no single drop collided: the agents the joint drops' failure mode hides together ([]: none found)
+    report["joint_agents"] = list(outcome.joint.agents) if outcome.joint is not None else None
     report.update(
         rollouts=len(outcome.log),
         inconclusive_rollouts=sum(1 for row in outcome.log if row.inconclusive),
@@ -210,10 +208,12 @@ def _table(report: dict) -> list[str]:
             f"| {name} | {row['fn']}/{row['tp']} | {_fmt(row['mpe'])} | {_fmt(row['maoe'])} | "
             f"{_fmt(row['nds'], 4)} | {_fmt(row['nds_t'], 4)} | {_fmt(row['pem_ll'])} | {rollouts} |"
         )
+    joint = report["joint_agents"]
     return lines + [
         "",
         f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
         f"min signed distance {report['min_signed_distance']:.3f} m",
+        *([f"- no single agent's drop collided: agents {_ids(joint)} dropped jointly"] if joint else []),
         "- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
     ]
 

@@ -113,8 +113,6 @@ def short(row: Row) -> str:
         closest = re.findall(r"closest approach (-?[\d.]+) m", row.reason)
         if "even with every vehicle hidden" in row.reason:
             return f"none: clear even blind ({closest[-1]} m)"
-        if "hiding every vehicle does make" in row.reason:
-            return "none: blind collides, no single drop does"
         return f"none: no influential vehicle ({closest[0]} m)" if closest else "none"
     if row.outcome == "refused":
         found = re.search(r"min signed distance (-?[\d.]+) m", row.reason)

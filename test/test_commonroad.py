@@ -81,7 +81,8 @@ def test_sample_imports_and_attacks_or_is_refused_with_a_reason(name, tmp_path, 
         assert code == 0
         report = json.loads((tmp_path / "out" / "report.json").read_text())
         assert report["collision"] is False and "no agent" in report["message"]
-        assert report["rollouts"] == 1 + vehicles  # ground truth, then each agent dropped once
+        # ground truth, each agent dropped once, then all at once (the joint drops' blind rollout, clear)
+        assert report["rollouts"] == 1 + vehicles + 1 and report["joint_agents"] == []
 
 
 @needs_data

@@ -89,10 +89,11 @@ def test_a_search_that_finds_nothing_says_why(repo, tmp_path, capsys, spec, clos
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     assert report["agents_tried"] == [1, 7] and set(report["closest_approach_by_agent"]) == {"1", "7"}
     assert report["closest_approach"]["min_signed_distance"] == pytest.approx(closest, abs=0.005)
-    # hiding both cars at once (one more rollout) does no more: the traffic never comes into the ego's way
-    assert report["blind"]["collided"] is False and report["rollouts"] == 3  # the search's; the blind one is not in its log
+    # hiding both cars at once (the joint drops' one rollout, logged) does no more: the traffic never comes into
+    # the ego's way
+    assert report["blind"]["collided"] is False and report["rollouts"] == 4 and report["joint_agents"] == []
     assert report["blind"]["min_signed_distance"] == pytest.approx(closest, abs=0.005)
-    assert f"even with every vehicle hidden the ego collides with none at its fault (closest approach {closest:.2f} m)" \
+    assert f"even with every vehicle hidden at once the ego collides with none at its fault (closest approach {closest:.2f} m)" \
         in summary["message"]
     markdown = (tmp_path / "out" / "report.md").read_text()
     assert summary["message"][1:] in markdown and "N/A" not in markdown

@@ -111,7 +111,7 @@ def reference_heuristic(num_frames, num_agents, ask, iterations=ITERATIONS):
 @pytest.fixture(scope="module", params=sorted(SPECS))
 def heuristic_run(request):
     problem, recorder, rows = make_problem(SPECS[request.param])
-    modes = heuristic_search(problem, ITERATIONS)
+    modes = heuristic_search(problem, ITERATIONS).modes
     return problem, recorder, rows, modes
 
 
@@ -315,7 +315,7 @@ SEARCH_CFG = RandomSearchConfig(steps=8, proposals=20)
 @pytest.fixture(scope="module")
 def initial_mode():
     problem, _, _ = make_problem(BASE_SPEC)
-    return heuristic_search(problem, ITERATIONS)[0]
+    return heuristic_search(problem, ITERATIONS).modes[0]
 
 
 def run_random(initial, seed):
@@ -405,7 +405,7 @@ def test_refine_keeps_only_failing_rollouts_and_restores_perfect_detections():
     from advperc_ros.core.search.refine import refine_drops
 
     problem, _, _ = make_problem(BASE_SPEC)
-    best = max(heuristic_search(problem, ITERATIONS), key=lambda m: m.metric)
+    best = max(heuristic_search(problem, ITERATIONS).modes, key=lambda m: m.metric)
     before = len(problem.log)
     refined = refine_drops(problem, best, iterations=4)
     rows = problem.log[before:]
@@ -416,3 +416,14 @@ def test_refine_keeps_only_failing_rollouts_and_restores_perfect_detections():
     assert np.all(refined.errors.dx[changed] == 0.0) and np.all(refined.errors.dyaw[changed] == 0.0)
     best_so_far = [row.best_metric for row in problem.log if not np.isnan(row.best_metric)]
     assert best_so_far == sorted(best_so_far)
+
+
+def test_a_budget_spent_within_the_heuristic_reports_its_failing_rollout_as_the_heuristic_s():
+    """The lead's drop collides at rollout 2, the budget ends at 3 mid-bisection: the report needs a
+    heuristic row for the attack it reports (it used to be None, and writing report.md failed)."""
+    from advperc_ros.core.search.pipeline import SearchConfig, run_search
+
+    problem, _, _ = make_problem(BASE_SPEC)
+    result = run_search(problem, SearchConfig(budget=3))
+    assert len(problem.log) == 3 and result.best is not None
+    assert result.heuristic is result.best and result.heuristic.adversarial

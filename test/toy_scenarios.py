@@ -36,3 +36,18 @@ def rotated(spec: dict, degrees: float) -> dict:
     lanes = [{**lane, "centerline": [[c * x - s * y, s * x + c * y] for x, y in lane["centerline"]]}
              for lane in spec["lanes"]]
     return {**spec, "name": f"{spec['name']}_rotated", "lanes": lanes}
+
+
+# Two slow cars one behind the other in the ego's lane, 1.5 m apart (IDM target 14 m/s). Seeing either
+# one, the ego follows it at its headway gap, which keeps it behind the near one; only with both hidden
+# does it accelerate into the near one: no single drop collides, the two together do.
+PLATOON_SPEC = {
+    **FOLLOW_SPEC,
+    "name": "platoon",
+    "ego": {"route": ["east"], "start_s": 100.0, "speed": 5.0},
+    "agents": [
+        {"id": 1, "lane": "east", "start_s": 116.6, "speed": 5.0, "size": [4.6, 1.9, 1.6]},  # near
+        {"id": 2, "lane": "east", "start_s": 122.7, "speed": 5.0, "size": [4.6, 1.9, 1.6]},  # far
+        FOLLOW_SPEC["agents"][1],  # oncoming
+    ],
+}

@@ -46,6 +46,10 @@ class Scenario:
     def num_frames(self) -> int:
         return int(self.stamps_ns.shape[0])
 
+    def agent_id(self, slot: int) -> int:
+        """The id of the agent in `slot` (read at its first frame present)."""
+        return int(self.agents.ids[self.agents.valid[:, slot].argmax(), slot])
+
     @property
     def dt(self) -> float:
         return float(self.stamps_ns[1] - self.stamps_ns[0]) * 1e-9 if self.num_frames > 1 else 0.1

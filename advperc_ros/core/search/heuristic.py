@@ -6,9 +6,29 @@ only on a definite verdict: an inconclusive rollout ends that bisection where it
 """
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, GroundTruthFails, Phase
+
+Segments = dict[int, tuple[int, int]]  # slot -> (first, last) dropped frame, inclusive
+
+
+@dataclass(frozen=True)
+class Heuristic:
+    """What Algorithm 1 rolled out: what the joint drops start from when no agent is influential."""
+
+    truth: Evaluation  # perfect perception
+    drops: list[Evaluation]  # each agent's whole-track drop, by slot
+    modes: list[Evaluation]  # failure modes, one per influential agent, each the narrowest failing drop found
+
+
+def dropping(shape: tuple[int, int], segments: Segments) -> PerceptionErrors:
+    """Errors that drop each slot's segment and nothing else."""
+    errors = PerceptionErrors.none(*shape)
+    for j, (first, last) in segments.items():
+        errors.fn[first : last + 1, j] = True
+    return errors
 
 
 def bisect(
@@ -36,6 +56,24 @@ def bisect(
     return fails, failing
 
 
+def narrow(problem: AttackProblem, segments: Segments, j: int, iterations: int, failing: Evaluation,
+           phases: tuple[Phase, Phase] = (Phase.HEURISTIC_START, Phase.HEURISTIC_END)) -> tuple[Segments, Evaluation]:
+    """Bisect slot j's whole-track drop, the other segments held: its latest start of a drop running to
+    the end, then the earliest end; `failing` is the rollout of `segments`. The narrowed segments and
+    their evaluation."""
+    num_frames = problem.scenario.num_frames
+    agent = problem.scenario.agent_id(j)
+    shape = problem.scenario.agents.shape
+    # latest start: dropping [start, end] fails, dropping nothing (start = T) passes
+    start, failing = bisect(problem, 0, num_frames, lambda mid: dropping(shape, {**segments, j: (mid, num_frames - 1)}),
+                            phases[0], agent, iterations, failing)
+    # earliest end: frames past the collision cannot matter, so the failing end starts there
+    end, failing = bisect(problem, min(num_frames, failing.rollout.num_frames) - 1, start - 1,
+                          lambda mid: dropping(shape, {**segments, j: (start, mid)}), phases[1], agent, iterations,
+                          failing)
+    return {**segments, j: (start, end)}, failing
+
+
 def check_ground_truth(truth: Evaluation) -> None:
     """Refuse to attack a stack that breaks the rule with perfect perception."""
     if truth.rollout.inconclusive:
@@ -47,32 +85,21 @@ def check_ground_truth(truth: Evaluation) -> None:
         )
 
 
-def heuristic_search(problem: AttackProblem, iterations: int = 3, batched: bool = False) -> list[Evaluation]:
-    """Failure modes, one per influential agent, each the narrowest failing drop found. In the
-    paper's order (each agent's drop, then its bisections), or `batched` (the guided method): the
-    ground truth and every agent's drop roll out as one batch, which a backend may run at once;
-    the same rollouts and failure modes either way."""
+def heuristic_search(problem: AttackProblem, iterations: int = 3, batched: bool = False) -> Heuristic:
+    """Failure modes, one per influential agent. In the paper's order (each agent's drop, then its
+    bisections), or `batched` (the guided method): the ground truth and every agent's drop roll out
+    as one batch, which a backend may run at once; the same rollouts and failure modes either way."""
     scenario = problem.scenario
     num_frames, num_agents = scenario.agents.shape
-    none = PerceptionErrors.none(num_frames, num_agents)
-    agents = [int(scenario.agents.ids[scenario.agents.valid[:, j].argmax(), j]) for j in range(num_agents)]
-    drops = [(none.with_drop(j, 0, num_frames - 1), Phase.HEURISTIC_DROP, agents[j]) for j in range(num_agents)]
-    upfront = problem.evaluate_many([(none, Phase.GROUND_TRUTH, -1), *drops]) if batched else None
-    check_ground_truth(upfront[0] if upfront else problem.evaluate(none, Phase.GROUND_TRUTH))
-    failure_modes = []
+    perfect = (PerceptionErrors.none(num_frames, num_agents), Phase.GROUND_TRUTH, -1)
+    whole = [(dropping(scenario.agents.shape, {j: (0, num_frames - 1)}), Phase.HEURISTIC_DROP, scenario.agent_id(j))
+             for j in range(num_agents)]
+    upfront = problem.evaluate_many([perfect, *whole]) if batched else None
+    truth = upfront[0] if upfront else problem.evaluate(*perfect)
+    check_ground_truth(truth)
+    drops, modes = [], []
     for j in range(num_agents):
-        failing = upfront[1 + j] if upfront else problem.evaluate(*drops[j])
-        if not failing.adversarial:
-            continue
-        # latest start: dropping [start, end] fails, dropping nothing (start = T) passes
-        start, failing = bisect(
-            problem, 0, num_frames, lambda mid: none.with_drop(j, mid, num_frames - 1), Phase.HEURISTIC_START,
-            agents[j], iterations, failing,
-        )
-        # earliest end: frames past the collision cannot matter, so the failing end starts there
-        _, failing = bisect(
-            problem, min(num_frames, failing.rollout.num_frames) - 1, start - 1,
-            lambda mid: none.with_drop(j, start, mid), Phase.HEURISTIC_END, agents[j], iterations, failing,
-        )
-        failure_modes.append(failing)
-    return failure_modes
+        drops.append(upfront[1 + j] if upfront else problem.evaluate(*whole[j]))
+        if drops[-1].adversarial:
+            modes.append(narrow(problem, {j: (0, num_frames - 1)}, j, iterations, drops[-1])[1])
+    return Heuristic(truth, drops, modes)

@@ -1,7 +1,7 @@
-"""The whole search and its rollout budget: the paper's heuristic (Algorithm 1), then either the
-paper's random search (Algorithm 2) and the refine phase beyond the paper (method `paper`), or the
-guided search (method `guided`). What `advperc attack` and the orchestrator node run, whatever
-backend rolls out."""
+"""The whole search and its rollout budget: the paper's heuristic (Algorithm 1), with joint drops when
+no single agent's drop collides, then either the paper's random search (Algorithm 2) and the refine
+phase beyond the paper (method `paper`), or the guided search (method `guided`). What `advperc
+attack` and the orchestrator node run, whatever backend rolls out."""
 
 from dataclasses import dataclass
 
@@ -9,6 +9,7 @@ import numpy as np
 
 from advperc_ros.core.search.guided import GuidedConfig, guided_search
 from advperc_ros.core.search.heuristic import heuristic_search
+from advperc_ros.core.search.joint import Joint, joint_drops, worst_case
 from advperc_ros.core.search.problem import AttackProblem, BudgetSpent, Evaluation
 from advperc_ros.core.search.random_search import RandomSearchConfig, random_search
 from advperc_ros.core.search.refine import refine_drops
@@ -21,45 +22,53 @@ METHODS = ("paper", "guided")
 @dataclass(frozen=True)
 class SearchConfig:
     heuristic_iterations: int = 3  # bisection iterations per bound (paper: 3)
+    joint_max_agents: int = 8  # agents the joint drops' reduction keeps at most; 0: no joint drops
     random: RandomSearchConfig = RandomSearchConfig()
     refine_iterations: int = 4  # 0: the paper's search only
     seed: int = 0  # of the random search
     method: str = "paper"  # paper: heuristic, random search, refine; guided: heuristic, guided search
     guided: GuidedConfig = GuidedConfig()
-    budget: int = 0  # rollouts at most; 0: `bound`, what the paper's search can use at most
+    budget: int = 0  # rollouts at most; 0: `bound`, what the search can use at most
 
 
 @dataclass(frozen=True)
 class SearchResult:
-    heuristic: Evaluation | None  # the best failure mode of Algorithm 1; None when no agent is influential
+    heuristic: Evaluation | None  # the best failure mode of Algorithm 1 or the joint drops; None when none
     random: Evaluation | None  # Algorithm 2's e*: its last accepted evaluation (paper method)
     refined: Evaluation | None  # the refine phase's attack (paper method)
     best: Evaluation | None  # the best adversarial evaluation of all phases: the attack reported
+    joint: Joint | None = None  # the joint drops, when they ran to the end (no single drop collided)
 
 
-def bound(config: SearchConfig, num_agents: int) -> int:
+def bound(config: SearchConfig, num_agents: int, joint: bool = False) -> int:
     """Rollouts the paper's search runs at most: ground truth, per agent a drop and two bisections,
     the random steps (each rolls out one proposal, or none when no proposal improves) and refine's
-    two bounds per iteration."""
-    return 1 + num_agents * (1 + 2 * config.heuristic_iterations) + config.random.steps + 2 * config.refine_iterations
+    two bounds per iteration; and the joint drops' worst case when they run (`joint`: no single drop
+    collided), so a search where one does keeps the paper's bound."""
+    joint_worst = worst_case(config.joint_max_agents, num_agents) if joint else 0
+    return (1 + num_agents * (1 + 2 * config.heuristic_iterations) + joint_worst + config.random.steps
+            + 2 * config.refine_iterations)
 
 
-def budget(config: SearchConfig, num_agents: int) -> int:
-    """Rollouts the search runs at most: `config.budget`, or the paper's bound when 0."""
-    return config.budget or bound(config, num_agents)
+def budget(config: SearchConfig, num_agents: int, joint: bool = False) -> int:
+    """Rollouts the search runs at most: `config.budget`, or `bound` when 0."""
+    return config.budget or bound(config, num_agents, joint)
 
 
 def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
     """All phases in order; the problem counts and logs every rollout and tracks the best. A search
     that reaches its budget ends there with the best attack so far."""
     problem.budget = budget(config, problem.scenario.agents.shape[1])
-    heuristic = searched = refined = None
+    heuristic = searched = refined = joint = None
     try:
         guided = config.method == "guided"
-        modes = heuristic_search(problem, config.heuristic_iterations, batched=guided)
+        found = heuristic_search(problem, config.heuristic_iterations, batched=guided)
+        problem.budget = budget(config, problem.scenario.agents.shape[1], joint=not found.modes)
+        joint = joint_drops(problem, found, config.heuristic_iterations, config.joint_max_agents)
+        modes = found.modes or ([joint.mode] if joint is not None and joint.mode is not None else [])
         heuristic = max(modes, key=lambda mode: mode.metric) if modes else None
         if heuristic is None:
-            return SearchResult(None, None, None, None)
+            return SearchResult(None, None, None, None, joint)
         rng = np.random.default_rng(config.seed)
         if guided:
             guided_search(problem, rng, config.guided, problem.budget, config.refine_iterations)
@@ -68,5 +77,6 @@ def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
             if config.refine_iterations > 0:
                 refined = refine_drops(problem, problem.best, config.refine_iterations)
     except BudgetSpent:
-        pass
-    return SearchResult(heuristic, searched, refined, problem.best)
+        if heuristic is None:  # spent within the heuristic: its best failing rollout so far
+            heuristic = problem.best
+    return SearchResult(heuristic, searched, refined, problem.best, joint)

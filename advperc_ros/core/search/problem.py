@@ -22,6 +22,7 @@ class Phase(str, Enum):
     HEURISTIC_DROP = "heuristic_drop"  # Algorithm 1: one agent's whole track dropped
     HEURISTIC_START = "heuristic_start"  # Algorithm 1: bisecting the drop's latest start
     HEURISTIC_END = "heuristic_end"  # Algorithm 1: bisecting its earliest end
+    JOINT = "joint"  # beyond the paper, when no single drop collides: several agents dropped at once, bisected
     RANDOM = "random"  # Algorithm 2
     REFINE = "refine"  # beyond the paper: re-detecting the start of dropped runs
     GUIDED = "guided"  # beyond the paper: the guided search's rounds
@@ -32,7 +33,8 @@ class Phase(str, Enum):
 
     @property
     def heuristic(self) -> bool:
-        return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END)
+        return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END,
+                        Phase.JOINT)
 
 
 class BudgetSpent(RuntimeError):

@@ -132,8 +132,12 @@ class ScenarioPlayer:
     def _finish(self, status: Status, reason: str = "", timeout: bool = False) -> None:
         run = self._run
         done = RolloutDone(run.rollout, run.frame + 1, status, reason, timeout)
-        (self._log.info if status == Status.OK else self._log.warning)(
-            f"rollout {run.rollout}: {done.frames} frames, {status}" + (f": {reason}" if reason else ""))
+        line = f"rollout {run.rollout}: {done.frames} frames, {status}" + (f": {reason}" if reason else "")
+        # one call site per severity: rclpy's logger raises when a call site changes its severity
+        if status == Status.OK:
+            self._log.info(line)
+        else:
+            self._log.warning(line)
         self._run = None
         self._done.publish(done_message(done))
 

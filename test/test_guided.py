@@ -10,7 +10,7 @@ from advperc_ros.application import attack_to_folder, run_attack
 from advperc_ros.backend import Stack
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
-from advperc_ros.core.search.guided import falsity, merge, pick_batch, push, revealed
+from advperc_ros.core.search.guided import merge, pick_batch, push, shown, wrongness
 from advperc_ros.core.search.problem import Phase
 from advperc_ros.exits import Interrupted
 from advperc_ros.params import load_params
@@ -169,16 +169,17 @@ def test_what_a_candidate_shows_drives_the_collision_model():
     wrongness taken back. Restoring 1 frame of a 10-frame drop reveals a tenth and shows the truth;
     a 3.8 m push of the whole run reveals 5 % and shows it 95 % wrong; a 0.475 m push reveals most."""
     parent = _dropped_run()  # frames 5..14 of slot 1 dropped
+    before = wrongness(parent)
     one = parent.copy()
     one.fn[5, 1] = False
-    assert falsity(one, parent) == 0.0 and revealed(one, parent) == pytest.approx(0.1)
+    assert shown(one, parent, before) == (0.0, pytest.approx(0.1))
     far, near = parent.copy(), parent.copy()
     for errors, metres in ((far, 3.8), (near, 0.475)):
         errors.fn[5:15, 1] = False
         errors.dy[5:15, 1] = metres
-    assert falsity(far, parent) == pytest.approx(0.95) and revealed(far, parent) == pytest.approx(0.05)
-    assert falsity(near, parent) == pytest.approx(0.11875) and revealed(near, parent) == pytest.approx(0.88125)
-    assert revealed(parent, far) < 0  # hiding a shown car again takes nothing back
+    assert shown(far, parent, before) == (pytest.approx(0.95), pytest.approx(0.05))
+    assert shown(near, parent, before) == (pytest.approx(0.11875), pytest.approx(0.88125))
+    assert shown(parent, far, wrongness(far))[1] < 0  # hiding a shown car again takes nothing back
 
 
 def test_without_refine_iterations_every_rollout_after_the_heuristic_is_a_round(lane_following):

@@ -141,25 +141,18 @@ def wrongness(errors: PerceptionErrors) -> np.ndarray:
     return np.where(errors.fn, 1.0, offset)
 
 
-def falsity(c: PerceptionErrors, parent: PerceptionErrors) -> float:
-    """How wrong a candidate shows what it changes in its parent: the mean wrongness of its changed
-    object-frames (a car shown 3.8 m aside fools a corridor where one shown 1.9 m aside does not)."""
+def shown(c: PerceptionErrors, parent: PerceptionErrors, before: np.ndarray) -> tuple[float, float]:
+    """What the collision model reads of a candidate besides its move and gain (`before`: the
+    parent's wrongness, the same for a whole round):
+    - falsity, how wrong it shows what it changes in its parent: the mean wrongness of its changed
+      object-frames (a car shown 3.8 m aside fools a corridor where one shown 1.9 m aside does not);
+    - the share of its parent's wrongness it takes back, negative when it shows things more wrongly
+      (restoring one frame of a long drop reveals little; a car shown 0.5 m off where it was hidden
+      reveals most of it)."""
+    after = wrongness(c)
     changed = changed_cells(c, parent)
-    return float(wrongness(c)[changed].mean()) if changed.any() else 0.0
-
-
-def revealed(c: PerceptionErrors, parent: PerceptionErrors) -> float:
-    """The share of its parent's wrongness a candidate takes back, whichever move did it; with the
-    falsity, what decides whether a planner is still fooled (restoring one frame of a long drop
-    reveals little; a car shown 0.5 m off where it was hidden reveals most of it). Negative when
-    the candidate shows things more wrongly than its parent."""
-    before = wrongness(parent)
-    return float((before - wrongness(c)).sum() / max(before.sum(), 1e-12))
-
-
-def shown(c: PerceptionErrors, parent: PerceptionErrors) -> tuple[float, float]:
-    """What the collision model reads of a candidate besides its move and gain."""
-    return falsity(c, parent), revealed(c, parent)
+    falsity = float(after[changed].mean()) if changed.any() else 0.0
+    return falsity, float((before - after).sum() / max(before.sum(), 1e-12))
 
 
 def _features(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray) -> np.ndarray:
@@ -262,7 +255,8 @@ def guided_search(
         gain = np.array([g for g, _, _ in scored])
         relative = gain / gain.max()
         move = np.array([m for _, m, _ in scored])
-        seen = np.array([shown(c, parent.errors) for _, _, c in scored])
+        before = wrongness(parent.errors)
+        seen = np.array([shown(c, parent.errors, before) for _, _, c in scored])
         w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(shows).reshape(-1, 2),
                             np.array(failed, dtype=bool))
         chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen) @ w))

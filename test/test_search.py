@@ -1,8 +1,10 @@
 """The paper's Algorithm 1 (heuristic bisection) and Algorithm 2 (random search) (README, "Search")."""
 
 import copy
+from collections import Counter
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -12,8 +14,8 @@ from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.rollout import rollout
 from advperc_ros.core.scenario_spec import build_scenario
-from advperc_ros.core.search.heuristic import heuristic_search
-from advperc_ros.core.search.problem import AttackProblem, GroundTruthFails
+from advperc_ros.core.search.heuristic import heuristic_search, narrowing, run_lockstep, run_one
+from advperc_ros.core.search.problem import AttackProblem, BudgetSpent, GroundTruthFails
 from advperc_ros.core.search.random_search import RandomSearchConfig, propose, random_search
 from advperc_ros.core.tracker import Tracker
 from toy_scenarios import FOLLOW_SPEC
@@ -427,3 +429,69 @@ def test_a_budget_spent_within_the_heuristic_reports_its_failing_rollout_as_the_
     result = run_search(problem, SearchConfig(budget=3))
     assert len(problem.log) == 3 and result.best is not None
     assert result.heuristic is result.best and result.heuristic.adversarial
+
+
+class WindowStack:
+    """A stand-in problem whose slot j collides exactly when its drop covers CRITICAL[j] (frames,
+    inclusive): bisection has one right answer per slot. Records the size of every batch."""
+
+    CRITICAL = {0: (18, 21), 2: (27, 33)}
+    FRAMES = 40
+
+    def __init__(self, budget=None):
+        self.scenario = SimpleNamespace(num_frames=self.FRAMES, agents=SimpleNamespace(shape=(self.FRAMES, 3)),
+                                        agent_id=lambda j: 10 + j)
+        self.budget, self.log, self.batches = budget, [], []
+
+    def evaluate(self, errors, phase, agent):
+        if self.budget is not None and len(self.log) >= self.budget:
+            raise BudgetSpent("spent")
+        first, last = self.CRITICAL[agent - 10]
+        trial = SimpleNamespace(errors=errors, adversarial=bool(errors.fn[first : last + 1, agent - 10].all()),
+                                rollout=SimpleNamespace(inconclusive=None, num_frames=self.FRAMES))
+        self.log.append((agent, trial.adversarial))
+        return trial
+
+    def evaluate_many(self, batch):
+        if self.budget is not None and len(self.log) + len(batch) > self.budget:
+            raise BudgetSpent("spent")
+        self.batches.append(len(batch))
+        return [self.evaluate(*request) for request in batch]
+
+    def whole_drop(self, j):
+        errors = PerceptionErrors.none(self.FRAMES, 3)
+        errors.fn[:, j] = True
+        return SimpleNamespace(errors=errors, adversarial=True, rollout=SimpleNamespace(inconclusive=None,
+                                                                                      num_frames=self.FRAMES))
+
+    def narrowings(self, iterations):
+        return [narrowing(self.scenario, {j: (0, self.FRAMES - 1)}, j, iterations, self.whole_drop(j)) for j in (0, 2)]
+
+
+@pytest.mark.parametrize("iterations", [3, 6])
+def test_bisections_in_lockstep_narrow_as_they_do_one_at_a_time(iterations):
+    """The guided method's heuristic runs the influential agents' bisections together, a batch a
+    step: every segment and failing rollout is the one bisecting that agent alone finds, with the
+    same rollouts in all, in half the steps."""
+    alone = WindowStack()
+    one_by_one = [run_one(alone, steps) for steps in alone.narrowings(iterations)]
+    together = WindowStack()
+    lockstep = run_lockstep(together, together.narrowings(iterations))
+    assert [segments for segments, _ in lockstep] == [segments for segments, _ in one_by_one]
+    for (_, a), (_, b) in zip(lockstep, one_by_one):
+        assert np.array_equal(a.errors.fn, b.errors.fn)
+    assert sorted(together.log) == sorted(alone.log)
+    per_agent = sorted(Counter(agent for agent, _ in alone.log).values())  # a bisection stops once its bounds meet
+    assert together.batches == [2] * per_agent[0] + [1] * (per_agent[1] - per_agent[0])
+    if iterations == 3:
+        assert per_agent == [6, 6]
+    if iterations == 6:  # fine enough to find the critical frames themselves
+        assert [segments[j] for (segments, _), j in zip(lockstep, (0, 2))] == [(18, 21), (27, 33)]
+
+
+def test_a_lockstep_wave_is_cut_to_the_rollouts_left():
+    """With 3 rollouts left, a wave of 2 then a wave of 1, then the budget ends the search."""
+    stack = WindowStack(budget=3)
+    with pytest.raises(BudgetSpent):
+        run_lockstep(stack, stack.narrowings(3))
+    assert stack.batches == [2, 1] and len(stack.log) == 3

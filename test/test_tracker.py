@@ -9,7 +9,7 @@ from scipy.linalg import block_diag
 from scipy.optimize import linear_sum_assignment
 
 from advperc_ros.core.geometry import wrap_angle
-from advperc_ros.core.tracker import Tracker, TrackerConfig
+from advperc_ros.core.tracker import Tracker, TrackerConfig, _associate
 
 DT = 0.1
 
@@ -283,6 +283,20 @@ def test_crossing_cars_keep_ids_where_greedy_would_swap():
     pa, pb = car_a(t_of(29))[0], car_b(t_of(29))[0]
     assert np.hypot(by_id(out, 1)["x"] - pa[0], by_id(out, 1)["y"] - pa[1]) < 0.5
     assert np.hypot(by_id(out, 2)["x"] - pb[0], by_id(out, 2)["y"] - pb[1]) < 0.5
+
+
+def test_association_without_solving_when_unambiguous_equals_the_hungarian_one():
+    """Gated pairs that share no track and no detection are taken as they are; the rest is solved."""
+    rng = np.random.default_rng(5)
+    for case in range(3000):
+        cost = rng.uniform(0.0, rng.choice([2.5, 6.0, 30.0]), rng.integers(1, 9, 2))
+        if case % 3 == 0:  # tracks exactly on a detection's gate
+            cost[rng.random(cost.shape) < 0.2] = 2.0
+        gated = cost <= 2.0
+        rows, cols = linear_sum_assignment(np.where(gated, cost, 1e9))
+        ok = gated[rows, cols]
+        got_rows, got_cols = _associate(cost, 2.0)
+        assert got_rows.tolist() == rows[ok].tolist() and got_cols.tolist() == cols[ok].tolist(), case
 
 
 def test_two_detections_one_track_spawns_only_for_the_unmatched():

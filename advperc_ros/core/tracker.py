@@ -81,11 +81,28 @@ def _blocks(matrix: np.ndarray) -> np.ndarray:
     return matrix[_PAIRS.T[:, None, :], _PAIRS.T[None, :, :]]
 
 
+def _associate(cost: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
+    """(tracks, detections) of the matched pairs, by track: the Hungarian assignment on centre
+    distance `cost` (tracks x detections), gated before and after.
+
+    When no track has two detections within the gate and no detection two tracks (the common
+    case), every gated pair is in the optimal assignment, as an ungated pair costs more than all
+    the gated distances together: they are the answer without solving for it.
+    """
+    gated = cost <= gate
+    rows, cols = np.nonzero(gated)
+    if len(set(rows.tolist())) == rows.size and len(set(cols.tolist())) == cols.size:
+        return rows, cols
+    rows, cols = linear_sum_assignment(np.where(gated, cost, _UNASSIGNABLE))
+    ok = gated[rows, cols]
+    return rows[ok], cols[ok]
+
+
 def _renormalise_heading(cos: np.ndarray, sin: np.ndarray) -> None:
     """(cos, sin) back onto the unit circle, in place; a vanishing vector is left alone (divided by
     1, exactly itself: cheaper than np.divide's where=)."""
     norm = np.hypot(cos, sin)
-    norm = np.where(norm > 1e-9, norm, 1.0)
+    norm[~(norm > 1e-9)] = 1.0
     cos /= norm
     sin /= norm
 
@@ -189,12 +206,7 @@ class Tracker:
         if len(tracks) and det.shape[1]:
             dx = tracks.state[0, 0, :, None] - det[0]
             dy = tracks.state[0, 1, :, None] - det[1]
-            cost = np.sqrt(dx * dx + dy * dy)
-            gated = cost <= cfg.gate
-            rows, cols = linear_sum_assignment(np.where(gated, cost, _UNASSIGNABLE))
-            ok = gated[rows, cols]
-            if not ok.all():
-                rows, cols = rows[ok], cols[ok]
+            rows, cols = _associate(np.sqrt(dx * dx + dy * dy), cfg.gate)
             if rows.size:
                 matched = det[:, cols]
                 self._update(rows, matched[:4])
@@ -204,7 +216,7 @@ class Tracker:
         if rows.size < len(tracks):  # only an unobserved track can age out
             keep = t - tracks.last_seen < cfg.max_age - 1e-6
             keep[rows] = True
-            if not keep.all():
+            if np.count_nonzero(keep) < keep.size:
                 self.tracks = self.tracks.select(keep)
         if cols.size < det.shape[1]:
             unmatched = np.ones(det.shape[1], dtype=bool)

@@ -406,9 +406,11 @@ def test_follow_plan_rejects_bad_plans():
         follow_plan(plan, 9.5)
     with pytest.raises(PlanError, match="next frame"):
         follow_plan(plan, 0.9)
-    bad_t = Trajectory(t=np.array([0.0, 0.1, 0.1]), x=np.zeros(3), y=np.zeros(3), yaw=np.zeros(3))
-    with pytest.raises(PlanError):
-        follow_plan(bad_t, 0.05)
+    for t in ([0.0, 0.1, 0.1], [0.0, 0.2, 0.1], [-np.inf, 0.0, 0.1], [0.0, np.nan, 0.1], [0.0, 0.1, np.inf],
+              [np.nan, 0.0, 0.1], [0.0, 0.1, np.nan], [0.0], []):
+        bad_t = Trajectory(t=np.array(t), x=np.zeros(len(t)), y=np.zeros(len(t)), yaw=np.zeros(len(t)))
+        with pytest.raises(PlanError, match="finite and strictly increasing"):
+            follow_plan(bad_t, 0.05)
     nan_pose = Trajectory(t=np.array([0.0, 0.1]), x=np.array([0.0, np.nan]), y=np.zeros(2), yaw=np.zeros(2))
     with pytest.raises(PlanError):
         follow_plan(nan_pose, 0.05)

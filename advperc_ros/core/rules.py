@@ -37,7 +37,7 @@ class CollisionRule:
     def may_touch(self, ego: EgoState, k: int) -> bool:
         """Whether the ego's box may touch an agent's at frame k; if not, every distance there is > 0."""
         dx, dy = self.agents.x[k] - ego.x, self.agents.y[k] - ego.y
-        return bool((dx * dx + dy * dy <= self._reach2[k]).any())
+        return np.count_nonzero(dx * dx + dy * dy <= self._reach2[k]) > 0  # counting: cheaper than any()
 
     def distances(self, ego: np.ndarray, frames: np.ndarray) -> np.ndarray:
         """(K, N) signed distance from the ego to every agent slot at the K frames `frames`, the ego's

@@ -2,6 +2,7 @@
 
 import signal
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -110,6 +111,20 @@ def test_short_early_drop_does_not_collide():
     result = run(NONE.with_drop(0, 0, 9))
     assert not result.collided
     assert result.num_frames == T
+
+
+def test_every_frame_is_frame_k_for_every_k():
+    valid = SCENARIO.agents.valid & (np.random.default_rng(2).random((T, N)) > 0.3)  # some boxes, all of them
+    valid[:3] = False  # and none
+    boxes = replace(SCENARIO.agents, valid=valid)
+    every = boxes.every_frame()
+    assert len(every) == T
+    for k in range(T):
+        one = boxes.frame(k)
+        assert every[k].keys() == one.keys()
+        for name, values in one.items():
+            assert values.dtype == every[k][name].dtype
+            np.testing.assert_array_equal(every[k][name], values)
 
 
 def test_stop_at_collision_truncates_otherwise_runs_all_frames():

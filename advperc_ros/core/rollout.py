@@ -174,7 +174,7 @@ def rollout(
     stage_times = dict.fromkeys(STAGES, 0.0)
     started = clock()
     agents = scenario.agents
-    perceived = inject(agents, errors)
+    detections = inject(agents, errors).every_frame()
     stage_times["injector"] += clock() - started
     times = scenario.times
     num_frames = scenario.num_frames
@@ -202,7 +202,7 @@ def rollout(
                 last = k
                 break
             started = clock()
-            tracks = tracker.step(float(times[k]), perceived.frame(k))
+            tracks = tracker.step(float(times[k]), detections[k])
             stage_times["tracker"] += clock() - started
             started = clock()
             try:

@@ -98,13 +98,14 @@ def _associate(cost: np.ndarray, gate: float) -> tuple[np.ndarray, np.ndarray]:
     return rows[ok], cols[ok]
 
 
-def _renormalise_heading(cos: np.ndarray, sin: np.ndarray) -> None:
-    """(cos, sin) back onto the unit circle, in place; a vanishing vector is left alone (divided by
-    1, exactly itself: cheaper than np.divide's where=)."""
-    norm = np.hypot(cos, sin)
-    norm[~(norm > 1e-9)] = 1.0
-    cos /= norm
-    sin /= norm
+def _renormalise_heading(heading: np.ndarray) -> None:
+    """(cos, sin) rows (2, N) back onto the unit circle, in place; a vanishing vector is left alone
+    (divided by 1, exactly itself: cheaper than np.divide's where=)."""
+    norm = np.hypot(heading[0], heading[1])
+    unit = norm > 1e-9
+    if np.count_nonzero(unit) < unit.size:
+        norm[~unit] = 1.0
+    heading /= norm
 
 
 class Tracker:
@@ -149,7 +150,7 @@ class Tracker:
             state[...] = (transition @ state.reshape(2, -1)).reshape(state.shape)
         spread = (transition @ covariance.reshape(2, -1)).reshape(2, 2, -1)
         np.add(np.matmul(transition, spread).reshape(covariance.shape), noise, out=covariance)
-        _renormalise_heading(state[0, 2], state[0, 3])
+        _renormalise_heading(state[0, 2:])
 
     def _update(self, rows: np.ndarray, z: np.ndarray) -> None:
         """filterpy's update (Joseph form) of the tracks `rows` (ascending) with measurements z (4, M).
@@ -162,17 +163,15 @@ class Tracker:
         x, p = (self.tracks.state, self.tracks.covariance) if every else (np.take(self.tracks.state, rows, axis=-1), np.take(self.tracks.covariance, rows, axis=-1))
         gain = p[:, 0] * (1.0 / (p[0, 0] + self._r))  # (2, 4, M): the gain of each component and its rate
         x += gain * (z - x[0])
-        _renormalise_heading(x[0, 2], x[0, 3])
+        _renormalise_heading(x[0, 2:])
         c = _FIRST - gain
         left = c[:, None] * p[0]  # (I - KH) P
         left[1] += p[1]
-        joseph = left[:, 0, None] * c  # (I - KH) P (I - KH)'
-        joseph[:, 1] += left[:, 1]
-        joseph += (gain * self._r)[:, None] * gain  # + K R K'
-        if every:
-            p[...] = joseph
-        else:
-            self.tracks.state[..., rows], self.tracks.covariance[..., rows] = x, joseph
+        np.multiply(left[:, 0, None], c, out=p)  # (I - KH) P (I - KH)', where P was
+        p[:, 1] += left[:, 1]
+        p += (gain * self._r)[:, None] * gain  # + K R K'
+        if not every:
+            self.tracks.state[..., rows], self.tracks.covariance[..., rows] = x, p
 
     def _births(self, t: float, det: dict[str, np.ndarray], which: np.ndarray) -> Tracks:
         """New tracks at the detections `which`, velocity included."""

@@ -40,7 +40,7 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
     x, y, yaw = _interp(t_next, times, rows)
     half = 0.5 * float(steps.min())
     before, after = max(times[0], t_next - half), min(times[-1], t_next + half)
-    (x_before, y_before, _), (x_after, y_after, _) = _interp(before, times, rows), _interp(after, times, rows)
+    (x_before, y_before), (x_after, y_after) = _interp(before, times, rows[:2]), _interp(after, times, rows[:2])
     moved = np.hypot(x_after - x_before, y_after - y_before)
     return EgoState(x=x, y=y, yaw=wrap_angle(yaw), v=float(moved / (after - before)))
 

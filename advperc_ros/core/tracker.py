@@ -115,7 +115,8 @@ class Tracker:
         self._p0 = _blocks(np.diag(
             [config.position_std**2] * 2 + [config.initial_velocity_std**2] * 2 + [config.heading_std**2] * 2 + [0.25] * 2
         ))[..., None]
-        self._models: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        self._models: dict[float, tuple[np.ndarray, np.ndarray]] = {}  # by the gap rounded to 1e-9 s
+        self._model_of_gap: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -125,14 +126,19 @@ class Tracker:
         self._next_id = 1
 
     def _motion_model(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(F, Q) of one 2x2 block and Q's blocks, for a step of dt, cached: frames come at a fixed period."""
-        key = round(dt, 9)
-        if key not in self._models:
-            cfg = self.config
-            q_pos = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.accel_std**2, block_size=2, order_by_dim=False)
-            q_head = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.heading_accel_std**2, block_size=2, order_by_dim=False)
-            self._models[key] = (np.array([[1.0, dt], [0.0, 1.0]]), _blocks(block_diag(q_pos, q_head))[..., None])
-        return self._models[key]
+        """(F, Q) of one 2x2 block and Q's blocks, for a step of dt, cached: frames come at a fixed
+        period. The gaps between frame times differ in their last bits: all that round alike share
+        the model of the first of them, found by the gap itself after the first time (cheaper)."""
+        model = self._model_of_gap.get(dt)
+        if model is None:
+            key = round(dt, 9)
+            if key not in self._models:
+                cfg = self.config
+                q_pos = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.accel_std**2, block_size=2, order_by_dim=False)
+                q_head = Q_discrete_white_noise(dim=2, dt=dt, var=cfg.heading_accel_std**2, block_size=2, order_by_dim=False)
+                self._models[key] = (np.array([[1.0, dt], [0.0, 1.0]]), _blocks(block_diag(q_pos, q_head))[..., None])
+            model = self._model_of_gap[dt] = self._models[key]
+        return model
 
     def _predict(self, dt: float) -> None:
         """filterpy's predict for every track: x = Fx, P = FPF' + Q.

@@ -1,6 +1,6 @@
 """Ego motion in the open-loop rollout: the ego follows its latest plan exactly."""
 
-from bisect import bisect_right
+from bisect import bisect_left, bisect_right
 from math import isfinite, isnan
 
 import numpy as np
@@ -36,10 +36,13 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
         raise PlanError("plan holds non-finite poses")
     if np.count_nonzero(np.abs(values[2, 1:] - values[2, :-1]) >= np.pi):  # else np.unwrap changes nothing
         values[2] = np.unwrap(values[2])
-    rows = values.tolist()
-    x, y, yaw = _interp(t_next, times, rows)
     half = 0.5 * float(steps.min())
     before, after = max(times[0], t_next - half), min(times[-1], t_next + half)
+    # only the poses around [before, after] (or the plan's end) count: interpolating between them
+    # is interpolating in the whole plan, and Python floats of three rows of it cost most of the rest
+    first, last = max(bisect_right(times, before) - 1, 0), min(bisect_left(times, after), len(times) - 1)
+    times, rows = times[first : last + 1], values[:, first : last + 1].tolist()
+    x, y, yaw = _interp(t_next, times, rows)
     (x_before, y_before), (x_after, y_after) = _interp(before, times, rows[:2]), _interp(after, times, rows[:2])
     moved = np.hypot(x_after - x_before, y_after - y_before)
     return EgoState(x=x, y=y, yaw=wrap_angle(yaw), v=float(moved / (after - before)))

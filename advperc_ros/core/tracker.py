@@ -209,9 +209,9 @@ class Tracker:
                         detections["length"], detections["width"], detections["height"]])
         rows = cols = _NONE  # matched track and detection indices
         if len(tracks) and det.shape[1]:
-            dx = tracks.state[0, 0, :, None] - det[0]
-            dy = tracks.state[0, 1, :, None] - det[1]
-            rows, cols = _associate(np.sqrt(dx * dx + dy * dy), cfg.gate)
+            offset = tracks.state[0, :2, :, None] - det[:2, None, :]  # (2, tracks, detections)
+            offset *= offset
+            rows, cols = _associate(np.sqrt(offset[0] + offset[1]), cfg.gate)
             if rows.size:
                 matched = det[:, cols]
                 self._update(rows, matched[:4])
@@ -231,7 +231,10 @@ class Tracker:
 
     def _output(self) -> dict[str, np.ndarray]:
         n = len(self.tracks)
-        rows = np.concatenate([self.tracks.state.reshape(8, n), self.tracks.size])  # a copy: the tracker updates its own in place
+        rows = np.empty((12, n))  # a copy: the tracker updates its own in place
+        rows[:8] = self.tracks.state.reshape(8, n)
+        rows[8:11] = self.tracks.size
+        rows[11] = np.nan
         return {
             "ids": self.tracks.ids,  # never updated in place
             "x": rows[0],
@@ -242,5 +245,5 @@ class Tracker:
             "length": rows[8],
             "width": rows[9],
             "height": rows[10],
-            "score": np.full(n, np.nan),
+            "score": rows[11],
         }

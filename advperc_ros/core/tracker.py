@@ -143,10 +143,11 @@ class Tracker:
     def _predict(self, dt: float) -> None:
         """filterpy's predict for every track: x = Fx, P = FPF' + Q.
 
-        Each product is one matrix product over all blocks, as BLAS sums the 8x8 ones (the zeros
-        add nothing), so the numbers are those to the bit. Except that of a lone track's state:
-        numpy takes the 8x8 product of one state vector as a vector product, which rounds
-        x + dt * v twice where a matrix product rounds it once (a fused multiply-add).
+        Each product is one matrix product over all blocks, summed as BLAS sums the 8x8 ones
+        of the form this replaced (the zeros add nothing): its numbers, to the bit with numpy's
+        OpenBLAS, so searches did not change. A lone track's state is the exception kept: numpy
+        took the 8x8 product of one state vector as a vector product, which rounds x + dt * v
+        twice where a matrix product rounds it once (a fused multiply-add).
         """
         transition, noise = self._motion_model(dt)
         state, covariance = self.tracks.state, self.tracks.covariance
@@ -163,7 +164,8 @@ class Tracker:
 
         Per 2x2 block: S = HPH' + R is a number, the gain K the block's first column over it, and
         I - KH = [C, (0, 1)'] with C = (1, 0)' - K. Every product of the 8x8 equations is written
-        out on the blocks in the order BLAS sums it, so the numbers are the same to the bit.
+        out on the blocks in the order BLAS summed it (one term, or the first then one times the
+        second), so the numbers are the 8x8 form's to the bit.
         """
         every = len(rows) == len(self.tracks)  # then rows is 0..N-1: work on the arrays themselves
         x, p = (self.tracks.state, self.tracks.covariance) if every else (np.take(self.tracks.state, rows, axis=-1), np.take(self.tracks.covariance, rows, axis=-1))

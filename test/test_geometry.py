@@ -99,6 +99,17 @@ def test_wrap_angle_range_and_equivalence():
     assert float(wrap_angle(-0.3 - 4 * np.pi)) == pytest.approx(-0.3)
 
 
+def test_wrap_angle_of_a_float_is_a_float_equal_to_numpys_to_the_bit():
+    rng = np.random.default_rng(1)
+    angles = np.concatenate([rng.uniform(-50.0, 50.0, 20000), rng.normal(0.0, 1e-3, 1000), np.arange(-8, 9) * np.pi,
+                             [np.pi, -np.pi, 3 * np.pi, np.nextafter(np.pi, 0.0), np.nextafter(-np.pi, 0.0), 0.0, -0.0]])
+    wrapped = wrap_angle(angles)
+    for angle, expected in zip(angles.tolist(), wrapped.tolist()):
+        got = wrap_angle(angle)
+        assert type(got) is float
+        assert got == expected and np.signbit(got) == np.signbit(expected), angle
+
+
 # ---------------------------------------------------------------- boxes
 
 def test_box_corners_counter_clockwise_and_sized():

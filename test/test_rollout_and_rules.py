@@ -2,6 +2,7 @@
 
 import signal
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -110,6 +111,20 @@ def test_short_early_drop_does_not_collide():
     result = run(NONE.with_drop(0, 0, 9))
     assert not result.collided
     assert result.num_frames == T
+
+
+def test_every_frame_is_frame_k_for_every_k():
+    valid = SCENARIO.agents.valid & (np.random.default_rng(2).random((T, N)) > 0.3)  # some boxes, all of them
+    valid[:3] = False  # and none
+    boxes = replace(SCENARIO.agents, valid=valid)
+    every = boxes.every_frame()
+    assert len(every) == T
+    for k in range(T):
+        one = boxes.frame(k)
+        assert every[k].keys() == one.keys()
+        for name, values in one.items():
+            assert values.dtype == every[k][name].dtype
+            np.testing.assert_array_equal(every[k][name], values)
 
 
 def test_stop_at_collision_truncates_otherwise_runs_all_frames():
@@ -406,9 +421,11 @@ def test_follow_plan_rejects_bad_plans():
         follow_plan(plan, 9.5)
     with pytest.raises(PlanError, match="next frame"):
         follow_plan(plan, 0.9)
-    bad_t = Trajectory(t=np.array([0.0, 0.1, 0.1]), x=np.zeros(3), y=np.zeros(3), yaw=np.zeros(3))
-    with pytest.raises(PlanError):
-        follow_plan(bad_t, 0.05)
+    for t in ([0.0, 0.1, 0.1], [0.0, 0.2, 0.1], [-np.inf, 0.0, 0.1], [0.0, np.nan, 0.1], [0.0, 0.1, np.inf],
+              [np.nan, 0.0, 0.1], [0.0, 0.1, np.nan], [0.0], []):
+        bad_t = Trajectory(t=np.array(t), x=np.zeros(len(t)), y=np.zeros(len(t)), yaw=np.zeros(len(t)))
+        with pytest.raises(PlanError, match="finite and strictly increasing"):
+            follow_plan(bad_t, 0.05)
     nan_pose = Trajectory(t=np.array([0.0, 0.1]), x=np.array([0.0, np.nan]), y=np.zeros(2), yaw=np.zeros(2))
     with pytest.raises(PlanError):
         follow_plan(nan_pose, 0.05)

@@ -9,7 +9,7 @@ from scipy.linalg import block_diag
 from scipy.optimize import linear_sum_assignment
 
 from advperc_ros.core.geometry import wrap_angle
-from advperc_ros.core.tracker import Tracker, TrackerConfig
+from advperc_ros.core.tracker import Tracker, TrackerConfig, _associate
 
 DT = 0.1
 
@@ -151,14 +151,14 @@ def test_heading_renormalised_and_stable_near_pi():
         x += speed * np.cos(yaw) * DT
         assert list(out["ids"]) == [1]
         errors.append(abs(float(wrap_angle(by_id(out, 1)["yaw"] - yaw))))
-        state = tracker.tracks.state[0]
-        assert np.hypot(state[4], state[5]) == pytest.approx(1.0, abs=1e-12)
+        cos, sin = tracker.tracks.state[0, 2:, 0]
+        assert np.hypot(cos, sin) == pytest.approx(1.0, abs=1e-12)
     assert max(errors) < 0.1
     # and while coasting (the predicted heading rate would otherwise shrink or grow the vector)
     for k in range(80, 85):
         tracker.step(t_of(k), NONE)
-        state = tracker.tracks.state[0]
-        assert np.hypot(state[4], state[5]) == pytest.approx(1.0, abs=1e-12)
+        cos, sin = tracker.tracks.state[0, 2:, 0]
+        assert np.hypot(cos, sin) == pytest.approx(1.0, abs=1e-12)
 
 
 def test_heading_noise_across_the_wrap_does_not_flip():
@@ -285,6 +285,20 @@ def test_crossing_cars_keep_ids_where_greedy_would_swap():
     assert np.hypot(by_id(out, 2)["x"] - pb[0], by_id(out, 2)["y"] - pb[1]) < 0.5
 
 
+def test_association_without_solving_when_unambiguous_equals_the_hungarian_one():
+    """Gated pairs that share no track and no detection are taken as they are; the rest is solved."""
+    rng = np.random.default_rng(5)
+    for case in range(3000):
+        cost = rng.uniform(0.0, rng.choice([2.5, 6.0, 30.0]), rng.integers(1, 9, 2))
+        if case % 3 == 0:  # tracks exactly on a detection's gate
+            cost[rng.random(cost.shape) < 0.2] = 2.0
+        gated = cost <= 2.0
+        rows, cols = linear_sum_assignment(np.where(gated, cost, 1e9))
+        ok = gated[rows, cols]
+        got_rows, got_cols = _associate(cost, 2.0)
+        assert got_rows.tolist() == rows[ok].tolist() and got_cols.tolist() == cols[ok].tolist(), case
+
+
 def test_two_detections_one_track_spawns_only_for_the_unmatched():
     tracker = Tracker()
     tracker.step(0.0, dets((0.0, 0.0, 0.0, 0.0, 0.0)))
@@ -402,6 +416,23 @@ def random_traffic(seed, frames=150):
     return out
 
 
+PAIRS = np.array([[0, 2], [1, 3], [4, 6], [5, 7]])  # a measured component and its rate, in filterpy's layout
+IN_BLOCKS = np.zeros((8, 8), dtype=bool)
+for _pair in PAIRS:
+    IN_BLOCKS[_pair[:, None], _pair[None, :]] = True
+
+
+def filterpy_layout(tracks):
+    """(N, 8) states and (N, 8, 8) covariances of the tracker's blocks, in filterpy's layout (x, y,
+    vx, vy, c, s, vc, vs), zeros between components."""
+    n = len(tracks)
+    state, covariance = np.zeros((n, 8)), np.zeros((n, 8, 8))
+    for m, pair in enumerate(PAIRS):
+        state[:, pair] = tracks.state[:, m].T
+        covariance[:, pair[:, None], pair[None, :]] = tracks.covariance[:, :, m].transpose(2, 0, 1)
+    return state, covariance
+
+
 def assert_same_as_filterpy(frames, times, config=TrackerConfig()):
     """Steps both trackers through the frames, comparing at every step; returns (births, deletions, most at once)."""
     ours, ref = Tracker(config), FilterpyTracker(config)
@@ -415,8 +446,11 @@ def assert_same_as_filterpy(frames, times, config=TrackerConfig()):
         if not ref.tracks:
             continue
         state = np.array([tr["kf"].x[:, 0] for tr in ref.tracks])
-        np.testing.assert_allclose(ours.tracks.state, state, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(ours.tracks.covariance, [tr["kf"].P for tr in ref.tracks], rtol=1e-12, atol=1e-12)
+        covariance = np.array([tr["kf"].P for tr in ref.tracks])
+        assert not covariance[:, ~IN_BLOCKS].any()  # exactly: what lets the tracker keep the blocks alone
+        our_state, our_covariance = filterpy_layout(ours.tracks)
+        np.testing.assert_allclose(our_state, state, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(our_covariance, covariance, rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(out["x"], state[:, 0], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(out["vy"], state[:, 3], rtol=1e-12, atol=1e-12)
         np.testing.assert_allclose(out["yaw"], np.arctan2(state[:, 5], state[:, 4]), rtol=1e-12, atol=1e-12)
@@ -434,6 +468,15 @@ def test_batched_filter_equals_filterpy_with_irregular_steps_and_repeated_times(
     frames = random_traffic(11, frames=80)
     times = np.cumsum(np.random.default_rng(3).choice([0.0, 0.05, 0.1, 0.1, 0.23], len(frames)))
     assert_same_as_filterpy(frames, times, TrackerConfig(gate=3.0, max_age=0.6))
+
+
+def test_batched_filter_equals_filterpy_for_a_lone_track():
+    """One track takes its own path through the prediction (a vector product in the 8x8 form)."""
+    rng = np.random.default_rng(4)
+    frames = [dets((6.0 * t_of(k) + rng.normal(0.0, 0.2), 0.5 * t_of(k) ** 2, 0.1 * t_of(k), 6.0, t_of(k)))
+              if k % 7 else NONE for k in range(60)]
+    births, _, most = assert_same_as_filterpy(frames, [t_of(k) for k in range(len(frames))])
+    assert births == 1 and most == 1
 
 
 def test_time_must_not_go_back_without_a_reset():

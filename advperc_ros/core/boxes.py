@@ -59,8 +59,15 @@ class BoxSequence:
 
     def frame(self, k: int) -> dict[str, np.ndarray]:
         """Valid boxes of frame k as a dict of 1-D arrays."""
-        mask = self.valid[k]  # the row, then the mask: half the cost of [k, mask] (a rollout asks every frame)
+        mask = self.valid[k]  # the row, then the mask: half the cost of [k, mask]
         return {name: getattr(self, name)[k][mask] for name in ("ids", *BOX_FIELDS)}
+
+    def every_frame(self) -> list[dict[str, np.ndarray]]:
+        """frame(k) of every frame, for a fraction of the cost (a rollout asks every frame): each
+        field masked once, in frame order, then cut into frames."""
+        ends = np.cumsum(np.count_nonzero(self.valid, axis=1)).tolist()
+        boxes = {name: getattr(self, name)[self.valid] for name in ("ids", *BOX_FIELDS)}
+        return [{name: values[start:end] for name, values in boxes.items()} for start, end in zip([0, *ends], ends)]
 
     def first_invalid_field(self) -> tuple[str, int, int] | None:
         """(field, frame, slot) of the first non-finite or non-positive-size valid entry, if any."""

@@ -1,7 +1,7 @@
 """Ego motion in the open-loop rollout: the ego follows its latest plan exactly."""
 
-from bisect import bisect_right
-from math import isnan
+from bisect import bisect_left, bisect_right
+from math import isfinite, isnan
 
 import numpy as np
 
@@ -21,26 +21,31 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
     side), so a plan received as a nav_msgs/Path, which has no speeds, is followed identically.
     """
     t = np.asarray(plan.t, dtype=float)
-    shortest = float((t[1:] - t[:-1]).min()) if t.size > 1 else 0.0
-    if not (np.isfinite(t).all() and shortest > 0.0):
-        raise PlanError("plan timestamps must be finite and strictly increasing, at least two poses")
+    steps = t[1:] - t[:-1]
     times = t.tolist()
+    # strictly increasing (a nan fails the comparison) between finite ends: finite throughout;
+    # counting is cheaper than numpy's reductions on a short plan
+    if not (t.size > 1 and np.count_nonzero(steps > 0.0) == steps.size and isfinite(times[0]) and isfinite(times[-1])):
+        raise PlanError("plan timestamps must be finite and strictly increasing, at least two poses")
     if not (times[0] - 1e-9 <= t_next <= times[-1] + 1e-9):
         raise PlanError(f"plan covers [{times[0]:.3f}, {times[-1]:.3f}] s, not the next frame at {t_next:.3f} s")
     values = np.array([plan.x, plan.y, plan.yaw], dtype=float)
     if values.shape[1] != t.size:
         raise PlanError(f"plan holds {t.size} timestamps but {values.shape[1]} poses")
-    if not np.isfinite(values).all():
+    if np.count_nonzero(np.isfinite(values)) != values.size:
         raise PlanError("plan holds non-finite poses")
-    if values[2].max() - values[2].min() >= np.pi:  # else no step reaches pi and np.unwrap changes nothing
+    if np.count_nonzero(np.abs(values[2, 1:] - values[2, :-1]) >= np.pi):  # else np.unwrap changes nothing
         values[2] = np.unwrap(values[2])
-    rows = values.tolist()
-    x, y, yaw = _interp(t_next, times, rows)
-    half = 0.5 * shortest
+    half = 0.5 * float(steps.min())
     before, after = max(times[0], t_next - half), min(times[-1], t_next + half)
-    (x_before, y_before, _), (x_after, y_after, _) = _interp(before, times, rows), _interp(after, times, rows)
+    # only the poses around [before, after] (or the plan's end) count: interpolating between them
+    # is interpolating in the whole plan, and Python floats of three rows of it cost most of the rest
+    first, last = max(bisect_right(times, before) - 1, 0), min(bisect_left(times, after), len(times) - 1)
+    times, rows = times[first : last + 1], values[:, first : last + 1].tolist()
+    x, y, yaw = _interp(t_next, times, rows)
+    (x_before, y_before), (x_after, y_after) = _interp(before, times, rows[:2]), _interp(after, times, rows[:2])
     moved = np.hypot(x_after - x_before, y_after - y_before)
-    return EgoState(x=x, y=y, yaw=float(wrap_angle(yaw)), v=float(moved / (after - before)))
+    return EgoState(x=x, y=y, yaw=wrap_angle(yaw), v=float(moved / (after - before)))
 
 
 def _interp(x: float, xp: list[float], rows: list[list[float]]) -> list[float]:

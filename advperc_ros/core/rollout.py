@@ -174,14 +174,14 @@ def rollout(
     stage_times = dict.fromkeys(STAGES, 0.0)
     started = clock()
     agents = scenario.agents
-    perceived = inject(agents, errors)
+    detections = inject(agents, errors).every_frame()
     stage_times["injector"] += clock() - started
     times = scenario.times
     num_frames = scenario.num_frames
     tracker.reset()
     planner.reset()
     ego = scenario.ego_start
-    ego_states = np.zeros((num_frames, 4))
+    ego_states: list[tuple[float, float, float, float]] = []  # x, y, yaw, v at frames 0..k
     distances = np.full((num_frames, agents.shape[1]), np.inf)
     rule = CollisionRule(agents, config.ego_length, config.ego_width)
     measured = np.zeros(num_frames, dtype=bool)  # frames measured during the drive: they could end it
@@ -190,24 +190,24 @@ def rollout(
     inconclusive = None
     last = num_frames - 1
     with plan_alarm(config.plan_timeout) as arm:
-        for k in range(num_frames):
-            ego_states[k] = (ego.x, ego.y, ego.yaw, ego.v)
+        for k, t in enumerate(times.tolist()):
+            ego_states.append((ego.x, ego.y, ego.yaw, ego.v))
             started = clock()
             ends = False
             if config.stop_at_collision and rule.may_touch(ego, k):  # else frame k cannot end the rollout
-                distances[k], measured[k] = rule.distances(ego_states[k : k + 1], [k])[0], True
+                distances[k], measured[k] = rule.distances(np.array(ego_states[k:]), [k])[0], True
                 ends = violates(distances[k].min(initial=np.inf), config.stop_at_collision)
             stage_times["rule"] += clock() - started
             if ends:
                 last = k
                 break
             started = clock()
-            tracks = tracker.step(float(times[k]), perceived.frame(k))
+            tracks = tracker.step(t, detections[k])
             stage_times["tracker"] += clock() - started
             started = clock()
             try:
                 arm(True)
-                plan = planner.plan(float(times[k]), ego, tracks)
+                plan = planner.plan(t, ego, tracks)
                 arm(False)
             except Exception as exc:  # a plug-in planner that crashes or hangs gives no verdict, not a pass
                 arm(False)
@@ -226,12 +226,13 @@ def rollout(
             if inconclusive is not None:
                 break
     started = clock()
+    ego_path = np.array(ego_states, dtype=float).reshape(-1, 4)  # frames 0..last
     rest = np.flatnonzero(~measured[: last + 1])
-    distances[rest] = rule.distances(ego_states[rest], rest)
+    distances[rest] = rule.distances(ego_path[rest], rest)
     stage_times["rule"] += clock() - started
     stats = planner_stats(planner)
     return judge(RolloutResult(
-        ego=ego_states[: last + 1],
+        ego=ego_path,
         distances=distances[: last + 1],
         inconclusive=inconclusive,
         tracks=tracks_log if record else None,

@@ -75,6 +75,16 @@ class RolloutResult:
     def min_signed_distance(self) -> float:
         return float(self.rule.min(initial=np.inf))
 
+    @property
+    def margin(self) -> float:
+        """How far the rollout stayed from a violation the verdict counts: the min signed distance
+        over the contacts and near misses that are not excused (with `at_fault_only`, being
+        rear-ended or hit while stopped is no step towards a violation); below 0 exactly when a
+        conclusive rollout collided."""
+        if self.excused is None:
+            return self.min_signed_distance
+        return float(np.where(self.excused, np.inf, self.distances).min(initial=np.inf))
+
     def closest_approach(self) -> tuple[int, int]:
         """(frame, agent slot) of the smallest signed distance: the collision, when there is one."""
         frame = int(np.argmin(self.rule))

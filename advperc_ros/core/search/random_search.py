@@ -23,11 +23,14 @@ class RandomSearchConfig:
 
 
 def propose(
-    errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: RandomSearchConfig
+    errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: RandomSearchConfig,
+    where: np.ndarray | None = None,
 ) -> PerceptionErrors | None:
     """p(e | e_prev): flip a segment of a dropped track within the first `frames` frames; its start
-    and end are uniform over the agent's dropped span."""
-    dropped = errors.fn[:frames]
+    and end are uniform over the agent's dropped span. `where` ((frames, slots)): the object-frames
+    that may be shown displaced instead of the dropped ones (the approach phase shows cars that
+    were seen, displaced)."""
+    dropped = errors.fn[:frames] if where is None else where[:frames]
     agents = np.flatnonzero(dropped.any(axis=0))
     if agents.size == 0:
         return None

@@ -110,7 +110,7 @@ def test_the_guided_search_trades_the_displacement_back():
 def test_each_step_keeps_a_conclusive_candidate_of_lower_margin_only(swerve):
     problem, result = swerve
     rows = [row for row in problem.log if row.phase == Phase.APPROACH]
-    assert 1 <= result.approach.rollouts == len(rows) <= approach.worst_case(CONFIG.approach_steps)
+    assert 1 <= result.approach.rollouts == len(rows) <= approach.worst_case(CONFIG.approach_steps, 3)
     assert result.approach.closest.rollout.margin < result.approach.start.rollout.margin
 
 
@@ -132,7 +132,7 @@ def test_the_phase_stays_within_its_bound_and_the_budget(swerve):
     num_agents = problem.scenario.agents.shape[1]
     assert len(problem.log) <= bound(CONFIG, num_agents, joint=True, approach=True)
     assert bound(CONFIG, num_agents, joint=True, approach=True) == bound(CONFIG, num_agents, joint=True) + \
-        CONFIG.approach_steps + 1
+        CONFIG.approach_steps + 2
     heuristic = sum(1 for row in problem.log if str(row.phase) in ("ground_truth", "heuristic_drop", "joint"))
     for budget in (heuristic + 1, heuristic + 3):
         small = swerve_problem()
@@ -178,4 +178,4 @@ def test_switched_off_nothing_runs():
     problem = swerve_problem()
     result = run_search(problem, dataclasses.replace(CONFIG, approach_steps=0))
     assert result.best is None and result.approach is None and "approach" not in phases(problem.log)
-    assert approach.worst_case(0) == 0
+    assert approach.worst_case(0, 3) == 0 and approach.worst_case(30, 83) == 30 + 7

@@ -52,7 +52,7 @@ def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: 
     collided) and the approach phase's when it runs (`approach`: no drop collided), so a search where
     a drop collides keeps the paper's bound."""
     joint_worst = worst_case(config.joint_max_agents, num_agents) if joint else 0
-    approach_worst = approach_phase.worst_case(config.approach_steps) if approach else 0
+    approach_worst = approach_phase.worst_case(config.approach_steps, num_agents) if approach else 0
     return (1 + num_agents * (1 + 2 * config.heuristic_iterations) + joint_worst + approach_worst
             + config.random.steps + 2 * config.refine_iterations)
 

@@ -14,14 +14,13 @@ direction, yaw noise), or the car moved a uniform share of the way towards the e
 shown in its way, which a planner brakes or swerves for). A conclusive candidate that brings the ego
 at least `MIN_GAIN` nearer becomes the current rollout; an inconclusive one is never kept. It ends
 at a collision or after `steps` rollouts. A collision usually still hides or displaces cars that
-play no part, so the phase then tries once the same errors on the nearest cars only, everything
-else perceived perfectly, and keeps that if it still collides: the random search or guided search
-then trades the remaining wrongness back for metric, as after a drop.
+play no part, so the phase then bisects for the fewest cars nearest the ego whose errors alone
+(everything else perceived perfectly) still collide: the random search or guided search then
+trades the remaining wrongness back for metric, as after a drop.
 """
 
-from dataclasses import dataclass
-
 import math
+from dataclasses import dataclass
 
 import numpy as np
 

@@ -35,6 +35,7 @@ def search_config(params: AttackParams) -> SearchConfig:
     return SearchConfig(
         heuristic_iterations=search.heuristic.iterations,
         joint_max_agents=search.joint.max_agents,
+        approach_steps=search.approach.steps,
         random=random,
         refine_iterations=search.refine.iterations,
         seed=params.seed,
@@ -77,6 +78,7 @@ class RolloutProgress:
         self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
         self.bisecting = False  # the last agent dropped collided: its bisections are under way
         self.joint = False  # a joint drop has run
+        self.approach = False  # the approach phase has run (no drop collided)
         self.bar = tqdm(total=1 + num_agents, desc=name, unit="rollout", disable=not enabled, file=sys.stderr,
                         mininterval=1.0)
 
@@ -88,6 +90,9 @@ class RolloutProgress:
             self.influential += row.collided
         elif phase == Phase.JOINT:  # no single drop collided: the joint drops run, within their own bound
             self.joint = True
+            self.influential += row.collided
+        elif phase == Phase.APPROACH:  # no drop collided: the approach phase runs, within its own bound
+            self.joint = self.approach = True
             self.influential += row.collided
         elif phase in (Phase.HEURISTIC_START, Phase.HEURISTIC_END):
             self.bisections += 1
@@ -106,7 +111,7 @@ class RolloutProgress:
         self.bar.update()
 
     def _still_to_run(self, phase: Phase) -> int:
-        left = budget(self.config, self.num_agents, self.joint) - self.bar.n - 1
+        left = budget(self.config, self.num_agents, self.joint, self.approach) - self.bar.n - 1
         if self.config.method == "guided" and self.influential:  # it spends its whole budget
             return left
         return min(left, self._paper_still_to_run(phase))
@@ -149,7 +154,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         params = replace(params, planner=EXTERNAL, planner_params={})
     return AttackOutcome(scenario=scenario, params=params, heuristic_best=result.heuristic, best=result.best,
                          recorded=recorded, log=problem.log, wall_time_s=time.perf_counter() - started,
-                         planner_node=attacked.node, joint=result.joint)
+                         planner_node=attacked.node, joint=result.joint, approach=result.approach)
 
 
 def default_output(params: AttackParams, scenario_name: str) -> Path:

@@ -5,6 +5,7 @@ from dataclasses import dataclass
 
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.approach import Approach
 from advperc_ros.core.search.joint import Joint
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.params import AttackParams
@@ -23,3 +24,5 @@ class AttackOutcome:
     # when no single drop collided: the joint drops, with the ego's rollout with every vehicle hidden
     # (the most any drop can take away) and the agents of the failure mode they found, if any
     joint: Joint | None = None
+    # when no drop collided: the approach phase, with the closest margin it reached
+    approach: Approach | None = None

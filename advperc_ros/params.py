@@ -106,6 +106,13 @@ class JointParams:
 
 
 @dataclass(frozen=True)
+class ApproachParams:
+    steps: int = _param(30, "beyond the paper, when no drop collides (not even the blind rollout): rollouts of "
+                        "the approach phase, which shows the cars nearest the ego displaced (README Search); 0: none",
+                        low=0, high=1_000_000)
+
+
+@dataclass(frozen=True)
 class RandomParams:
     steps: int = _param(40, "random search steps N_steps (paper: 40)", low=0, high=1_000_000)
     proposals: int = _param(100, "proposals per step N_proposal (paper: 100)", low=1, high=1_000_000)
@@ -133,6 +140,7 @@ class SearchParams:
                          high=1_000_000)
     heuristic: HeuristicParams = HeuristicParams()
     joint: JointParams = JointParams()
+    approach: ApproachParams = ApproachParams()
     random: RandomParams = RandomParams()
     refine: RefineParams = RefineParams()
     guided: GuidedParams = GuidedParams()

@@ -57,11 +57,12 @@ def metric_figure(log: list[LogRow], objective: str) -> Figure:
 
 def _best_metric(ax, log: list[LogRow], index: np.ndarray, collided: np.ndarray, objective: str) -> None:
     """Best adversarial metric after each rollout; heuristic solid, random search dashed, refine
-    dotted, guided rounds dash-dotted (refine may run between two stretches of rounds)."""
+    dotted, guided rounds dash-dotted (refine may run between two stretches of rounds), the approach
+    phase (when no drop collided) solid brown."""
     best = np.array([row.best_metric for row in log])
-    phases = np.array([{"random": 1, "refine": 2, "guided": 3}.get(row.phase, 0) for row in log])
+    phases = np.array([{"random": 1, "refine": 2, "guided": 3, "approach": 4}.get(row.phase, 0) for row in log])
     styles = {0: ("heuristic", "tab:orange", "-"), 1: ("random search", "tab:cyan", "--"), 2: ("refine", "tab:green", ":"),
-              3: ("guided rounds", "tab:purple", "-.")}
+              3: ("guided rounds", "tab:purple", "-."), 4: ("approach", "tab:brown", "-")}
     starts = np.flatnonzero(np.diff(phases, prepend=-1))  # each stretch of one phase
     labelled = set()
     for start, end in zip(starts, [*starts[1:], len(log)]):
@@ -93,7 +94,8 @@ def _closest_approaches(ax, log: list[LogRow], index: np.ndarray) -> None:
     few = rows.size <= 12
     for i in rows if few else rows[np.argsort(distance[rows], kind="stable")[:1]]:
         row = log[i]
-        what = "no drop" if row.agent < 0 else f"agent {row.agent} dropped"
+        what = {"approach": "approach", "joint": "joint drop"}.get(row.phase, "no drop" if row.agent < 0
+                                                                      else f"agent {row.agent} dropped")
         ax.annotate(f"{what}: {row.min_signed_distance:.2f} m", (row.rollout, row.min_signed_distance),
                     textcoords="offset points", xytext=(0, -12), ha="center" if few else "left", fontsize=7)
     if few:

@@ -18,6 +18,7 @@ from advperc_ros import __version__
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import EgoState
+from advperc_ros.core.search.approach import Approach
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.core.staging import staged_folder
 from advperc_ros.outcome import AttackOutcome
@@ -69,10 +70,11 @@ def _ids(ids: list[int], shown: int = 10) -> str:
     return text + (f", ... ({len(ids)} in all)" if len(ids) > shown else "")
 
 
-def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None) -> dict:
+def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, approach: Approach | None = None) -> dict:
     """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
-    refines only a drop that collides) and how close the ego came, hidden agent or not; and, from the
-    joint drops' `blind` rollout (every vehicle hidden), whether any drop could matter."""
+    refines only a drop that collides) and how close the ego came, hidden agent or not; from the
+    joint drops' `blind` rollout (every vehicle hidden), whether any drop could matter; and how close
+    the `approach` phase (cars shown displaced) brought the ego at its fault."""
     truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
     drops = [row for row in log if row.phase == "heuristic_drop"]
     conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]
@@ -99,9 +101,16 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None) -> d
         text += "; " + _blind_clause(blind)
         blind_report = {"collided": blind.collided, "inconclusive": blind.inconclusive,
                         "min_signed_distance": rounded("min_signed_distance", blind.min_signed_distance)}
+    approach_report = None
+    if approach is not None:
+        text += "; " + _approach_clause(approach)
+        approach_report = {"rollouts": approach.rollouts,
+                           "start_margin": rounded("min_signed_distance", approach.start.rollout.margin),
+                           "closest_margin": rounded("min_signed_distance", approach.closest.rollout.margin)}
     return {
         "message": text,
         "blind": blind_report,
+        "approach": approach_report,
         "agents_tried": [row.agent for row in drops],
         "closest_approach": {
             "min_signed_distance": rounded("min_signed_distance", nearest.min_signed_distance),
@@ -123,6 +132,13 @@ def _blind_clause(blind: RolloutResult) -> str:
         return f"with every vehicle hidden at once the rollout was inconclusive ({blind.inconclusive})"
     return (f"even with every vehicle hidden at once the ego collides with none at its fault (closest approach "
             f"{blind.min_signed_distance:.2f} m): unseen, the recorded traffic still does not come into its way")
+
+
+def _approach_clause(approach: Approach) -> str:
+    """How near showing the cars nearest the ego displaced brought it to a collision at its fault."""
+    return (f"showing the cars nearest the ego displaced ({approach.rollouts} rollouts of the approach phase) "
+            f"brought its margin to a collision at its fault from {approach.start.rollout.margin:.2f} m to "
+            f"{approach.closest.rollout.margin:.2f} m")
 
 
 def versions() -> dict[str, str]:
@@ -162,7 +178,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             **report_scores(best),
         )
     else:
-        report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None))
+        report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,
+                                       outcome.approach))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric), **report_scores(outcome.heuristic_best)}
     # no single drop collided: the agents the joint drops' failure mode hides together ([]: none found)

@@ -111,8 +111,10 @@ def short(row: Row) -> str:
         return f"attack, NDS {row.nds:.3f} / NDS-t {row.nds_t:.3f}"
     if row.outcome == "no attack":
         closest = re.findall(r"closest approach (-?[\d.]+) m", row.reason)
+        reached = re.search(r"approach phase\) brought .* from (-?[\d.]+) m to (-?[\d.]+) m", row.reason)
+        approach = f"; approach phase {reached.group(1)} m to {reached.group(2)} m" if reached else ""
         if "even with every vehicle hidden" in row.reason:
-            return f"none: clear even blind ({closest[-1]} m)"
+            return f"none: clear even blind ({closest[-1]} m){approach}"
         return f"none: no influential vehicle ({closest[0]} m)" if closest else "none"
     if row.outcome == "refused":
         found = re.search(r"min signed distance (-?[\d.]+) m", row.reason)

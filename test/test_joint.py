@@ -98,15 +98,16 @@ def test_a_cap_of_one_agent_keeps_the_colliding_set_it_reached():
 
 def test_switched_off_nothing_runs():
     problem, _, _ = make_problem(PLATOON_SPEC)
-    result = run_search(problem, SearchConfig(heuristic_iterations=ITERATIONS, joint_max_agents=0))
+    result = run_search(problem, SearchConfig(heuristic_iterations=ITERATIONS, joint_max_agents=0, approach_steps=0))
     assert result.best is None and result.joint is None and not joint_rows(problem.log)
     assert worst_case(0, 3) == 0
 
 
 def test_a_blind_rollout_that_stays_clear_ends_the_joint_drops():
-    """The lead drives away faster than the ego may: hiding everything is one rollout, and clear."""
+    """The lead drives away faster than the ego may: hiding everything is one rollout, and clear (the
+    approach phase, which would follow, is off)."""
     problem, _, _ = make_problem(RUNAWAY_LEAD_SPEC)
-    result = run_search(problem, SearchConfig(heuristic_iterations=ITERATIONS))
+    result = run_search(problem, SearchConfig(heuristic_iterations=ITERATIONS, approach_steps=0))
     assert result.best is None and result.joint.agents == () and result.joint.mode is None
     assert not result.joint.blind.adversarial and result.joint.blind.errors.fn.all()
     assert [row.phase for row in problem.log][-1] == "joint" and len(joint_rows(problem.log)) == 1

@@ -93,11 +93,16 @@ def test_metric_plot_of_an_attack_has_a_legend_only_for_what_it_draws(outcome):
 def test_metric_plot_of_a_search_without_collision_says_so(repo, tmp_path):
     null = _attack(build_scenario(RUNAWAY_LEAD_SPEC), repo, tmp_path)
     assert null.best is None and not any(row.collided for row in null.log)
-    fig = plots.metric_figure(null.log, "nds_t")
+    heuristic = [row for row in null.log if row.phase != "approach"]  # ground truth, drops, the blind rollout
+    fig = plots.metric_figure(heuristic, "nds_t")
     ax = fig.axes[0]
     assert "adversarial" not in ax.get_title().lower() and "No collision found" in ax.get_title()
     legend = {text.get_text() for text in ax.get_legend().get_texts()}
     assert legend <= _drawn_labels(ax) and not legend & {"heuristic", "random search", "refine", "adversarial rollout"}
     names = {text.get_text().split(":")[0] for text in ax.texts}
-    assert names == {"no drop", "agent 1 dropped", "agent 7 dropped"}  # every rollout says what it hid
+    assert names == {"no drop", "agent 1 dropped", "agent 7 dropped", "joint drop"}  # every rollout says what it hid
+    plt.close(fig)
+    # with the approach phase's rollouts too there are many: the nearest one is named
+    fig = plots.metric_figure(null.log, "nds_t")
+    assert len(fig.axes[0].texts) == 1
     plt.close(fig)

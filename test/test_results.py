@@ -91,8 +91,14 @@ def test_a_search_that_finds_nothing_says_why(repo, tmp_path, capsys, spec, clos
     assert report["closest_approach"]["min_signed_distance"] == pytest.approx(closest, abs=0.005)
     # hiding both cars at once (the joint drops' one rollout, logged) does no more: the traffic never comes into
     # the ego's way
-    assert report["blind"]["collided"] is False and report["rollouts"] == 4 and report["joint_agents"] == []
+    assert report["blind"]["collided"] is False and report["joint_agents"] == []
     assert report["blind"]["min_signed_distance"] == pytest.approx(closest, abs=0.005)
+    # nor does showing the cars near the ego displaced (the approach phase: all its steps, no collision)
+    approach = report["approach"]
+    assert approach["rollouts"] == 30 and report["rollouts"] == 4 + 30
+    assert approach["closest_margin"] <= approach["start_margin"] <= closest + 0.005
+    assert (f"(30 rollouts of the approach phase) brought its margin to a collision at its fault from "
+            f"{approach['start_margin']:.2f} m to {approach['closest_margin']:.2f} m") in summary["message"]
     assert f"even with every vehicle hidden at once the ego collides with none at its fault (closest approach {closest:.2f} m)" \
         in summary["message"]
     markdown = (tmp_path / "out" / "report.md").read_text()

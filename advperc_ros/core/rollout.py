@@ -75,6 +75,19 @@ class RolloutResult:
     def min_signed_distance(self) -> float:
         return float(self.rule.min(initial=np.inf))
 
+    @property
+    def margin(self) -> float:
+        """How far the rollout stayed from a violation the verdict counts: the min signed distance
+        over the contacts and near misses that are not excused (with `at_fault_only`, being
+        rear-ended or hit while stopped is no step towards a violation); below 0 exactly when a
+        conclusive rollout collided."""
+        return float(self.counted.min(initial=np.inf))
+
+    @property
+    def counted(self) -> np.ndarray:
+        """(K, N) the signed distances the verdict counts: an excused contact as +inf."""
+        return self.distances if self.excused is None else np.where(self.excused, np.inf, self.distances)
+
     def closest_approach(self) -> tuple[int, int]:
         """(frame, agent slot) of the smallest signed distance: the collision, when there is one."""
         frame = int(np.argmin(self.rule))

@@ -23,6 +23,7 @@ class Phase(str, Enum):
     HEURISTIC_START = "heuristic_start"  # Algorithm 1: bisecting the drop's latest start
     HEURISTIC_END = "heuristic_end"  # Algorithm 1: bisecting its earliest end
     JOINT = "joint"  # beyond the paper, when no single drop collides: several agents dropped at once, bisected
+    APPROACH = "approach"  # beyond the paper, when no drop collides: nearby cars shown displaced, towards a collision
     RANDOM = "random"  # Algorithm 2
     REFINE = "refine"  # beyond the paper: re-detecting the start of dropped runs
     GUIDED = "guided"  # beyond the paper: the guided search's rounds

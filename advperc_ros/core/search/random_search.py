@@ -22,19 +22,30 @@ class RandomSearchConfig:
     yaw_std: float = 0.1  # rad
 
 
-def propose(
-    errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: RandomSearchConfig
-) -> PerceptionErrors | None:
-    """p(e | e_prev): flip a segment of a dropped track within the first `frames` frames; its start
-    and end are uniform over the agent's dropped span."""
-    dropped = errors.fn[:frames]
-    agents = np.flatnonzero(dropped.any(axis=0))
+def pick_segment(mask: np.ndarray, rng: np.random.Generator) -> tuple[int, np.ndarray] | None:
+    """(slot, frames): a slot uniform among those with a frame in `mask` (frames x slots), and its
+    frames in `mask` between a start and an end uniform over its span; None when `mask` is empty."""
+    agents = np.flatnonzero(mask.any(axis=0))
     if agents.size == 0:
         return None
     j = int(agents[rng.integers(agents.size)])
-    flip = np.flatnonzero(dropped[:, j])
-    a, b = np.sort(rng.integers(flip[0], flip[-1] + 1, size=2))
-    flip = flip[(flip >= a) & (flip <= b)]
+    span = np.flatnonzero(mask[:, j])
+    a, b = np.sort(rng.integers(span[0], span[-1] + 1, size=2))
+    return j, span[(span >= a) & (span <= b)]
+
+
+def propose(
+    errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: RandomSearchConfig,
+    where: np.ndarray | None = None,
+) -> PerceptionErrors | None:
+    """p(e | e_prev): flip a segment of a dropped track within the first `frames` frames; its start
+    and end are uniform over the agent's dropped span. `where` ((frames, slots)): the object-frames
+    that may be shown displaced instead of the dropped ones (the approach phase shows cars that
+    were seen, displaced)."""
+    picked = pick_segment(errors.fn[:frames] if where is None else where[:frames], rng)
+    if picked is None:
+        return None
+    j, flip = picked
     direction = rng.uniform(0.0, 2.0 * np.pi)
     magnitude = rng.uniform(0.0, cfg.max_offset)
     out = errors.copy()

@@ -108,7 +108,8 @@ class JointParams:
 @dataclass(frozen=True)
 class ApproachParams:
     steps: int = _param(30, "beyond the paper, when no drop collides (not even the blind rollout): rollouts of "
-                        "the approach phase, which shows the cars nearest the ego displaced (README Search); 0: none",
+                        "the approach phase, which shows the cars nearest the ego displaced or hidden for a while (README "
+                        "Search); 0: none",
                         low=0, high=1_000_000)
 
 

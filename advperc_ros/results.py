@@ -135,8 +135,9 @@ def _blind_clause(blind: RolloutResult) -> str:
 
 
 def _approach_clause(approach: Approach) -> str:
-    """How near showing the cars nearest the ego displaced brought it to a collision at its fault."""
-    return (f"showing the cars nearest the ego displaced ({approach.rollouts} rollouts of the approach phase) "
+    """How near showing the cars nearest the ego wrongly brought it to a collision at its fault."""
+    return (f"showing the cars nearest the ego displaced or hidden for a while ({approach.rollouts} rollouts of "
+            f"the approach phase) "
             f"brought its margin to a collision at its fault from {approach.start.rollout.margin:.2f} m to "
             f"{approach.closest.rollout.margin:.2f} m")
 

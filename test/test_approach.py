@@ -7,11 +7,11 @@ import pytest
 
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
-from advperc_ros.core.rollout import RolloutConfig, rollout
+from advperc_ros.core.rollout import RolloutConfig, RolloutResult, rollout
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.search import approach
 from advperc_ros.core.search.pipeline import SearchConfig, bound, run_search
-from advperc_ros.core.search.problem import AttackProblem, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.tracker import Tracker
 from test_search import make_problem
 from toy_scenarios import FOLLOW_SPEC, PLATOON_SPEC
@@ -120,10 +120,10 @@ def test_the_margin_counts_only_what_the_verdict_counts():
     problem = swerve_problem()
     r = problem.evaluate(PerceptionErrors.none(*problem.scenario.agents.shape), Phase.GROUND_TRUTH).rollout
     assert r.margin == r.min_signed_distance > 0 and not r.collided
-    excused = dataclasses.replace(r, distances=r.distances.copy(), excused=np.zeros_like(r.distances, dtype=bool))
-    excused.distances[5, 0], excused.excused[5, 0] = -0.3, True
+    excused = dataclasses.replace(r, distances=r.distances.copy(), excusable=np.zeros_like(r.distances, dtype=bool))
+    excused.distances[5, 0], excused.excusable[5, 0] = -0.3, True
     assert excused.min_signed_distance == -0.3 and excused.margin == r.margin and not excused.collided
-    excused.excused[5, 0] = False
+    excused.excusable[5, 0] = False
     assert excused.margin == -0.3 and excused.collided
 
 
@@ -179,3 +179,52 @@ def test_switched_off_nothing_runs():
     result = run_search(problem, dataclasses.replace(CONFIG, approach_steps=0))
     assert result.best is None and result.approach is None and "approach" not in phases(problem.log)
     assert approach.worst_case(0, 3) == 0 and approach.worst_case(30, 83) == 30 + 7
+
+
+def evaluation(closest: list[float], excusable: list[bool] | None = None):
+    """An evaluation whose rollout comes `closest[j]` near car j at one frame (the excusable cars' as
+    near, but behind the ego: no step towards its fault)."""
+    distances = np.array([closest, [50.0] * len(closest)])
+    rollout_result = RolloutResult(ego=np.zeros((2, 4)), distances=distances,
+                                   excusable=None if excusable is None else np.array([excusable] * 2))
+    return Evaluation(PerceptionErrors.none(2, len(closest)), rollout_result, None, 0.0)
+
+
+@pytest.mark.parametrize("trial, current, expected", [
+    ([0.50, 1.50, 9.0], [0.50, 2.00, 9.0], True),  # the nearest car as near, the next one nearer
+    ([0.505, 1.50, 9.0], [0.50, 2.00, 9.0], True),  # under MIN_GAIN further from the nearest is a tie
+    ([0.52, 1.00, 9.0], [0.50, 2.00, 9.0], False),  # 2 cm further from the nearest outweighs the next
+    ([0.40, 3.00, 9.0], [0.50, 2.00, 9.0], True),  # nearer the nearest, whatever follows
+    ([0.50, 2.00, 9.0], [0.50, 2.00, 9.0], False),  # no progress
+    ([2.00, 0.50, 9.0], [0.50, 2.00, 9.0], False),  # the same margins on other cars: no progress
+    ([0.50, 2.00, np.inf], [0.50, 2.00, 9.0], False),  # a car gone out of reach is no step nearer
+])
+def test_nearer_compares_each_cars_margin_nearest_first(trial, current, expected):
+    assert approach.nearer(evaluation(trial), evaluation(current)) is expected
+    if expected:
+        assert not approach.nearer(evaluation(current), evaluation(trial))
+
+
+def test_a_car_only_ever_behind_the_ego_is_neither_near_nor_progress():
+    behind = [False, True, False]
+    current, trial = evaluation([0.5, 2.0, 3.0], behind), evaluation([0.5, 0.1, 3.0], behind)
+    assert not approach.nearer(trial, current)
+    np.testing.assert_array_equal(approach.nearest(current, trial), [0, 2])
+
+
+def test_hide_hides_a_segment_of_a_car_in_where_and_nothing_else():
+    errors = PerceptionErrors.none(20, 3)
+    errors.dx[:, 1], errors.dy[:, 1] = 2.0, -1.0  # car 1 shown displaced before: hidden frames lose it
+    where = np.zeros((20, 3), dtype=bool)
+    where[4:15, 1] = True
+    rng = np.random.default_rng(0)
+    spans = set()
+    for _ in range(200):
+        out = approach.hide(errors, rng, where)
+        hidden = np.flatnonzero(out.fn[:, 1])
+        assert not out.fn[:, [0, 2]].any() and hidden.size and 4 <= hidden[0] and hidden[-1] < 15
+        np.testing.assert_array_equal(hidden, np.arange(hidden[0], hidden[-1] + 1))  # one segment
+        assert (out.dx[hidden, 1] == 0).all() and (np.delete(out.dx[:, 1], hidden) == 2.0).all()
+        spans.add((hidden[0], hidden[-1]))
+    assert len(spans) > 20 and not errors.fn.any()  # segments vary; the input is left alone
+    assert approach.hide(errors, rng, np.zeros((20, 3), dtype=bool)) is None

@@ -10,7 +10,7 @@ import pytest
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge, rollout
-from advperc_ros.core.rules import STOPPED_SPEED, not_at_fault
+from advperc_ros.core.rules import STOPPED_SPEED
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker
 from advperc_ros.params import AttackParams, rollout_config
@@ -94,8 +94,18 @@ def test_inconclusive_has_no_verdict_whatever_the_fault():
     result, scenario = run(10.0, CASES["drives into a car ahead"][1], at_fault_only=True)
     result.inconclusive = "planner failed"
     assert not result.collided
-    excused = not_at_fault(result.ego, 4.6, scenario.agents, result.distances)
-    np.testing.assert_array_equal(excused, result.excused)
+    assert result.margin < 0.0 and not result.excused.any()  # the contact is still the ego's fault
+
+
+@pytest.mark.parametrize("start_s, counted", [(92.0, False), (108.0, True)])
+def test_a_near_miss_behind_the_rear_bumper_is_no_step_towards_a_collision(start_s, counted):
+    """A car following 3.4 m behind the ego at its speed can only ever rear-end it, so the margin (what
+    the approach phase drives down) leaves it out; the same gap ahead is a near miss the ego could close."""
+    result, _ = run(8.0, {"lane": "east", "start_s": start_s, "speed": 8.0}, at_fault_only=True)
+    assert not result.collided and result.min_signed_distance == pytest.approx(3.4)
+    assert result.margin == (pytest.approx(3.4) if counted else np.inf)
+    every, _ = run(8.0, {"lane": "east", "start_s": start_s, "speed": 8.0}, at_fault_only=False)
+    assert every.margin == every.min_signed_distance
 
 
 def test_param_threads_to_the_rollout_config():

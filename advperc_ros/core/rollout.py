@@ -26,7 +26,7 @@ from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
 from advperc_ros.core.errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
-from advperc_ros.core.rules import CollisionRule, not_at_fault
+from advperc_ros.core.rules import CollisionRule, excusable
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker
 
@@ -54,9 +54,9 @@ class RolloutResult:
     # failed solves the planner answered with its fallback (its stats() of this rollout); None when
     # not known: a planner without stats(), or one in another process
     planner_failures: int | None = None
-    # (K, N) contacts that are not the ego's fault, when only at-fault ones count (`judge`); None:
-    # every contact counts
-    excused: np.ndarray | None = None
+    # (K, N) where a contact would not be the ego's fault (`rules.excusable`), when only at-fault ones
+    # count (`judge`); None: every contact counts
+    excusable: np.ndarray | None = None
 
     @property
     def num_frames(self) -> int:
@@ -78,15 +78,20 @@ class RolloutResult:
     @property
     def margin(self) -> float:
         """How far the rollout stayed from a violation the verdict counts: the min signed distance
-        over the contacts and near misses that are not excused (with `at_fault_only`, being
-        rear-ended or hit while stopped is no step towards a violation); below 0 exactly when a
-        conclusive rollout collided."""
+        over the contacts and near misses that would be the ego's fault (with `at_fault_only`, a car
+        passing close behind the rear bumper, or the ego stopped, is no step towards a violation);
+        below 0 exactly when a conclusive rollout collided."""
         return float(self.counted.min(initial=np.inf))
 
     @property
     def counted(self) -> np.ndarray:
-        """(K, N) the signed distances the verdict counts: an excused contact as +inf."""
-        return self.distances if self.excused is None else np.where(self.excused, np.inf, self.distances)
+        """(K, N) the signed distances the verdict counts: +inf where a contact would be excused."""
+        return self.distances if self.excusable is None else np.where(self.excusable, np.inf, self.distances)
+
+    @property
+    def excused(self) -> np.ndarray | None:
+        """(K, N) the contacts that are not the ego's fault; None when every contact counts."""
+        return None if self.excusable is None else (self.distances < 0.0) & self.excusable
 
     def closest_approach(self) -> tuple[int, int]:
         """(frame, agent slot) of the smallest signed distance: the collision, when there is one."""
@@ -98,16 +103,14 @@ class RolloutResult:
         """The verdict: a conclusive rollout with a contact that counts."""
         if self.inconclusive is not None:
             return False
-        if self.excused is None:
-            return self.min_signed_distance < 0.0
-        return bool(np.any((self.distances < 0.0) & ~self.excused))
+        return self.margin < 0.0
 
 
 def judge(result: RolloutResult, agents: BoxSequence, config: RolloutConfig) -> RolloutResult:
-    """`result` with the contacts that are not the ego's fault excused when `config.at_fault_only`;
-    from the ego states and distances alone, so any backend's result is judged the same way."""
+    """`result` with the contacts that would not be the ego's fault excused when `config.at_fault_only`;
+    from the ego states alone, so any backend's result is judged the same way."""
     if config.at_fault_only:
-        result.excused = not_at_fault(result.ego, config.ego_length, agents, result.distances)
+        result.excusable = excusable(result.ego, config.ego_length, agents)
     return result
 
 

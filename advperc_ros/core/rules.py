@@ -53,10 +53,11 @@ class CollisionRule:
         return np.where(agents.valid[frames], distance, np.inf)
 
 
-def not_at_fault(ego: np.ndarray, ego_length: float, agents: BoxSequence, distances: np.ndarray) -> np.ndarray:
-    """(K, N) contacts that are not the ego's fault, from the ego's states `ego` (K, 4: x, y, yaw,
-    v) at frames 0..K-1 and their signed `distances` (K, N): the ego stopped, or hit from behind."""
+def excusable(ego: np.ndarray, ego_length: float, agents: BoxSequence) -> np.ndarray:
+    """(K, N) where a contact would not be the ego's fault, from the ego's states `ego` (K, 4: x, y,
+    yaw, v) at frames 0..K-1: the ego stopped, or the agent behind its rear bumper."""
     frames = ego.shape[0]
     x, y, yaw, v = (ego[:, i : i + 1] for i in range(4))
     along = (agents.x[:frames] - x) * np.cos(yaw) + (agents.y[:frames] - y) * np.sin(yaw)
-    return (distances < 0.0) & ((v < STOPPED_SPEED) | (along < -ego_length / 2))
+    return (v < STOPPED_SPEED) | (along < -ego_length / 2)
+

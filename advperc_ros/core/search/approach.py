@@ -1,25 +1,27 @@
-"""Beyond the paper: when no drop collides, show nearby cars displaced until the ego collides.
+"""Beyond the paper: when no drop collides, show nearby cars wrongly until the ego collides.
 
-Hiding a car only removes a reason for the ego to slow down or steer. When no drop makes it collide,
-not even every car's at once (the blind rollout), an error that brings the ego into traffic may: a
-car shown a few metres off its true place, so that the planner brakes or swerves into a real one.
-This phase is a falsification search on the rollout's margin (`RolloutResult.margin`: its smallest
-signed distance to a car at the ego's fault, so being rear-ended is no progress). It starts from
-the conclusive rollout of lowest margin seen so far (ground truth, a single drop or the blind one),
-and each step rolls out one candidate that shows one of the `NEAREST` cars closest to the ego (in
-the ground truth or the current rollout, hidden or seen there) displaced over a segment of its
-frames up to the current closest approach (later errors cannot bring the ego nearer at it), by a
-move drawn at even odds: the paper's proposal (one offset of up to `max_offset` in a uniform
-direction, yaw noise), or the car moved a uniform share of the way towards the ego's path (traffic
-shown in its way, which a planner brakes or swerves for). A conclusive candidate that brings the ego
-at least `MIN_GAIN` nearer becomes the current rollout; an inconclusive one is never kept. It ends
-at a collision or after `steps` rollouts. A collision usually still hides or displaces cars that
-play no part, so the phase then bisects for the fewest cars nearest the ego whose errors alone
-(everything else perceived perfectly) still collide: the random search or guided search then
-trades the remaining wrongness back for metric, as after a drop.
+Hiding a whole car only removes a reason for the ego to slow down or steer. When no such drop makes
+it collide, not even every car's at once (the blind rollout), other errors may: a car shown a few
+metres off its true place, so that the planner brakes or swerves into a real one, or a car hidden
+for a while only, so that a planner that waited for it sets off and meets it. This phase is a
+falsification search on the rollout's margins (`RolloutResult.counted`: its signed distances to the
+cars where a contact would be the ego's fault, so a car closing in from behind is no progress). It
+starts from the nearest of the conclusive rollouts so far (ground truth, single drops, the blind
+one), and each step rolls out one candidate that shows one of the `NEAREST` cars the ego comes
+closest to at its fault (in the ground truth or the current rollout) wrongly over a segment of its
+frames, by a move drawn at even odds: the paper's proposal (one offset of up to `max_offset` in a
+uniform direction, yaw noise), the car moved a uniform share of the way towards the ego's path
+(traffic shown in its way, which a planner brakes or swerves for), or the car hidden. A conclusive
+candidate that is `nearer` (each car's margin compared, nearest first, to `MIN_GAIN`: progress
+behind a car the errors cannot move still counts) becomes the current rollout; an inconclusive one
+is never kept. It ends at a collision or after `steps` rollouts. A collision usually still hides or
+displaces cars that play no part, so the phase then bisects for the fewest cars nearest the ego
+whose errors alone (everything else perceived perfectly) still collide: the random search or guided
+search then trades the remaining wrongness back for metric, as after a drop.
 """
 
 import math
+from functools import cmp_to_key
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,8 +54,24 @@ def worst_case(steps: int, num_agents: int) -> int:
 
 
 def nearest(truth: Evaluation, current: Evaluation) -> np.ndarray:
-    """Slots of the `NEAREST` cars closest to the ego in either rollout."""
-    return np.asarray(relevance(truth, current)[:NEAREST], dtype=int)
+    """Slots of the `NEAREST` cars the ego comes closest to at its fault in either rollout (a car only
+    ever behind it cannot be hit at its fault)."""
+    closest = np.minimum(truth.rollout.counted.min(axis=0, initial=np.inf),
+                         current.rollout.counted.min(axis=0, initial=np.inf))
+    order = np.argsort(closest, kind="stable")[:NEAREST]
+    return order[np.isfinite(closest[order])]
+
+
+def nearer(trial: Evaluation, current: Evaluation) -> bool:
+    """Whether `trial` brings the ego nearer a collision at its fault than `current`: its cars' margins
+    (each car's smallest counted distance), nearest first, compared in order, a difference under
+    `MIN_GAIN` counting as a tie. The nearest car alone would be blind to progress behind a car the
+    errors cannot move (a car beside a lane-keeping ego stays as near however it brakes)."""
+    ours, theirs = (np.sort(e.rollout.counted.min(axis=0, initial=np.inf)) for e in (trial, current))
+    for a, b in zip(ours, theirs):
+        if not (np.isfinite(a) or np.isfinite(b)) or abs(a - b) >= MIN_GAIN:
+            return bool(a < b)
+    return False
 
 
 def only(errors: PerceptionErrors, slots: np.ndarray) -> PerceptionErrors:
@@ -86,12 +104,26 @@ def into_path(errors: PerceptionErrors, frames: int, rng: np.random.Generator, c
     return out
 
 
+def hide(errors: PerceptionErrors, rng: np.random.Generator, where: np.ndarray) -> PerceptionErrors | None:
+    """A segment of a car (uniform over its frames in `where`) hidden: unlike a whole-track drop, the
+    car is seen before and after, so a planner that waited for it may set off and meet it."""
+    picked = pick_segment(where, rng)
+    if picked is None:
+        return None
+    j, span = picked
+    out = errors.copy()
+    out.fn[span, j] = True
+    out.dx[span, j] = out.dy[span, j] = out.dyaw[span, j] = 0.0
+    return out
+
+
 def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Generator, cfg: RandomSearchConfig,
              steps: int) -> Approach:
     """The phase from the rollouts `seen` (the ground truth first): it stops at a collision, after
     `steps` rollouts, or at the problem's budget."""
     truth = seen[0]
-    start = current = min((e for e in seen if not e.rollout.inconclusive), key=lambda e: e.rollout.margin)
+    start = current = min((e for e in seen if not e.rollout.inconclusive), key=cmp_to_key(
+        lambda a, b: -1 if nearer(a, b) else int(nearer(b, a))))
     valid = problem.scenario.agents.valid
     agents_xy = np.stack([problem.scenario.agents.x, problem.scenario.agents.y], axis=2)
     first = len(problem.log)
@@ -100,19 +132,21 @@ def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Gene
         return problem.budget is None or len(problem.log) < problem.budget
 
     while len(problem.log) - first < steps and not current.adversarial and room():
-        # up to the frame of closest approach: later errors cannot bring the ego nearer at it
-        frames = int(np.argmin(current.rollout.counted.min(axis=1, initial=np.inf))) + 1
+        frames = current.rollout.num_frames
         where = np.zeros((frames, valid.shape[1]), dtype=bool)
         slots = nearest(truth, current)
         where[:, slots] = valid[:frames, slots]
-        if rng.integers(2):
+        move = rng.integers(3)
+        if move == 0:
             candidate = propose(current.errors, frames, rng, cfg, where)
-        else:
+        elif move == 1:
             candidate = into_path(current.errors, frames, rng, cfg, where, agents_xy, current.rollout.ego_xy)
+        else:
+            candidate = hide(current.errors, rng, where)
         if candidate is None:  # no car near the ego is present
             break
         trial = problem.evaluate(candidate, Phase.APPROACH)
-        if not trial.rollout.inconclusive and trial.rollout.margin < current.rollout.margin - MIN_GAIN:
+        if not trial.rollout.inconclusive and nearer(trial, current):
             current = trial
     if current.adversarial:
         current = fewest(problem, truth, current)

@@ -36,6 +36,7 @@ def search_config(params: AttackParams) -> SearchConfig:
         heuristic_iterations=search.heuristic.iterations,
         joint_max_agents=search.joint.max_agents,
         approach_steps=search.approach.steps,
+        approach_patience=search.approach.patience,
         random=random,
         refine_iterations=search.refine.iterations,
         seed=params.seed,

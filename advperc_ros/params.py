@@ -107,10 +107,12 @@ class JointParams:
 
 @dataclass(frozen=True)
 class ApproachParams:
-    steps: int = _param(30, "beyond the paper, when no drop collides (not even the blind rollout): rollouts of "
-                        "the approach phase, which shows the cars nearest the ego displaced or hidden for a while (README "
-                        "Search); 0: none",
+    steps: int = _param(120, "beyond the paper, when no drop collides (not even the blind rollout): rollouts of "
+                        "the approach phase at most, which shows the cars nearest the ego displaced or hidden for a "
+                        "while (README Search); 0: none",
                         low=0, high=1_000_000)
+    patience: int = _param(30, "rollouts in a row that bring the ego no nearer a collision at its fault before the "
+                           "approach phase gives up", low=1, high=1_000_000)
 
 
 @dataclass(frozen=True)

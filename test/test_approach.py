@@ -64,8 +64,8 @@ class Swerver:
         return Trajectory(t=times, x=x, y=y, yaw=yaw)
 
 
-def swerve_problem(fail_at: float | None = None) -> AttackProblem:
-    scenario = build_scenario(SWERVE_SPEC)
+def swerve_problem(fail_at: float | None = None, spec: dict = SWERVE_SPEC) -> AttackProblem:
+    scenario = build_scenario(spec)
     tracker, planner = Tracker(), Swerver(fail_at)
     config = RolloutConfig(at_fault_only=True)
     return AttackProblem(scenario, lambda errors: rollout(scenario, errors, tracker, planner, config), "nds_t")
@@ -157,7 +157,7 @@ def test_inconclusive_rollouts_are_never_kept():
     failed = [row for row in rows if row.inconclusive]
     assert failed and min(row.min_signed_distance for row in failed) < result.approach.start.rollout.margin
     assert result.best is None and result.approach.collision is None
-    assert result.approach.closest is result.approach.start and len(rows) == CONFIG.approach_steps
+    assert result.approach.closest is result.approach.start and len(rows) == CONFIG.approach_patience
 
 
 @pytest.mark.parametrize("spec", [FOLLOW_SPEC, PLATOON_SPEC], ids=["single drop", "joint drop"])
@@ -228,3 +228,22 @@ def test_hide_hides_a_segment_of_a_car_in_where_and_nothing_else():
         spans.add((hidden[0], hidden[-1]))
     assert len(spans) > 20 and not errors.fn.any()  # segments vary; the input is left alone
     assert approach.hide(errors, rng, np.zeros((20, 3), dtype=bool)) is None
+
+
+def test_patience_counts_from_the_last_step_nearer_and_steps_cap_the_phase(monkeypatch):
+    """With every candidate nearer than the last, the phase runs to `steps`; with none, it gives up
+    after `patience`; after a step nearer, `patience` more."""
+    scripted: list[bool] = []
+    monkeypatch.setattr(approach, "nearer", lambda trial, current: scripted.pop(0) if scripted else False)
+
+    def rollouts(script, steps, patience):
+        # no car beside the ego: it swerves into nothing, so no candidate collides
+        spec = {**SWERVE_SPEC, "agents": [a for a in SWERVE_SPEC["agents"] if a["id"] != 3]}
+        problem = swerve_problem(spec=spec)
+        seen = [problem.evaluate(PerceptionErrors.none(*problem.scenario.agents.shape), Phase.GROUND_TRUTH)]
+        scripted[:] = script  # one comparison per step
+        return approach.approach(problem, seen, np.random.default_rng(0), CONFIG.random, steps, patience).rollouts
+
+    assert rollouts([True] * 100, steps=12, patience=3) == 12
+    assert rollouts([], steps=12, patience=3) == 3
+    assert rollouts([False, True, False, False, True], steps=12, patience=3) == 5 + 3

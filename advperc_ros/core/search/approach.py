@@ -14,7 +14,8 @@ uniform direction, yaw noise), the car moved a uniform share of the way towards 
 (traffic shown in its way, which a planner brakes or swerves for), or the car hidden. A conclusive
 candidate that is `nearer` (each car's margin compared, nearest first, to `MIN_GAIN`: progress
 behind a car the errors cannot move still counts) becomes the current rollout; an inconclusive one
-is never kept. It ends at a collision or after `steps` rollouts. A collision usually still hides or
+is never kept. It ends at a collision, after `patience` rollouts in a row that are not nearer, or
+after `steps` rollouts. A collision usually still hides or
 displaces cars that play no part, so the phase then bisects for the fewest cars nearest the ego
 whose errors alone (everything else perceived perfectly) still collide: the random search or guided
 search then trades the remaining wrongness back for metric, as after a drop.
@@ -118,9 +119,10 @@ def hide(errors: PerceptionErrors, rng: np.random.Generator, where: np.ndarray) 
 
 
 def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Generator, cfg: RandomSearchConfig,
-             steps: int) -> Approach:
+             steps: int, patience: int) -> Approach:
     """The phase from the rollouts `seen` (the ground truth first): it stops at a collision, after
-    `steps` rollouts, or at the problem's budget."""
+    `patience` rollouts in a row that bring the ego no nearer, after `steps` rollouts, or at the
+    problem's budget."""
     truth = seen[0]
     start = current = min((e for e in seen if not e.rollout.inconclusive), key=cmp_to_key(
         lambda a, b: -1 if nearer(a, b) else int(nearer(b, a))))
@@ -131,7 +133,8 @@ def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Gene
     def room() -> bool:
         return problem.budget is None or len(problem.log) < problem.budget
 
-    while len(problem.log) - first < steps and not current.adversarial and room():
+    stalled = 0
+    while len(problem.log) - first < steps and stalled < patience and not current.adversarial and room():
         frames = current.rollout.num_frames
         where = np.zeros((frames, valid.shape[1]), dtype=bool)
         slots = nearest(truth, current)
@@ -146,8 +149,9 @@ def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Gene
         if candidate is None:  # no car near the ego is present
             break
         trial = problem.evaluate(candidate, Phase.APPROACH)
+        stalled += 1
         if not trial.rollout.inconclusive and nearer(trial, current):
-            current = trial
+            current, stalled = trial, 0
     if current.adversarial:
         current = fewest(problem, truth, current)
     return Approach(start, current, len(problem.log) - first)

@@ -25,7 +25,8 @@ METHODS = ("paper", "guided")
 class SearchConfig:
     heuristic_iterations: int = 3  # bisection iterations per bound (paper: 3)
     joint_max_agents: int = 8  # agents the joint drops' reduction keeps at most; 0: no joint drops
-    approach_steps: int = 30  # rollouts of the approach phase when no drop collides; 0: no approach phase
+    approach_steps: int = 120  # rollouts of the approach phase at most, when no drop collides; 0: no approach phase
+    approach_patience: int = 30  # rollouts in a row that bring the ego no nearer before the approach phase gives up
     random: RandomSearchConfig = RandomSearchConfig()
     refine_iterations: int = 4  # 0: the paper's search only
     seed: int = 0  # of the random search
@@ -79,7 +80,8 @@ def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
         if heuristic is None and config.approach_steps > 0 and num_agents > 0:
             problem.budget = budget(config, num_agents, joint=True, approach=True)
             seen = [found.truth, *found.drops, *([joint.blind] if joint is not None else [])]
-            approached = approach_phase.approach(problem, seen, rng, config.random, config.approach_steps)
+            approached = approach_phase.approach(problem, seen, rng, config.random, config.approach_steps,
+                                                 config.approach_patience)
             heuristic = approached.collision
         if heuristic is None:
             return SearchResult(None, None, None, None, joint, approached)

@@ -100,7 +100,8 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, appr
     if blind is not None:
         text += "; " + _blind_clause(blind)
         blind_report = {"collided": blind.collided, "inconclusive": blind.inconclusive,
-                        "min_signed_distance": rounded("min_signed_distance", blind.min_signed_distance)}
+                        "min_signed_distance": rounded("min_signed_distance", blind.min_signed_distance),
+                        "margin": rounded("min_signed_distance", blind.margin)}
     approach_report = None
     if approach is not None:
         text += "; " + _approach_clause(approach)
@@ -130,8 +131,10 @@ def _blind_clause(blind: RolloutResult) -> str:
     blind rollout that collides is an attack: the joint drops narrow it.)"""
     if blind.inconclusive is not None:
         return f"with every vehicle hidden at once the rollout was inconclusive ({blind.inconclusive})"
+    at_fault = (f", {blind.margin:.2f} m where a contact would be its fault"
+                if blind.margin != blind.min_signed_distance else "")
     return (f"even with every vehicle hidden at once the ego collides with none at its fault (closest approach "
-            f"{blind.min_signed_distance:.2f} m): unseen, the recorded traffic still does not come into its way")
+            f"{blind.min_signed_distance:.2f} m{at_fault}): unseen, the recorded traffic still does not come into its way")
 
 
 def _approach_clause(approach: Approach) -> str:

@@ -113,8 +113,9 @@ def short(row: Row) -> str:
         closest = re.findall(r"closest approach (-?[\d.]+) m", row.reason)
         reached = re.search(r"approach phase\) brought .* from (-?[\d.]+) m to (-?[\d.]+) m", row.reason)
         approach = f"; approach phase {reached.group(1)} m to {reached.group(2)} m" if reached else ""
-        if "even with every vehicle hidden" in row.reason:
-            return f"none: clear even blind ({closest[-1]} m){approach}"
+        if "even with every vehicle hidden" in row.reason:  # its at-fault margin, when it differs
+            blind = re.search(r"(-?[\d.]+) m where a contact would be its fault", row.reason)
+            return f"none: clear even blind ({blind.group(1) if blind else closest[-1]} m){approach}"
         return f"none: no influential vehicle ({closest[0]} m)" if closest else "none"
     if row.outcome == "refused":
         found = re.search(r"min signed distance (-?[\d.]+) m", row.reason)
@@ -122,7 +123,8 @@ def short(row: Row) -> str:
                 else f"refused: {row.reason.removeprefix('advperc: ')}")
     if row.outcome == "rejected":
         found = re.search(r"overlaps by ([\d.]+) m", row.reason)
-        return f"rejected: unavoidable (overlap {found.group(1) if found else '?'} m)"
+        return (f"rejected: unavoidable (overlap {found.group(1)} m)" if found
+                else f"rejected: {row.reason.removeprefix('advperc: error: ')}")
     return f"error: {row.reason}"
 
 

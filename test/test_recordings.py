@@ -77,4 +77,6 @@ def test_a_recording_is_attacked_or_says_why_not(name, planner, tmp_path, capsys
     else:
         assert report["message"].startswith("no collision found")
         assert report["blind"] is not None and "every vehicle hidden" in report["message"]
+        # the at-fault margin leaves out near misses a contact at which would be excused
+        assert report["blind"]["margin"] >= max(report["blind"]["min_signed_distance"], 0.0)
 

@@ -93,6 +93,7 @@ def test_a_search_that_finds_nothing_says_why(repo, tmp_path, capsys, spec, clos
     # the ego's way
     assert report["blind"]["collided"] is False and report["joint_agents"] == []
     assert report["blind"]["min_signed_distance"] == pytest.approx(closest, abs=0.005)
+    assert report["blind"]["margin"] == report["blind"]["min_signed_distance"]  # every contact counts here
     # nor does showing the cars near the ego displaced (the approach phase: all its steps, no collision)
     approach = report["approach"]
     assert approach["rollouts"] == 30 and report["rollouts"] == 4 + 30

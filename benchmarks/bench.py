@@ -17,7 +17,8 @@
    the metric reached and the perception scores of the best attack (paper Table 1's columns).
 4. Recorded traffic (every CommonRoad recording in ../shared/data/commonroad, when present, 2 to 83
    vehicles; --quick: every third): per-frame rollout cost and whole-search wall time against the
-   number of recorded vehicles, with the params import-commonroad writes for IDM.
+   number of recorded vehicles, with the params import-commonroad writes: per frame for IDM and ObP,
+   the whole search for IDM (an ObP search takes minutes: benchmarks/recordings_bench.py).
 """
 
 import argparse
@@ -182,7 +183,8 @@ def bench_searches(scenarios: tuple[str, ...], objectives: tuple[str, ...]) -> N
 
 
 def bench_recordings(repeats: int, every: int) -> None:
-    print("\n== 4. Recorded traffic: cost against the number of vehicles (IDM, objective nds_t) ==")
+    print("\n== 4. Recorded traffic: cost against the number of vehicles (ms per frame: IDM and ObP; search: IDM, "
+          "objective nds_t) ==")
     if not COMMONROAD.is_dir():
         print(f"(skipped: no recordings at {COMMONROAD})")
         return
@@ -191,31 +193,32 @@ def bench_recordings(repeats: int, every: int) -> None:
     from advperc_ros.params import parse_params
 
     print(f"{'recording':22s} {'vehicles':>8s} {'frames':>6s} {'ms/frame':>8s} {'tracker':>7s} {'planner':>7s} "
-          f"{'rule':>6s} {'search s':>8s} {'rollouts':>8s}  outcome")
+          f"{'rule':>6s} {'ObP ms/frame':>12s} {'ObP planner':>11s} {'search s':>8s} {'rollouts':>8s}  outcome")
     imported_all = [import_commonroad(path) for path in sorted(COMMONROAD.glob("*.xml"))]
     for imported in sorted(imported_all, key=lambda i: i.scenario.agents.shape[1])[::every]:
         scenario = imported.scenario
         name = scenario.name
-        document = {"bag": name, "stop_at_collision": False, "planner_params": {"target_speed": imported.target_speed},
-                    "rule": {"at_fault_only": True}}  # as import-commonroad writes them
-        params = parse_params({"orchestrator": {"ros__parameters": document}}, name)
-        stack = Stack(scenario, params)
-        errors = PerceptionErrors.none(*scenario.agents.shape)
-        runs = [stack.rollout(errors) for _ in range(repeats)]
         frames = scenario.num_frames
-        per = {s: statistics.median(r.stage_times[s] for r in runs) / frames * 1e3 for s in STAGES}
-        total = sum(per.values())
-        if unavoidable_collision(scenario, params.ego.length, params.ego.width) is not None:
+        errors = PerceptionErrors.none(*scenario.agents.shape)
+        params, per = {}, {}
+        for planner, times in (("idm", repeats), ("obp", max(1, repeats // 2))):  # as import-commonroad writes them
+            document = imported.params(name, planner)
+            document["orchestrator"]["ros__parameters"]["stop_at_collision"] = False  # every frame timed
+            params[planner] = parse_params(document, name)
+            runs = [Stack(scenario, params[planner]).rollout(errors) for _ in range(times)]
+            per[planner] = {s: statistics.median(r.stage_times[s] for r in runs) / frames * 1e3 for s in STAGES}
+        idm, obp = per["idm"], per["obp"]
+        if unavoidable_collision(scenario, params["idm"].ego.length, params["idm"].ego.width) is not None:
             search = f"{'-':>8s} {'-':>8s}  rejected by import-commonroad: unavoidable"
         else:
             try:
-                outcome = run_attack(scenario, params.with_values(stop_at_collision=True), progress=False)
+                outcome = run_attack(scenario, params["idm"].with_values(stop_at_collision=True), progress=False)
                 search = f"{outcome.wall_time_s:8.1f} {len(outcome.log):8d}  "
                 search += "collision found" if outcome.best else "no collision found"
             except GroundTruthFails:
                 search = f"{'-':>8s} {'-':>8s}  refused: the IDM collides at fault with perfect perception"
-        print(f"{name:22s} {scenario.agents.shape[1]:8d} {frames:6d} {total:8.2f} {per['tracker']:7.2f} "
-              f"{per['planner']:7.2f} {per['rule']:6.2f} {search}")
+        print(f"{name:22s} {scenario.agents.shape[1]:8d} {frames:6d} {sum(idm.values()):8.2f} {idm['tracker']:7.2f} "
+              f"{idm['planner']:7.2f} {idm['rule']:6.2f} {sum(obp.values()):12.2f} {obp['planner']:11.2f} {search}")
 
 
 def main() -> None:

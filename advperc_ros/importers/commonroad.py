@@ -44,6 +44,19 @@ class ImportedScenario:
     target_speed: float  # m/s, for the planner
     route_note: str  # how the route was chosen
 
+    def params(self, bag: str, planner: str) -> dict:
+        """The params document of an attack on this recording's bag with `planner`, as
+        import-commonroad writes it: the goal's target speed, and only at-fault collisions counted
+        (recorded agents do not react to the ego: being rear-ended is theirs, not the ego's fault)."""
+        return {"orchestrator": {"ros__parameters": {
+            "bag": bag,
+            "planner": planner,
+            "planner_params": {"target_speed": round(self.target_speed, 3)},
+            "objective": "nds_t",
+            "seed": 0,
+            "rule": {"at_fault_only": True},
+        }}}
+
 
 def _read(path: Path):
     try:
@@ -279,3 +292,4 @@ def _convert(cr_scenario, problems) -> ImportedScenario:
         ego_start=ego,
     )
     return ImportedScenario(scenario=scenario, target_speed=target, route_note=note)
+

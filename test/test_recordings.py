@@ -8,7 +8,9 @@
 
 All 24 recordings with both bundled planners take over an hour (ObP: minutes per recording), so by
 default this runs three small ones with IDM (a few minutes); ADVPERC_ALL_RECORDINGS=1 runs the lot,
-as benchmarks/recordings_bench.py does. Skips with a reason without the data or commonroad-io.
+as benchmarks/recordings_bench.py does. Each also runs with its traffic 0.5 s earlier
+(`shift_traffic`): a recording no rule of the tool was written or measured on, which must keep the
+same contracts. Skips with a reason without the data or commonroad-io.
 """
 
 import json
@@ -30,6 +32,7 @@ EVERYTHING = os.environ.get("ADVPERC_ALL_RECORDINGS") == "1"
 SMALL = ("USA_US101-1_1_T-1", "USA_Peach-3_2_T-1", "USA_Lanker-1_6_T-1")  # 2, 8, 34 vehicles; 1 s to 6 s
 RECORDINGS = sorted(p.stem for p in DATA.glob("*.xml")) if EVERYTHING and DATA.is_dir() else list(SMALL)
 PLANNERS = ("idm", "obp") if EVERYTHING else ("idm",)
+SHIFTS = (0.0, 0.5)  # s the traffic is moved earlier (0: as published; USA_Lanker-1_6 lasts 1 s)
 
 pytestmark = pytest.mark.skipif(not DATA.is_dir(), reason=f"CommonRoad recordings not found at {DATA}")
 
@@ -39,19 +42,28 @@ def commonroad():
     return pytest.importorskip("commonroad", reason="commonroad-io is not installed (pip install '.[commonroad]')")
 
 
-def _import(name: str, folder: Path, capsys) -> tuple[Path | None, int, str]:
+def _import(name: str, shift: float, folder: Path, capsys) -> tuple[Path | None, int, str]:
+    source = DATA / f"{name}.xml"
+    if shift:  # the same road at another moment, written beside what the commands write
+        from advperc_ros.importers.commonroad import shift_traffic
+
+        (folder / "source").mkdir()
+        shifted = folder / "source" / f"{name}+{shift:g}s.xml"
+        shift_traffic(source, shifted, shift)
+        source = shifted
     capsys.readouterr()
-    code = main(["import-commonroad", str(DATA / f"{name}.xml"), "--output", str(folder / "bag")])
+    code = main(["import-commonroad", str(source), "--output", str(folder / "bag")])
     return (folder / "bag" if code == 0 else None), code, capsys.readouterr().err
 
 
+@pytest.mark.parametrize("shift", SHIFTS)
 @pytest.mark.parametrize("planner", PLANNERS)
 @pytest.mark.parametrize("name", RECORDINGS)
-def test_a_recording_is_attacked_or_says_why_not(name, planner, tmp_path, capsys, commonroad):
-    bag, code, err = _import(name, tmp_path, capsys)
+def test_a_recording_is_attacked_or_says_why_not(name, planner, shift, tmp_path, capsys, commonroad):
+    bag, code, err = _import(name, shift, tmp_path, capsys)
     if code == 3:
         assert "rejected, not attacked: recorded traffic hits the ego whatever it does" in err
-        assert not any(tmp_path.iterdir())
+        assert not any(path.name != "source" for path in tmp_path.iterdir())
         return
     assert code == 0, err
     params_path = tmp_path / ("bag.yaml" if planner == "idm" else f"bag.{planner}.yaml")

@@ -20,6 +20,8 @@
   that are not finite, shapes other than rectangles, predictions that are not trajectories, two
   states at one time step, references to lanelets that do not exist, degenerate lanelets, and
   orientations beyond +-1000 rad (commonroad-io itself would never finish reading those).
+- `shift_traffic` writes a recording with its traffic of another moment: held-out recordings for
+  checking the commands on data no rule here was written on (benchmarks/shifted_recordings.py).
 """
 
 import xml.etree.ElementTree as ET
@@ -293,3 +295,45 @@ def _convert(cr_scenario, problems) -> ImportedScenario:
     )
     return ImportedScenario(scenario=scenario, target_speed=target, route_note=note)
 
+
+def shift_traffic(source: Path, target: Path, seconds: float) -> int:
+    """Write the recording `source` to `target` with every vehicle `seconds` earlier (the ego meets
+    the traffic that passed its start that much after the recorded car it replaces did): vehicles
+    gone by then dropped, the others starting from their first state at or after that moment; the
+    map, ego and goal the file's own. The same road at another moment, a recording no rule of the
+    tool was written or measured on. Returns the vehicles kept."""
+    from commonroad.common.file_reader import CommonRoadFileReader
+    from commonroad.common.file_writer import CommonRoadFileWriter, OverwriteExistingFile
+    from commonroad.common.util import FileFormat
+    from commonroad.prediction.prediction import TrajectoryPrediction
+    from commonroad.scenario.obstacle import DynamicObstacle
+    from commonroad.scenario.state import InitialState
+    from commonroad.scenario.trajectory import Trajectory
+
+    scenario, problems = CommonRoadFileReader(str(source)).open()
+    steps = round(seconds / scenario.dt)
+    moved = []
+    for obstacle in scenario.dynamic_obstacles:
+        states = [obstacle.initial_state]
+        if isinstance(obstacle.prediction, TrajectoryPrediction):
+            states += obstacle.prediction.trajectory.state_list
+        states = [s for s in states if s.time_step >= steps]
+        if not states:  # gone before the new start
+            continue
+        for state in states:
+            state.time_step -= steps
+        first = states[0]
+        initial = InitialState(time_step=first.time_step, position=first.position, orientation=first.orientation,
+                               velocity=first.velocity, acceleration=getattr(first, "acceleration", 0.0) or 0.0,
+                               yaw_rate=0.0, slip_angle=0.0)
+        prediction = (TrajectoryPrediction(Trajectory(first.time_step + 1, states[1:]), obstacle.obstacle_shape)
+                      if len(states) > 1 else None)
+        moved.append(DynamicObstacle(obstacle.obstacle_id, obstacle.obstacle_type, obstacle.obstacle_shape, initial,
+                                     prediction))
+    for obstacle in list(scenario.dynamic_obstacles):
+        scenario.remove_obstacle(obstacle)
+    scenario.add_objects(moved)
+    CommonRoadFileWriter(scenario, problems, author="advperc_ros shift_traffic", affiliation="advperc_ros",
+                         source=f"{source.name}, traffic {seconds:g} s earlier",
+                         file_format=FileFormat.XML).write_to_file(str(target), OverwriteExistingFile.ALWAYS)
+    return len(moved)

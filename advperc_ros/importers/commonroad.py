@@ -24,6 +24,7 @@
   checking the commands on data no rule here was written on (benchmarks/shifted_recordings.py).
 """
 
+import warnings
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
@@ -333,7 +334,9 @@ def shift_traffic(source: Path, target: Path, seconds: float) -> int:
     for obstacle in list(scenario.dynamic_obstacles):
         scenario.remove_obstacle(obstacle)
     scenario.add_objects(moved)
-    CommonRoadFileWriter(scenario, problems, author="advperc_ros shift_traffic", affiliation="advperc_ros",
-                         source=f"{source.name}, traffic {seconds:g} s earlier",
-                         file_format=FileFormat.XML).write_to_file(str(target), OverwriteExistingFile.ALWAYS)
+    writer = CommonRoadFileWriter(scenario, problems, author="advperc_ros shift_traffic", affiliation="advperc_ros",
+                                  source=f"{source.name}, traffic {seconds:g} s earlier", file_format=FileFormat.XML)
+    with warnings.catch_warnings():  # one per lanelet of a file without lanelet types: the writer's default is right
+        warnings.filterwarnings("ignore", message=".*has no lanelet type", category=UserWarning)
+        writer.write_to_file(str(target), OverwriteExistingFile.ALWAYS)
     return len(moved)

@@ -4,10 +4,12 @@ It needs the `reactive` extra, which pins commonroad-io below the main environme
 run in a venv of their own (.ci/run) and skip, saying so, where the package is missing.
 """
 
+import dataclasses
 import os
 import sys
 from importlib.util import find_spec
 
+import numpy as np
 import pytest
 
 from advperc_ros.core.errors import PerceptionErrors
@@ -58,6 +60,27 @@ def test_the_reactive_planner_avoids_a_car_it_sees_and_hits_it_when_the_car_is_h
 
     hidden, _ = _rollout(stopped_ahead, hide_the_car=True)
     assert hidden.inconclusive is None and hidden.collided  # at fault: it drives into the car from behind
+
+
+def test_a_rollout_does_not_depend_on_the_rollouts_before_it(stopped_ahead):
+    """A search rolls out thousands of error tensors on one planner, a replay or another worker on a
+    fresh one: each rollout must be a function of its errors alone. The package keeps its low-speed
+    mode from its last call and reads it when it converts the next call's initial state, so a rollout
+    that ended slow changed the next one's first plan (an attack found on USA_Peach-4_3 with its
+    traffic shifted 1 s did not collide when replayed)."""
+    start = stopped_ahead.ego_start  # off the route's centre and heading: the low-speed mode matters
+    offset = dataclasses.replace(stopped_ahead, ego_start=dataclasses.replace(start, y=start.y + 0.5, yaw=0.05))
+    none = PerceptionErrors.none(*stopped_ahead.agents.shape)
+    config = RolloutConfig(at_fault_only=True)
+    fresh = rollout(offset, none, Tracker(), load_planner(REACTIVE, _context(offset), {"target_speed": 10.0}), config)
+
+    planner = load_planner(REACTIVE, _context(stopped_ahead), {"target_speed": 10.0})
+    creeping = build_scenario({**STOPPED_AHEAD, "duration": 0.5, "ego": {**STOPPED_AHEAD["ego"], "speed": 0.5}})
+    slow = rollout(creeping, PerceptionErrors.none(*creeping.agents.shape), Tracker(), planner, config)
+    assert slow.ego[-1, 3] < 4.0  # its last call planned in the low-speed mode (below 4 m/s)
+    after = rollout(offset, none, Tracker(), planner, config)
+    np.testing.assert_array_equal(after.ego, fresh.ego)
+    np.testing.assert_array_equal(after.distances, fresh.distances)
 
 
 def test_a_standing_ego_drives_off(stopped_ahead):

@@ -5,7 +5,8 @@ Named in a params file as `planner: advperc_ros.contrib.reactive:ReactivePlanner
 lives in an environment of its own (README, "Dependencies and why"). What the adapter supplies that
 the protocol does not carry:
 
-- a reference path: the route, as the planner's curvilinear frame (built once);
+- a reference path: the route, as the planner's curvilinear frame (built once), and a new sampler
+  for each rollout, so that no state of the package passes from one rollout to the next;
 - a collision checker per call: every track's box over the horizon at its tracked velocity (the
   planner itself has no prediction), no road boundary (the protocol gives lanes as centre lines
   and widths, not a lanelet network; the planner's lateral samples stay within `lateral` m of the
@@ -74,19 +75,24 @@ class ReactivePlanner:
         planner_config.debug.multiproc = False  # its default, 6 workers, would swamp a shared machine
         planner_config.debug.logging_level = "ERROR"
         planner_config.scenario = Scenario(dt=context.dt)  # obstacles come per call, not from a scenario
-        self._sampler = Sampler(planner_config)
+        self._planner_config = planner_config
         logging.getLogger("RP_LOGGER").setLevel(logging.ERROR)
         # the route every metre (the curvilinear frame wants >= 3 points; a straight route has 2), extended
         # straight at both ends: a plan or a track beyond the frame's ends makes the planner raise
         route, beyond = context.route, REFERENCE_BEYOND
         reference = route.position(np.arange(-beyond, route.length + beyond, 1.0))
         with np.errstate(divide="ignore"):  # its own smoothing, which divides by a straight route's zero curvature
-            self._sampler.set_reference_path(coordinate_system=create_coordinate_system(reference))
+            self._coordinate_system = create_coordinate_system(reference)
         self._rear = planner_config.vehicle.wb_rear_axle  # m from the centre back to the rear axle
         self._steps = steps
         self.reset()
 
     def reset(self) -> None:
+        # a new sampler each rollout (0.1 ms): the package carries state from call to call (its low-speed
+        # mode, read when it converts the next call's initial state), which must not pass from one
+        # rollout to the next, or a replay or another worker would not see what the search saw
+        self._sampler = Sampler(self._planner_config)
+        self._sampler.set_reference_path(coordinate_system=self._coordinate_system)
         self._last: Trajectory | None = None
         self._last_states: list | None = None
         self._failures = 0

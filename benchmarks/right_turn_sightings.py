@@ -30,8 +30,8 @@ sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ro
 
 from advperc_ros.backend import Stack  # noqa: E402
 from advperc_ros.core.errors import PerceptionErrors, inject  # noqa: E402
-from advperc_ros.core.metrics.nds import (DIST_THRESHOLDS, FIRST_USEFUL, MEAN_AP_WEIGHT, NUM_POINTS,  # noqa: E402
-                                          TP_METRICS, TP_THRESHOLD, nds)
+from advperc_ros.core.metrics.nds import (DIST_THRESHOLDS, MEAN_AP_WEIGHT, TP_METRICS, TP_THRESHOLD,  # noqa: E402
+                                          ap_bound, nds)
 from advperc_ros.core.search.guided import AXES  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
@@ -39,12 +39,6 @@ from advperc_ros.ros.bag import read_scenario  # noqa: E402
 SCENARIO = "obp_right_turn"
 CAR = 1  # the agent id of the car the ego yields to
 SHOWN_OFF = 0.95 * DIST_THRESHOLDS[1]  # m: a true positive at 1, 2 and 4 m
-
-
-def ap_bound(max_recall: float) -> float:
-    """The largest AP the devkit's interpolation gives when recall cannot pass `max_recall`."""
-    points = np.linspace(0.0, 1.0, NUM_POINTS)[FIRST_USEFUL:]
-    return float((points <= max_recall + 1e-12).sum()) / points.size
 
 
 def nds_t_bound(counted: np.ndarray, slot: int) -> float:

@@ -7,7 +7,7 @@ import pytest
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.errors import PerceptionErrors, confidence_scores, inject
-from advperc_ros.core.metrics.nds import nds
+from advperc_ros.core.metrics.nds import ap_bound, nds
 from advperc_ros.core.metrics.scores import longest_drop_fraction, score
 
 # ---------------------------------------------------------------- longest drop fraction
@@ -289,3 +289,23 @@ def test_confidences_are_not_ordered_by_frame_or_agent():
     # a permutation, not a monotone pattern an attack could use
     assert not np.all(np.diff(scores.ravel()) > 0)
     assert not np.all(np.diff(scores.ravel()) < 0)
+
+
+def test_ap_bound_is_reached_by_a_drop_and_never_passed():
+    """ap_bound (the premise of benchmarks/right_turn_sightings.py): hiding one car throughout caps
+    recall, and with no false positive AP is exactly the bound at every threshold; shown displaced
+    instead (a false positive at the tighter thresholds), AP stays at or under it."""
+    gt = scenario_like_truth(agents=5, seed=3)
+    gt.y[:] = 10.0 * np.arange(5) - 20.0  # 10 m apart: no car's detection comes within 4 m of another car
+    frames, agents = gt.shape
+    ego = np.zeros((frames, 2))
+    errors = PerceptionErrors.none(frames, agents)
+    errors.fn[:, 2] = True
+    result = nds(gt, inject(gt, errors), ego)
+    recall = 1.0 - result.gt_in_range[:, 2].sum() / result.gt_in_range.sum()
+    assert all(ap == pytest.approx(ap_bound(recall), abs=1e-12) for ap in result.ap.values())
+    for offset in (0.7, 1.5, 3.0):
+        shown = PerceptionErrors.none(frames, agents)
+        shown.dx[:, 2] = offset
+        tight = nds(gt, inject(gt, shown), ego).ap
+        assert all(tight[th] <= ap_bound(recall) + 1e-12 for th in tight if th <= offset)

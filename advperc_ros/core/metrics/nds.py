@@ -138,6 +138,14 @@ _REC_INTERP = np.linspace(0.0, 1.0, NUM_POINTS)
 _TP_FIELDS = ("x", "y", "vx", "vy", "yaw", "width", "length", "height")
 
 
+def ap_bound(max_recall: float) -> float:
+    """The largest AP `nds` can give when recall cannot pass `max_recall` (some truth no detection
+    matches): precision at most 1 at the interpolation points up to it and 0 beyond, less the
+    precision floor. Equal when no false positive ranks above a true one."""
+    useful = _REC_INTERP[FIRST_USEFUL:]
+    return float((useful <= max_recall + 1e-12).sum()) / useful.size
+
+
 def _gather(boxes: BoxSequence, frames: np.ndarray, slots: np.ndarray) -> np.ndarray:
     """_TP_FIELDS (8, n) of the (frame, slot) boxes, by flat index (np.take on 1-D is cheap)."""
     flat = frames * boxes.shape[1] + slots

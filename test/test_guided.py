@@ -10,7 +10,8 @@ from advperc_ros.application import attack_to_folder, run_attack
 from advperc_ros.backend import Stack
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
-from advperc_ros.core.search.guided import merge, pick_batch, push, shown, wrongness
+from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_still_fails, merge, pick_batch, push,
+                                            shown, wrongness)
 from advperc_ros.core.search.problem import Phase
 from advperc_ros.exits import Interrupted
 from advperc_ros.params import load_params
@@ -186,3 +187,24 @@ def test_without_refine_iterations_every_rollout_after_the_heuristic_is_a_round(
     scenario, params = lane_following
     outcome = run_attack(scenario, _guided(params, 16, **{"search.refine.iterations": 0}), progress=False)
     assert [row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]] == [Phase.GUIDED] * 4
+
+
+def test_before_its_own_rollouts_the_model_prefers_a_moderate_step_and_they_outweigh_it():
+    """With no rollouts the expected gain, gain x P(collides), peaks at a moderate step, not the
+    boldest (the prior counts PRIOR_WEIGHT rollouts a row); once more bold steps than that have
+    kept the collision, the model expects the next bold one to keep it too."""
+    relative = np.linspace(0.0, 1.0, 101)
+    seen = np.full((relative.size, 2), 0.5)
+    moves = np.full(relative.size, MOVES.index("push_right"))
+
+    def chance(w):
+        return 1.0 / (1.0 + np.exp(-_features(moves, relative, seen) @ w))
+
+    empty = fit_still_fails(np.zeros(0, dtype=int), np.zeros(0), np.zeros((0, 2)), np.zeros(0, dtype=bool))
+    best_step = relative[np.argmax(relative * chance(empty))]
+    assert 0.2 < best_step < 0.8
+    assert chance(empty)[-1] < 0.2
+    bold = int(3 * PRIOR_WEIGHT)
+    w = fit_still_fails(np.full(bold, MOVES.index("push_right")), np.ones(bold), np.full((bold, 2), 0.5),
+                        np.ones(bold, dtype=bool))
+    assert chance(w)[-1] > 0.5

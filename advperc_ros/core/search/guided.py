@@ -170,18 +170,27 @@ def _features(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray) -> np.ndar
 PENALTY = np.array([0.1, *[1.0] * len(MOVES), 0.1, 0.1, 0.1])
 
 
+# rollouts' worth of each of the prior's two rows: until this search's own rollouts outweigh it, a
+# step twice as bold is taken as much likelier to lose the collision, so the first rounds take
+# moderate steps (as the paper's proposal, drawn uniformly among the improving ones, mostly does)
+# rather than the boldest ones, which a planner's failure boundary rarely lets through
+PRIOR_WEIGHT = 8.0
+
+
 def fit_still_fails(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray, failed: np.ndarray) -> np.ndarray:
-    """Weights of P(collides) = sigmoid(features . w), by maximum likelihood with a weak prior that
-    no gain keeps the verdict and the round's largest gain loses it. Every rollout informs the
-    common intercept, so a few failures of any moves make the next round more careful."""
+    """Weights of P(collides) = sigmoid(features . w), by weighted maximum likelihood with a prior
+    that no gain keeps the verdict and the round's largest gain loses it (PRIOR_WEIGHT rollouts
+    each). Every rollout informs the common intercept, so a few failures of any moves make the next
+    round more careful."""
     x = _features(np.concatenate([moves, [-1, -1]]).astype(int), np.concatenate([gains, [0.0, 1.0]]),
                   np.concatenate([seen.reshape(-1, 2), [[0.5, 0.5], [0.5, 0.5]]]))
     y = np.concatenate([failed.astype(float), [1.0, 0.0]])
+    weight = np.concatenate([np.ones(len(moves)), [PRIOR_WEIGHT, PRIOR_WEIGHT]])
     w = np.zeros(x.shape[1])
-    for _ in range(100):  # Newton on an L2-regularised logistic regression
+    for _ in range(100):  # Newton on an L2-regularised, weighted logistic regression
         p = 1.0 / (1.0 + np.exp(-x @ w))
-        grad = x.T @ (y - p) - PENALTY * w
-        hess = -(x.T * (p * (1.0 - p))) @ x - np.diag(PENALTY)
+        grad = x.T @ (weight * (y - p)) - PENALTY * w
+        hess = -(x.T * (weight * p * (1.0 - p))) @ x - np.diag(PENALTY)
         delta = np.linalg.solve(hess, grad)
         w -= delta
         if np.abs(delta).max() < 1e-9:

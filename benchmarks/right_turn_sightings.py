@@ -29,10 +29,11 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ros is installed
 
 from advperc_ros.backend import Stack  # noqa: E402
-from advperc_ros.core.errors import PerceptionErrors, inject  # noqa: E402
-from advperc_ros.core.metrics.nds import (DIST_THRESHOLDS, MEAN_AP_WEIGHT, TP_METRICS, TP_THRESHOLD,  # noqa: E402
-                                          ap_bound, nds)
-from advperc_ros.core.search.guided import AXES  # noqa: E402
+from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
+from advperc_ros.core.metrics.nds import (DIST_THRESHOLDS, TP_METRICS, TP_THRESHOLD, ap_bound,  # noqa: E402
+                                          in_range, nds_score)
+from advperc_ros.core.metrics.scores import nds_t_score  # noqa: E402
+from advperc_ros.core.search.guided import AXES, displacement  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
 
@@ -46,8 +47,7 @@ def nds_t_bound(counted: np.ndarray, slot: int) -> float:
     recall = 1.0 - counted[:, slot].sum() / counted.sum()
     strict = [t for t in DIST_THRESHOLDS if t <= TP_THRESHOLD]  # thresholds car 1 cannot be matched at
     mean_ap = (len(strict) * ap_bound(recall) + len(DIST_THRESHOLDS) - len(strict)) / len(DIST_THRESHOLDS)
-    nds_bound = (MEAN_AP_WEIGHT * mean_ap + len(TP_METRICS)) / (MEAN_AP_WEIGHT + len(TP_METRICS))
-    return (nds_bound + 1.0) / 2.0
+    return nds_t_score(nds_score(mean_ap, len(TP_METRICS)), 0.0)  # every TP error 0, no drop
 
 
 def shown_once(drop: PerceptionErrors, slot: int, frame: int, yaw: float, axis: int | None) -> PerceptionErrors:
@@ -55,9 +55,7 @@ def shown_once(drop: PerceptionErrors, slot: int, frame: int, yaw: float, axis: 
     out = drop.copy()
     out.fn[frame, slot] = False
     if axis is not None:
-        along, side = np.array(AXES[axis], dtype=float) * SHOWN_OFF
-        out.dx[frame, slot] = np.cos(yaw) * along - np.sin(yaw) * side
-        out.dy[frame, slot] = np.sin(yaw) * along + np.cos(yaw) * side
+        out.dx[frame, slot], out.dy[frame, slot] = displacement(yaw, axis, SHOWN_OFF)
     return out
 
 
@@ -88,11 +86,11 @@ def main() -> None:
     for k in frames:
         kept = [names[0 if axis is None else axis + 1] for kk, axis in still if kk == k]
         print(f"  frame {k}: {'still collides shown ' + ', '.join(kept) if kept else 'every sighting loses the collision'}")
-    counted = nds(agents.frames(c), inject(agents, drop).frames(c), dropped.ego_xy).gt_in_range
+    counted = in_range(agents.frames(c), dropped.ego_xy)
     print(f"collision at frame {c}: car 1 is {counted[:, slot].sum()} of {counted.sum()} counted object-frames; "
           f"NDS-t <= {nds_t_bound(counted, slot):.4f} (paper: 0.98)")
-    later = [nds_t_bound(nds(agents.frames(f), agents.frames(f), truth_rollout.ego_xy[:f]).gt_in_range, slot)
-             for f in range(c, scenario.num_frames + 1)]
+    on_truth = in_range(agents, truth_rollout.ego_xy)
+    later = [nds_t_bound(on_truth[:f], slot) for f in range(c, scenario.num_frames + 1)]
     print(f"a collision at any frame {c}..{scenario.num_frames} on the ground truth's ego path, car 1 >= 2 m off "
           f"throughout: NDS-t <= {max(later):.4f} (at frame {c + int(np.argmax(later))})")
 

@@ -138,6 +138,11 @@ _REC_INTERP = np.linspace(0.0, 1.0, NUM_POINTS)
 _TP_FIELDS = ("x", "y", "vx", "vy", "yaw", "width", "length", "height")
 
 
+def nds_score(mean_ap: float, tp_score: float) -> float:
+    """NDS from the mean AP and the TP metrics' summed scores (each 1 - min(1, error))."""
+    return (MEAN_AP_WEIGHT * mean_ap + tp_score) / (MEAN_AP_WEIGHT + len(TP_METRICS))
+
+
 def ap_bound(max_recall: float) -> float:
     """The largest AP `nds` can give when recall cannot pass `max_recall` (some truth no detection
     matches): precision at most 1 at the interpolation points up to it and 0 beyond, less the
@@ -223,9 +228,8 @@ def nds(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> NDSResult:
 
     mean_ap = float(np.mean([ap[th] for th in DIST_THRESHOLDS]))
     tp_score = sum(max(0.0, 1.0 - tp_errors[name]) for name in TP_METRICS)
-    score = (MEAN_AP_WEIGHT * mean_ap + tp_score) / (MEAN_AP_WEIGHT + len(TP_METRICS))
     return NDSResult(
-        nds=float(score),
+        nds=float(nds_score(mean_ap, tp_score)),
         mean_ap=mean_ap,
         ap=ap,
         tp_errors=tp_errors,

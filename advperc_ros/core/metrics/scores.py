@@ -36,6 +36,11 @@ class PerceptionScores:
         return asdict(self)
 
 
+def nds_t_score(nds: float, longest_drop: float) -> float:
+    """NDS-t: NDS and the share of its frames an agent is not missed in a row, weighed alike."""
+    return (nds + (1.0 - longest_drop)) / 2.0
+
+
 def longest_drop_fraction(missed: np.ndarray, counted: np.ndarray) -> float:
     """Max over agents of (longest run of consecutive misses) / (frames the agent counts).
 
@@ -88,7 +93,7 @@ def score(
     orientation_error = np.abs(errors.dyaw[matched])
     return PerceptionScores(
         nds=result.nds,
-        nds_t=(result.nds + (1.0 - ldf)) / 2.0,
+        nds_t=nds_t_score(result.nds, ldf),
         longest_drop_fraction=ldf,
         mean_ap=result.mean_ap,
         tp=tp,

@@ -76,6 +76,13 @@ MOVES = ("flip", "push_ahead", "push_behind", "push_left", "push_right", "shrink
 AXES = ((1, 0), (-1, 0), (0, 1), (0, -1))  # (along, beside) the car's heading of each push move, in order
 
 
+def displacement(yaw: np.ndarray, axis: int, distance: float) -> tuple[np.ndarray, np.ndarray]:
+    """(dx, dy) in the map of a car heading `yaw` shown `distance` along AXES[axis] of itself."""
+    along, side = np.array(AXES[axis], dtype=float) * distance
+    cos, sin = np.cos(yaw), np.sin(yaw)
+    return cos * along - sin * side, sin * along + cos * side
+
+
 def push(
     errors: PerceptionErrors, frames: int, rng: np.random.Generator, yaw: np.ndarray, axis: int
 ) -> PerceptionErrors | None:
@@ -88,12 +95,9 @@ def push(
     if rng.integers(2):
         a, b = np.sort(rng.integers(a, b + 1, size=2))
     distance = PUSHES[rng.integers(PUSHES.size)]
-    along, side = np.array(AXES[axis], dtype=float) * distance
     out = errors.copy()
     out.fn[a : b + 1, j] = False
-    cos, sin = np.cos(yaw[a : b + 1, j]), np.sin(yaw[a : b + 1, j])
-    out.dx[a : b + 1, j] = cos * along - sin * side
-    out.dy[a : b + 1, j] = sin * along + cos * side
+    out.dx[a : b + 1, j], out.dy[a : b + 1, j] = displacement(yaw[a : b + 1, j], axis, distance)
     out.dyaw[a : b + 1, j] = 0.0
     return out
 

@@ -2,17 +2,21 @@
 on 1 and 2 workers, resumable mid-batch, and the paper's method unchanged."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from advperc_ros.application import attack_to_folder, run_attack
+from advperc_ros.application import attack_to_folder, run_attack, search_config
 from advperc_ros.backend import Stack
 from advperc_ros.core.errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
-from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_still_fails, merge, pick_batch, push,
-                                            shown, wrongness)
-from advperc_ros.core.search.problem import Phase
+from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.search import guided
+from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_still_fails, merge, next_radius,
+                                            pick_batch, push, shown, wrongness)
+from advperc_ros.core.search.pipeline import run_search
+from advperc_ros.core.search.problem import AttackProblem, Phase
 from advperc_ros.exits import Interrupted
 from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario
@@ -208,3 +212,40 @@ def test_before_its_own_rollouts_the_model_prefers_a_moderate_step_and_they_outw
     w = fit_still_fails(np.full(bold, MOVES.index("push_right")), np.ones(bold), np.full((bold, 2), 0.5),
                         np.ones(bold, dtype=bool))
     assert chance(w)[-1] > 0.5
+
+
+def test_the_trust_region_halves_after_a_lost_round_and_doubles_after_a_gain():
+    assert next_radius(np.inf, improved=False, all_lost=True, boldest=0.08) == pytest.approx(0.04)
+    assert next_radius(0.04, improved=True, all_lost=False, boldest=0.03) == pytest.approx(0.08)
+    assert next_radius(0.04, improved=False, all_lost=False, boldest=0.03) == 0.04  # a collision that did not gain
+    assert next_radius(np.inf, improved=True, all_lost=False, boldest=0.5) == np.inf
+
+
+def _narrow_boundary_search(scenario, params, slack):
+    """A guided search against a planner that collides only while car 0 stays shown nearly as wrong
+    as its whole-track drop (wrongness summed over the scenario at least its frames - `slack`): a
+    failure boundary close to the heuristic's attack, as obp_right_turn's. The real ground truth."""
+    truth = Stack(scenario, params).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    frames = scenario.agents.shape[0]
+
+    def rollout(errors):
+        collides = wrongness(errors)[:, 0].sum() >= frames - slack
+        distances = truth.distances - (truth.distances.min() + 0.5 if collides else 0.0)
+        return RolloutResult(ego=truth.ego, distances=distances)
+
+    problem = AttackProblem(scenario, rollout, params.objective)
+    config = replace(search_config(params), method="guided", budget=40)
+    run_search(problem, config)
+    return problem
+
+
+def test_after_rounds_that_lose_every_collision_the_steps_shrink_until_one_keeps_it(lane_following, monkeypatch):
+    """Against a failure boundary close to the heuristic's attack the guided search still gains,
+    by halving its steps; with a trust region that never shrinks it does not."""
+    scenario, params = lane_following
+    problem = _narrow_boundary_search(scenario, params, slack=1.0)
+    heuristic = max(row.metric for row in problem.log if row.collided and row.phase.heuristic)
+    assert problem.best.metric > heuristic + 0.1
+    monkeypatch.setattr(guided, "RADIUS_SHRINK", 1.0)
+    unshrunk = _narrow_boundary_search(scenario, params, slack=1.0)
+    assert unshrunk.best.metric < problem.best.metric - 0.02  # measured: 0.54 against 0.60

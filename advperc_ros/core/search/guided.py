@@ -13,7 +13,10 @@ car furthest for that cost: sideways out of a corridor, or ahead or behind so th
 arrive earlier or later); and two moves towards zero along the boundary: shrinking the offsets of
 a segment, and perceiving the edge frames of an attacked run perfectly again. Each push axis is a
 move of its own, so the model learns which way this planner's decision turns. When two rollouts
-of a round collide, the next round also tries the best with the other's change merged in. A
+of a round collide, the next round also tries the best with the other's change merged in. A trust
+region bounds the gain a round may try: halved after a round that lost every collision, doubled
+after one that raised the best, so where the failure boundary hugs the best attack the steps come
+down to the few that keep it, as the paper's uniform proposals sometimes do by chance. A
 round's rollouts are independent, so a backend may run them at once; the batch size is a param,
 so the attack does not depend on how many workers ran it.
 """
@@ -222,6 +225,23 @@ def pick_batch(gain: np.ndarray, chance: np.ndarray, size: int) -> list[int]:
     return chosen
 
 
+# the trust region of a round's gains: after a round that lost every collision the next may try at
+# most SHRINK x its boldest gain; after a round that raised the best, GROW x the last limit. Where
+# this planner's failure boundary lies close to the best attack (obp_right_turn: every step the
+# model rated best revealed car 1 too long), the steps halve down to the few frames it lets through
+RADIUS_SHRINK, RADIUS_GROW = 0.5, 2.0
+
+
+def next_radius(radius: float, improved: bool, all_lost: bool, boldest: float) -> float:
+    """The largest gain the next round may try, after a round whose boldest candidate gained
+    `boldest`: it `improved` the best, or `all_lost` (every conclusive rollout lost the collision)."""
+    if improved:
+        return RADIUS_GROW * radius
+    if all_lost:
+        return RADIUS_SHRINK * boldest
+    return radius
+
+
 def guided_search(
     problem: AttackProblem, rng: np.random.Generator, cfg: GuidedConfig, budget: int, refine_iterations: int = 0
 ) -> Evaluation:
@@ -241,6 +261,7 @@ def guided_search(
     grandparent = None  # the parent of the last round
     yaw = problem.scenario.agents.yaw
     refined = refine_iterations == 0
+    radius = np.inf  # the largest gain a round may try (`next_radius`)
     while len(problem.log) < budget:
         if not refined and budget - len(problem.log) <= 2 * refine_iterations <= len(moves):
             refined = True
@@ -273,11 +294,17 @@ def guided_search(
         w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(shows).reshape(-1, 2),
                             np.array(failed, dtype=bool))
         chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen) @ w))
-        chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)))
+        eligible = np.flatnonzero(gain <= max(radius, gain.min()))
+        picked = pick_batch(gain[eligible], chance[eligible], min(cfg.batch, budget - len(problem.log)))
+        chosen = [int(eligible[i]) for i in picked]
         batch = [scored[i][2] for i in chosen]
         tried.update(_key(c) for c in batch)
         trials = problem.evaluate_many([(c, Phase.GUIDED, -1) for c in batch])
         grandparent = parent.errors
+        conclusive = [trial for trial in trials if not trial.rollout.inconclusive]
+        radius = next_radius(radius, problem.best is not parent,
+                             bool(conclusive) and not any(trial.adversarial for trial in conclusive),
+                             float(gain[chosen].max()))
         siblings = [trial.errors for trial in trials if trial.adversarial and trial is not problem.best]
         for i, trial in zip(chosen, trials):
             if not trial.rollout.inconclusive:

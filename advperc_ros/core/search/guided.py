@@ -14,10 +14,10 @@ arrive earlier or later); and two moves towards zero along the boundary: shrinki
 a segment, and perceiving the edge frames of an attacked run perfectly again. Each push axis is a
 move of its own, so the model learns which way this planner's decision turns. When two rollouts
 of a round collide, the next round also tries the best with the other's change merged in. A trust
-region bounds the gain a round may try: halved after a round that lost every collision, doubled
-after one that raised the best, so where the failure boundary hugs the best attack the steps come
-down to the few that keep it, as the paper's uniform proposals sometimes do by chance. A
-round's rollouts are independent, so a backend may run them at once; the batch size is a param,
+region bounds the gain of a batch's second candidate: halved after a round that lost every
+collision, doubled after one that raised the best, so where the failure boundary hugs the best
+attack the steps come down to the few that keep it (as the paper's uniform proposals sometimes do
+by chance), while the first candidate stays the model's choice. A round's rollouts are independent, so a backend may run them at once; the batch size is a param,
 so the attack does not depend on how many workers ran it.
 """
 
@@ -205,17 +205,20 @@ def fit_still_fails(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray, fail
     return w
 
 
-def pick_batch(gain: np.ndarray, chance: np.ndarray, size: int) -> list[int]:
+def pick_batch(gain: np.ndarray, chance: np.ndarray, size: int, within: np.ndarray | None = None) -> list[int]:
     """Greedily, the candidates that most raise the expected best gain of the batch, each collision
     taken as independent: the first is the largest gain x chance, the next ones pay where the chosen
-    ones fail (a safer candidate beside a bold one)."""
+    ones fail (a safer candidate beside a bold one), and come from the candidates `within` the trust
+    region while any of those are left (all: None)."""
     chosen: list[int] = []
     for _ in range(size):
+        allowed = np.ones(gain.size, dtype=bool)
+        allowed[chosen] = False
+        if chosen and within is not None and (within & allowed).any():
+            allowed &= within
         value = np.full(gain.size, -np.inf)
-        for i in range(gain.size):
-            if i in chosen:
-                continue
-            batch = sorted(chosen + [i], key=lambda k: -gain[k])
+        for i in np.flatnonzero(allowed):
+            batch = sorted(chosen + [int(i)], key=lambda k: -gain[k])
             miss, total = 1.0, 0.0
             for k in batch:  # the best gain realised is the largest among those that collide
                 total += miss * chance[k] * gain[k]
@@ -225,20 +228,22 @@ def pick_batch(gain: np.ndarray, chance: np.ndarray, size: int) -> list[int]:
     return chosen
 
 
-# the trust region of a round's gains: after a round that lost every collision the next may try at
-# most SHRINK x its boldest gain; after a round that raised the best, GROW x the last limit. Where
-# this planner's failure boundary lies close to the best attack (obp_right_turn: every step the
-# model rated best revealed car 1 too long), the steps halve down to the few frames it lets through
+# the trust region of a round's gains: after a round that lost every collision the batch's second
+# candidate may gain at most RADIUS_SHRINK x the smaller of the last limit and that round's boldest
+# gain; after a round that raised the best, RADIUS_GROW x the last limit. Where this planner's
+# failure boundary hugs the best attack (obp_right_turn under nds: every step the model rated best
+# revealed car 1 for too long), the second candidate's steps halve down to the few that keep the
+# collision, while the first stays the model's choice (IDM lets bold pushes through after failures)
 RADIUS_SHRINK, RADIUS_GROW = 0.5, 2.0
 
 
 def next_radius(radius: float, improved: bool, all_lost: bool, boldest: float) -> float:
-    """The largest gain the next round may try, after a round whose boldest candidate gained
+    """The trust region's radius for the next round, after a round whose boldest candidate gained
     `boldest`: it `improved` the best, or `all_lost` (every conclusive rollout lost the collision)."""
     if improved:
         return RADIUS_GROW * radius
     if all_lost:
-        return RADIUS_SHRINK * boldest
+        return RADIUS_SHRINK * min(radius, boldest)
     return radius
 
 
@@ -261,7 +266,7 @@ def guided_search(
     grandparent = None  # the parent of the last round
     yaw = problem.scenario.agents.yaw
     refined = refine_iterations == 0
-    radius = np.inf  # the largest gain a round may try (`next_radius`)
+    radius = np.inf  # the largest gain the batch's second candidate may try (`next_radius`)
     while len(problem.log) < budget:
         if not refined and budget - len(problem.log) <= 2 * refine_iterations <= len(moves):
             refined = True
@@ -294,9 +299,7 @@ def guided_search(
         w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(shows).reshape(-1, 2),
                             np.array(failed, dtype=bool))
         chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen) @ w))
-        eligible = np.flatnonzero(gain <= max(radius, gain.min()))
-        picked = pick_batch(gain[eligible], chance[eligible], min(cfg.batch, budget - len(problem.log)))
-        chosen = [int(eligible[i]) for i in picked]
+        chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)), gain <= max(radius, gain.min()))
         batch = [scored[i][2] for i in chosen]
         tried.update(_key(c) for c in batch)
         trials = problem.evaluate_many([(c, Phase.GUIDED, -1) for c in batch])

@@ -17,8 +17,9 @@ of a round collide, the next round also tries the best with the other's change m
 region bounds the gain of a batch's second candidate: halved after a round that lost every
 collision, doubled after one that raised the best, so where the failure boundary hugs the best
 attack the steps come down to the few that keep it (as the paper's uniform proposals sometimes do
-by chance), while the first candidate stays the model's choice. A round's rollouts are independent, so a backend may run them at once; the batch size is a param,
-so the attack does not depend on how many workers ran it.
+by chance), while the first candidate stays the model's choice. A round's rollouts are
+independent, so a backend may run them at once; the batch size is a param, so the attack does not
+depend on how many workers ran it.
 """
 
 from dataclasses import dataclass

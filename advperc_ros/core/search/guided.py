@@ -268,6 +268,7 @@ def guided_search(
     yaw = problem.scenario.agents.yaw
     refined = refine_iterations == 0
     radius = np.inf  # the largest gain the batch's second candidate may try (`next_radius`)
+    slips: list[float] = []  # of every colliding guided rollout: how far its metric is from its score
     while len(problem.log) < budget:
         if not refined and budget - len(problem.log) <= 2 * refine_iterations <= len(moves):
             refined = True
@@ -300,7 +301,9 @@ def guided_search(
         w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(shows).reshape(-1, 2),
                             np.array(failed, dtype=bool))
         chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen) @ w))
-        chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)), gain <= max(radius, gain.min()))
+        low = min(float(np.median(slips)) if slips else 0.0, gain.max())  # the noise floor, at most the largest gain
+        within = (gain >= low) & (gain <= max(radius, low, gain.min()))
+        chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)), within)
         batch = [scored[i][2] for i in chosen]
         tried.update(_key(c) for c in batch)
         trials = problem.evaluate_many([(c, Phase.GUIDED, -1) for c in batch])
@@ -311,6 +314,8 @@ def guided_search(
                              float(gain[chosen].max()))
         siblings = [trial.errors for trial in trials if trial.adversarial and trial is not problem.best]
         for i, trial in zip(chosen, trials):
+            if trial.adversarial:
+                slips.append(abs(parent.metric + gain[i] - trial.metric))
             if not trial.rollout.inconclusive:
                 moves.append(int(move[i]))
                 gains.append(float(relative[i]))

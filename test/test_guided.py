@@ -14,7 +14,7 @@ from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.search import guided
 from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_still_fails, merge, next_radius,
-                                            pick_batch, push, shown, wrongness)
+                                            pick_batch, push, shown, trust_region, wrongness)
 from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, Phase
 from advperc_ros.exits import Interrupted
@@ -259,3 +259,15 @@ def test_a_batchs_second_candidate_comes_from_within_the_trust_region():
     assert pick_batch(gain, chance, 2) == [0, 1]  # unbounded: the second bold one pays more
     assert pick_batch(gain, chance, 2, within=gain <= 0.5) == [0, 2]  # the first stays the model's choice
     assert pick_batch(gain, chance, 3, within=gain <= 0.2) == [0, 3, 1]  # none left within: any
+
+
+def test_the_trust_region_keeps_the_second_pick_between_the_noise_floor_and_the_radius():
+    gain = np.array([0.0005, 0.002, 0.01, 0.04, 0.2])
+    assert trust_region(gain, np.inf, []).all()  # unbounded at first
+    assert trust_region(gain, 0.02, []).tolist() == [True, True, True, False, False]
+    assert trust_region(gain, 0.0001, []).tolist() == [True, False, False, False, False]  # at least the smallest
+    # colliding rollouts landed 0.001-0.003 from their scores: steps below that median are noise
+    assert trust_region(gain, 0.02, [0.001, 0.002, 0.003]).tolist() == [False, True, True, False, False]
+    # a radius below the floor: the floor's own band (none here: any candidate, by pick_batch's rule)
+    assert not trust_region(gain, 0.001, [0.005]).any()
+    assert trust_region(gain, np.inf, [0.5]).tolist() == [False, False, False, False, True]  # at most the largest

@@ -17,7 +17,8 @@ of a round collide, the next round also tries the best with the other's change m
 region bounds the gain of a batch's second candidate: halved after a round that lost every
 collision, doubled after one that raised the best, so where the failure boundary hugs the best
 attack the steps come down to the few that keep it (as the paper's uniform proposals sometimes do
-by chance), while the first candidate stays the model's choice. A round's rollouts are
+by chance), but not below what re-rolling alone changes a metric by; the first candidate stays the
+model's choice. A round's rollouts are
 independent, so a backend may run them at once; the batch size is a param, so the attack does not
 depend on how many workers ran it.
 """
@@ -248,6 +249,15 @@ def next_radius(radius: float, improved: bool, all_lost: bool, boldest: float) -
     return radius
 
 
+def trust_region(gain: np.ndarray, radius: float, slips: list[float]) -> np.ndarray:
+    """Which candidates the batch's second pick may be: a gain up to the radius (at least the
+    smallest gain), and at least the noise floor, the median of `slips` (how far the metrics of this
+    search's colliding rollouts landed from their scores on their parents' rollouts), for a smaller
+    step cannot be told from what re-rolling alone changes (at most the largest gain)."""
+    low = min(float(np.median(slips)) if slips else 0.0, gain.max())
+    return (gain >= low) & (gain <= max(radius, low, gain.min()))
+
+
 def guided_search(
     problem: AttackProblem, rng: np.random.Generator, cfg: GuidedConfig, budget: int, refine_iterations: int = 0
 ) -> Evaluation:
@@ -301,8 +311,7 @@ def guided_search(
         w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(shows).reshape(-1, 2),
                             np.array(failed, dtype=bool))
         chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen) @ w))
-        low = min(float(np.median(slips)) if slips else 0.0, gain.max())  # the noise floor, at most the largest gain
-        within = (gain >= low) & (gain <= max(radius, low, gain.min()))
+        within = trust_region(gain, radius, slips)
         chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)), within)
         batch = [scored[i][2] for i in chosen]
         tried.update(_key(c) for c in batch)

@@ -18,9 +18,8 @@ region bounds the gain of a batch's second candidate: halved after a round that 
 collision, doubled after one that raised the best, so where the failure boundary hugs the best
 attack the steps come down to the few that keep it (as the paper's uniform proposals sometimes do
 by chance), but not below what re-rolling alone changes a metric by; the first candidate stays the
-model's choice. A round's rollouts are
-independent, so a backend may run them at once; the batch size is a param, so the attack does not
-depend on how many workers ran it.
+model's choice. A round's rollouts are independent, so a backend may run them at once; the batch
+size is a param, so the attack does not depend on how many workers ran it.
 """
 
 from dataclasses import dataclass

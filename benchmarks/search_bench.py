@@ -159,7 +159,9 @@ def main() -> None:
     rows = load(args.results)
     if rows:
         table(rows)
-        plot([r for r in rows if r["objective"] == "nds_t"], args.plot)
+        curves = [r for r in rows if r["objective"] == "nds_t"]
+        if curves:  # the plot is of nds_t searches only
+            plot(curves, args.plot)
     if args.workers_scenario:
         workers_ratio(args.workers_scenario, "nds_t", args.workers_budget, args.workers_repeats)
 

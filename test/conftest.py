@@ -80,3 +80,17 @@ def fresh_domain(monkeypatch) -> int:
 def ros_domain(fresh_domain) -> int:
     need_ros()
     return fresh_domain
+
+
+# The suite runs on `pytest -n auto --dist loadgroup` (README), one xdist group a module, so that its module- and
+# session-scoped fixtures (an attack run once and read by many tests) are built on one worker only; every test
+# that puts traffic on DDS is in one group, run one after another on one worker, so the per-module domain ids
+# above never meet a test of another worker's at the same time.
+DDS_MODULES = {"test_dds", "test_graph", "test_ros2", "test_orchestrator_node"}
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        module = item.module.__name__.rpartition(".")[2]
+        dds = module in DDS_MODULES or "fresh_domain" in item.fixturenames
+        item.add_marker(pytest.mark.xdist_group("dds" if dds else module))

@@ -202,7 +202,7 @@ def test_broadcast_one_box_against_many_and_empty():
     assert signed_box_distance(np.zeros((0, 4, 2)), np.zeros((0, 4, 2))).shape == (0,)
 
 
-def _separation_along(a_poly, b_corners, directions, t_hi, iterations=42):
+def _separation_along(a_poly, b_corners, directions, t_hi, iterations=32):
     """Per direction, the smallest translation of b along it after which a and b no longer intersect.
 
     For convex a and b the translations that keep them intersecting form an interval containing 0,
@@ -219,8 +219,9 @@ def _separation_along(a_poly, b_corners, directions, t_hi, iterations=42):
 
 
 def _sweep_directions(a, b):
-    """A fine sweep of directions, plus the edge normals of both boxes so the optimum is in the set."""
-    theta = np.linspace(0.0, 2 * np.pi, 3600, endpoint=False)
+    """A sweep of directions every half degree, plus the edge normals of both boxes, among which the
+    optimum of two convex polygons lies (the separating axis theorem), so it is in the set."""
+    theta = np.linspace(0.0, 2 * np.pi, 720, endpoint=False)
     edges = np.concatenate([np.roll(a, -1, axis=0) - a, np.roll(b, -1, axis=0) - b])
     normal_angles = np.arctan2(edges[:, 0], -edges[:, 1])
     theta = np.concatenate([theta, normal_angles, normal_angles + np.pi])

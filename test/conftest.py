@@ -89,6 +89,7 @@ def ros_domain(fresh_domain) -> int:
 DDS_MODULES = {"test_dds", "test_graph", "test_ros2", "test_orchestrator_node"}
 
 
+@pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the marks into the groups
 def pytest_collection_modifyitems(items):
     for item in items:
         module = item.module.__name__.rpartition(".")[2]

@@ -89,15 +89,15 @@ def ros_domain(fresh_domain) -> int:
 DDS_MODULES = {"test_dds", "test_graph", "test_ros2", "test_orchestrator_node"}
 
 
-def _talks_dds(item) -> bool:
-    return item.module.__name__.rpartition(".")[2] in DDS_MODULES or "fresh_domain" in item.fixturenames
+def _xdist_group(item) -> str:
+    module = item.module.__name__.rpartition(".")[2]
+    return "dds" if module in DDS_MODULES or "fresh_domain" in item.fixturenames else module
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the marks into the groups
 def pytest_collection_modifyitems(items):
     """Groups as above, the DDS group first: the longest (a third of the suite with ROS 2 sourced), it
     would otherwise start in the middle of the run and end long after the other workers."""
-    items.sort(key=lambda item: not _talks_dds(item))  # stable: each group keeps its order
+    items.sort(key=lambda item: _xdist_group(item) != "dds")  # stable: each group keeps its order
     for item in items:
-        module = item.module.__name__.rpartition(".")[2]
-        item.add_marker(pytest.mark.xdist_group("dds" if _talks_dds(item) else module))
+        item.add_marker(pytest.mark.xdist_group(_xdist_group(item)))

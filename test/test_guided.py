@@ -268,6 +268,8 @@ def test_the_trust_region_keeps_the_second_pick_between_the_noise_floor_and_the_
     assert trust_region(gain, 0.0001, []).tolist() == [True, False, False, False, False]  # at least the smallest
     # colliding rollouts landed 0.001-0.003 from their scores: steps below that median are noise
     assert trust_region(gain, 0.02, [0.001, 0.002, 0.003]).tolist() == [False, True, True, False, False]
-    # a radius below the floor: the floor's own band (none here: any candidate, by pick_batch's rule)
-    assert not trust_region(gain, 0.001, [0.005]).any()
+    # a radius halved below the floor: the smallest step above the floor, not any candidate (pick_batch's
+    # rule for an empty region), which would leave the second pick as bold as the first from then on
+    assert trust_region(gain, 0.001, [0.005]).tolist() == [False, False, True, False, False]
+    assert trust_region(gain, 0.005, [0.003]).tolist() == [False, False, True, False, False]  # none between: the nearest
     assert trust_region(gain, np.inf, [0.5]).tolist() == [False, False, False, False, True]  # at most the largest

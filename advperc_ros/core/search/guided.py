@@ -249,12 +249,14 @@ def next_radius(radius: float, improved: bool, all_lost: bool, boldest: float) -
 
 
 def trust_region(gain: np.ndarray, radius: float, slips: list[float]) -> np.ndarray:
-    """Which candidates the batch's second pick may be: a gain up to the radius (at least the
-    smallest gain), and at least the noise floor, the median of `slips` (how far the metrics of this
-    search's colliding rollouts landed from their scores on their parents' rollouts), for a smaller
-    step cannot be told from what re-rolling alone changes (at most the largest gain)."""
+    """Which candidates the batch's second pick may be: a gain at least the noise floor, the median
+    of `slips` (how far the metrics of this search's colliding rollouts landed from their scores on
+    their parents' rollouts), for a smaller step cannot be told from what re-rolling alone changes
+    (at most the largest gain), and up to the radius; when no candidate lies between the two, the
+    smallest step above the floor (a radius halved below the floor would otherwise leave the second
+    pick unbounded for the rest of the search, as bold as the first)."""
     low = min(float(np.median(slips)) if slips else 0.0, gain.max())
-    return (gain >= low) & (gain <= max(radius, low, gain.min()))
+    return (gain >= low) & (gain <= max(radius, gain[gain >= low].min()))
 
 
 def guided_search(

@@ -40,7 +40,7 @@ sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ro
 
 from advperc_ros.backend import Stack  # noqa: E402
 from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
-from advperc_ros.core.search.guided import AXES, PUSHES, displacement  # noqa: E402
+from advperc_ros.core.search.guided import AXES, PUSHES, displacement, merge  # noqa: E402
 from advperc_ros.core.search.problem import AttackProblem, Phase  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
@@ -77,13 +77,12 @@ def sample(agents, slot: int, collision: int, rng: np.random.Generator) -> tuple
 
 
 def redraw(errors: PerceptionErrors, agents, slot: int, collision: int, rng: np.random.Generator) -> PerceptionErrors:
-    """`errors` with one window of car `slot` drawn again by `sample` (the frames outside it kept)."""
+    """`errors` with one window of car `slot` drawn again by `sample` (the frames outside it kept):
+    the guided search's merge of what the window changes in perfect perception (a one-frame lag changes
+    nothing: `errors` as they are)."""
     _, window = sample(agents, slot, collision, rng)
-    frames = np.flatnonzero(window.fn[:, slot] | (window.dx[:, slot] != 0) | (window.dy[:, slot] != 0))
-    out = errors.copy()
-    for name in ("fn", "dx", "dy", "dyaw"):
-        getattr(out, name)[frames, slot] = getattr(window, name)[frames, slot]
-    return out
+    merged = merge(errors, window, PerceptionErrors.none(*agents.shape))
+    return errors.copy() if merged is None else merged
 
 
 def descend(problem: AttackProblem, start, agents, slot: int, collision: int, rng: np.random.Generator,

@@ -214,12 +214,22 @@ def test_before_its_own_rollouts_the_model_prefers_a_moderate_step_and_they_outw
     assert chance(w)[-1] > 0.5
 
 
-def test_the_trust_region_halves_after_a_lost_round_and_doubles_after_a_gain():
-    assert next_radius(np.inf, improved=False, all_lost=True, boldest=0.08) == pytest.approx(0.04)
+def test_the_trust_region_shrinks_after_a_lost_round_and_doubles_after_a_gain():
+    shrunk = 0.08 / np.sqrt(2)
+    assert next_radius(np.inf, improved=False, all_lost=True, boldest=0.08) == pytest.approx(shrunk)
     assert next_radius(0.04, improved=True, all_lost=False, boldest=0.03) == pytest.approx(0.08)
     assert next_radius(0.04, improved=False, all_lost=False, boldest=0.03) == 0.04  # a collision that did not gain
-    assert next_radius(0.04, improved=False, all_lost=True, boldest=0.9) == pytest.approx(0.02)  # a bold first pick
+    assert next_radius(0.04, improved=False, all_lost=True, boldest=0.9) == pytest.approx(0.04 / np.sqrt(2))  # a bold first pick
     assert next_radius(np.inf, improved=True, all_lost=False, boldest=0.5) == np.inf
+
+
+def test_one_gain_undoes_two_lost_rounds():
+    """The radius holds where a third of the rounds gain (as an evolution strategy's success rule
+    holds its step where a fifth do): halved after every loss it held only where half did."""
+    radius = 0.04
+    for _ in range(2):
+        radius = next_radius(radius, improved=False, all_lost=True, boldest=1.0)
+    assert next_radius(radius, improved=True, all_lost=False, boldest=1.0) == pytest.approx(0.04)
 
 
 def _narrow_boundary_search(scenario, params, slack):
@@ -235,19 +245,21 @@ def _narrow_boundary_search(scenario, params, slack):
         return RolloutResult(ego=truth.ego, distances=distances)
 
     problem = AttackProblem(scenario, rollout, params.objective)
-    config = replace(search_config(params), method="guided", budget=40)
+    config = replace(search_config(params), method="guided", budget=40)  # at 60 even unbounded steps gain here
     run_search(problem, config)
     return problem
 
 
 def test_after_rounds_that_lose_every_collision_the_steps_shrink_until_one_keeps_it(lane_following, monkeypatch):
     """Against a failure boundary close to the heuristic's attack the guided search still gains, by
-    halving its second candidate's steps; without a trust region it never leaves the heuristic's
+    shrinking its second candidate's steps; without a trust region it never leaves the heuristic's
     attack (as on obp_right_turn under nds, before it had one)."""
     scenario, params = lane_following
     problem = _narrow_boundary_search(scenario, params, slack=1.0)
     heuristic = max(row.metric for row in problem.log if row.collided and row.phase.heuristic)
-    assert problem.best.metric > heuristic + 0.1  # measured: 0.599 against 0.364
+    # measured: 0.400 against 0.364; 0.599 when halved after every lost round, which reaches the small
+    # steps this sharp boundary needs in fewer rounds (but on obp_right_turn sank below what gains)
+    assert problem.best.metric > heuristic + 0.02
     monkeypatch.setattr(guided, "RADIUS_SHRINK", np.inf)
     unbounded = _narrow_boundary_search(scenario, params, slack=1.0)
     assert unbounded.best.metric == heuristic
@@ -268,7 +280,7 @@ def test_the_trust_region_keeps_the_second_pick_between_the_noise_floor_and_the_
     assert trust_region(gain, 0.0001, []).tolist() == [True, False, False, False, False]  # at least the smallest
     # colliding rollouts landed 0.001-0.003 from their scores: steps below that median are noise
     assert trust_region(gain, 0.02, [0.001, 0.002, 0.003]).tolist() == [False, True, True, False, False]
-    # a radius halved below the floor: the smallest step above the floor, not any candidate (pick_batch's
+    # a radius shrunk below the floor: the smallest step above the floor, not any candidate (pick_batch's
     # rule for an empty region), which would leave the second pick as bold as the first from then on
     assert trust_region(gain, 0.001, [0.005]).tolist() == [False, False, True, False, False]
     assert trust_region(gain, 0.005, [0.003]).tolist() == [False, False, True, False, False]  # none between: the nearest

@@ -14,9 +14,10 @@ arrive earlier or later); and two moves towards zero along the boundary: shrinki
 a segment, and perceiving the edge frames of an attacked run perfectly again. Each push axis is a
 move of its own, so the model learns which way this planner's decision turns. When two rollouts
 of a round collide, the next round also tries the best with the other's change merged in. A trust
-region bounds the gain of a batch's second candidate: halved after a round that lost every
-collision, doubled after one that raised the best, so where the failure boundary hugs the best
-attack the steps come down to the few that keep it (as the paper's uniform proposals sometimes do
+region bounds the gain of a batch's second candidate: shrunk by 1/sqrt(2) after a round that lost
+every collision, doubled after one that raised the best (so it holds where a third of the steps
+keep the collision), so where the failure boundary hugs the best attack the steps come down to the
+few that keep it (as the paper's uniform proposals sometimes do
 by chance), but not below what re-rolling alone changes a metric by; the first candidate stays the
 model's choice. A round's rollouts are independent, so a backend may run them at once; the batch
 size is a param, so the attack does not depend on how many workers ran it.
@@ -233,9 +234,13 @@ def pick_batch(gain: np.ndarray, chance: np.ndarray, size: int, within: np.ndarr
 # candidate may gain at most RADIUS_SHRINK x the smaller of the last limit and that round's boldest
 # gain; after a round that raised the best, RADIUS_GROW x the last limit. Where this planner's
 # failure boundary hugs the best attack (obp_right_turn under nds: every step the model rated best
-# revealed car 1 for too long), the second candidate's steps halve down to the few that keep the
-# collision, while the first stays the model's choice (IDM lets bold pushes through after failures)
-RADIUS_SHRINK, RADIUS_GROW = 0.5, 2.0
+# revealed car 1 for too long), the second candidate's steps come down to the few that keep the
+# collision, while the first stays the model's choice (IDM lets bold pushes through after failures).
+# One gain undoes two losses, so the radius holds where a third of the second candidates keep the
+# collision (a one-fifth success rule, as evolution strategies adapt their step, at a third): halved
+# after every loss it held only where half did, and where a quarter of the small steps kept it
+# (obp_right_turn) it sank to steps that gain nothing
+RADIUS_SHRINK, RADIUS_GROW = 2.0**-0.5, 2.0
 
 
 def next_radius(radius: float, improved: bool, all_lost: bool, boldest: float) -> float:
@@ -253,7 +258,7 @@ def trust_region(gain: np.ndarray, radius: float, slips: list[float]) -> np.ndar
     of `slips` (how far the metrics of this search's colliding rollouts landed from their scores on
     their parents' rollouts), for a smaller step cannot be told from what re-rolling alone changes
     (at most the largest gain), and up to the radius; when no candidate lies between the two, the
-    smallest step above the floor (a radius halved below the floor would otherwise leave the second
+    smallest step above the floor (a radius shrunk below the floor would otherwise leave the second
     pick unbounded for the rest of the search, as bold as the first)."""
     low = min(float(np.median(slips)) if slips else 0.0, gain.max())
     return (gain >= low) & (gain <= max(radius, gain[gain >= low].min()))

@@ -38,12 +38,15 @@ def test_params_source_is_the_last_params_file_that_set_the_bag(tmp_path):
 
 
 def test_node_runs_an_attack_from_a_params_file(tmp_path, repo, ros_domain):
+    """Over rclpy, with nested parameters overridden by their dotted names, as the README says."""
     document = yaml.safe_load((repo / "config" / "idm_lane_following.yaml").read_text())
-    params = document["orchestrator"]["ros__parameters"]
-    params["bag"] = str(repo / "bags" / "idm_lane_following")
-    params["search"]["random"].update(steps=4, proposals=20)
+    document["orchestrator"]["ros__parameters"]["bag"] = str(repo / "bags" / "idm_lane_following")
     path = tmp_path / "params.yaml"
     path.write_text(yaml.safe_dump(document))
     output = tmp_path / "out"
-    assert main(["--ros-args", "--params-file", str(path), "-p", f"output:={output}"]) == 0
-    assert json.loads((output / "report.json").read_text())["collision"] is True
+    overrides = ["-p", "search.random.steps:=4", "-p", "search.random.proposals:=20", "-p", "search.refine.iterations:=0"]
+    assert main(["--ros-args", "--params-file", str(path), "-p", f"output:={output}", *overrides]) == 0
+    report = json.loads((output / "report.json").read_text())
+    assert report["collision"] is True
+    chosen = report["params"]  # dotted names, as the node takes them
+    assert (chosen["search.random.steps"], chosen["search.random.proposals"], chosen["search.refine.iterations"]) == (4, 20, 0)

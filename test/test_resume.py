@@ -45,24 +45,36 @@ def uninterrupted(tmp_path_factory):
     return params, _report(base / "whole")
 
 
-def test_sigkill_at_ten_random_moments_then_resume_gives_the_uninterrupted_report(uninterrupted, tmp_path):
+def _kept_rollouts(output: Path) -> int:
+    """Whole lines of the checkpoint: the rollouts a resume will not run again."""
+    rollouts = checkpoint_folder(output) / "rollouts.jsonl"
+    return rollouts.read_text().count("\n") if rollouts.exists() else 0
+
+
+def test_sigkill_ten_times_over_one_attack_then_resume_gives_the_uninterrupted_report(uninterrupted, tmp_path):
+    """Killed at a random moment after each start, the first run's and then every resumed run's: no
+    kill loses a checkpointed rollout, and the resume after the last one writes the uninterrupted report."""
     params, expected = uninterrupted
-    moments = random.Random(12).sample([0.8 + 0.35 * i for i in range(24)], 10)  # seconds into the run
+    output = tmp_path / "run"
+    moments = random.Random(12).sample([1.0 + 0.25 * i for i in range(20)], 10)  # seconds after each start
+    kept = 0
     for n, moment in enumerate(moments):
-        output = tmp_path / f"run{n}"
-        run = _attack(params, "--output", str(output))
+        run = _attack(params, *(("--resume", str(output)) if n else ("--output", str(output))))
         time.sleep(moment)
         run.send_signal(signal.SIGKILL)
         run.wait(timeout=60)
-        if output.exists():  # it finished before the kill: nothing to resume
-            assert _report(output) == expected
-            continue
+        if output.exists():  # it finished before this kill
+            break
+        assert _kept_rollouts(output) >= kept, f"kill {n + 1}, {moment:.2f} s after its start, lost rollouts"
+        kept = _kept_rollouts(output)
+    else:
         resumed = _attack(params, "--resume", str(output))
         _, err = resumed.communicate(timeout=600)
         assert resumed.returncode == 0, err
-        assert _report(output) == expected, f"killed at {moment:.2f} s"
-        assert not checkpoint_folder(output).exists()
-        assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(f".{output.name}.")]  # no debris
+    assert kept > 0  # the kills landed inside the search, not all before its first rollout
+    assert _report(output) == expected
+    assert not checkpoint_folder(output).exists()
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(f".{output.name}.")]  # no debris
 
 
 def test_ctrl_c_is_one_line_exit_130_and_the_attack_can_be_finished(uninterrupted, tmp_path):

@@ -16,6 +16,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -237,22 +238,36 @@ def test_a_mixed_graph_gives_the_embedded_report(tmp_path, fresh_domain, over_rc
         for spec in SPECS:
             rest = (["--ros-args", "--params-file", str(ros_params)] if spec.name in over_rclpy
                     else ["--params-file", str(params_file), "--exit-with-parent"])
-            nodes.append(subprocess.Popen([sys.executable, "-m", f"advperc_ros.nodes.{spec.name}", *rest],
-                                          stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True))
+            # stderr into a file, which never fills as an unread pipe would; faulthandler: a hung node's stacks
+            with (tmp_path / f"{spec.name}.log").open("w") as log:
+                nodes.append(subprocess.Popen([sys.executable, "-X", "faulthandler", "-m", f"advperc_ros.nodes.{spec.name}",
+                                               *rest], stdout=subprocess.DEVNULL, stderr=log))
         graph = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params_file), "--output",
                                 str(tmp_path / "graph"), "--quiet"], capture_output=True, text=True, timeout=TIMEOUT)
         assert graph.returncode == 0, graph.stderr
     finally:
-        for node in nodes:
-            node.send_signal(2)
-        for node in nodes:
-            node.wait(timeout=30)
+        _stop(nodes, tmp_path)
     embedded = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params_file), "--backend",
                                "embedded", "--output", str(tmp_path / "embedded"), "--quiet"],
                               capture_output=True, text=True, timeout=TIMEOUT)
     assert embedded.returncode == 0, embedded.stderr
     assert _report(tmp_path / "graph") == _report(tmp_path / "embedded")
-    assert all(node.returncode == 0 for node in nodes), [node.stderr.read()[-500:] for node in nodes]
+    assert all(node.returncode == 0 for node in nodes), [(spec.name, (tmp_path / f"{spec.name}.log").read_text()[-500:])
+                                                         for spec, node in zip(SPECS, nodes) if node.returncode]
+
+
+def _stop(nodes: list[subprocess.Popen], logs: Path) -> None:
+    """SIGINT to every node, as Ctrl-C; a node still running 30 s later is hung: SIGABRT makes faulthandler
+    write its threads' stacks into its log, which the failure shows."""
+    for node in nodes:
+        node.send_signal(signal.SIGINT)
+    for spec, node in zip(SPECS, nodes):
+        try:
+            node.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            node.send_signal(signal.SIGABRT)
+            node.wait(timeout=30)
+            raise AssertionError(f"{spec.name} did not stop on SIGINT: {(logs / f'{spec.name}.log').read_text()[-4000:]}")
 
 
 # ----- rosbag2 ------------------------------------------------------------------------------------------

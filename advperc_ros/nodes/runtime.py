@@ -250,8 +250,10 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
     except (*INPUT_ERRORS, DdsError) as exc:
         logger.error(str(exc))
         return EXIT_INPUT
+    # SIGINT as SIGTERM: the loop ends between two spins, never inside a callback or a call into Cyclone
     stopping: list[int] = []
-    signal.signal(signal.SIGTERM, lambda signum, frame: stopping.append(signum))
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, lambda signum, frame: stopping.append(signum))
     parent = os.getppid()
     try:
         with transport:
@@ -266,6 +268,4 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
     except INPUT_ERRORS as exc:
         logger.error(str(exc))
         return EXIT_INPUT
-    except KeyboardInterrupt:
-        pass
     return 0

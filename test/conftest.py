@@ -101,8 +101,8 @@ def _xdist_group(item) -> str:
 
 
 def pytest_configure(config):
-    """Groups start in the order below, not in xdist's (by number of tests), which started a long group of few
-    tests last, to run on alone after the other worker had finished."""
+    """Groups start in the order pytest_collection_modifyitems gives them (LONGEST_GROUPS first), not in
+    xdist's (by number of tests), which started a long group of few tests last, to run on alone."""
     if hasattr(config.option, "loadscopereorder"):
         config.option.loadscopereorder = False
 

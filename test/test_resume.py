@@ -65,8 +65,9 @@ def test_sigkill_ten_times_over_one_attack_then_resume_gives_the_uninterrupted_r
         run.wait(timeout=60)
         if output.exists():  # it finished before this kill
             break
-        assert _kept_rollouts(output) >= kept, f"kill {n + 1}, {moment:.2f} s after its start, lost rollouts"
-        kept = _kept_rollouts(output)
+        now = _kept_rollouts(output)
+        assert now >= kept, f"kill {n + 1}, {moment:.2f} s after its start, lost rollouts"
+        kept = now
     else:
         resumed = _attack(params, "--resume", str(output))
         _, err = resumed.communicate(timeout=600)

@@ -253,7 +253,7 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
     # SIGINT as SIGTERM: the loop ends between two spins, never inside a callback or a call into Cyclone
     stopping: list[int] = []
     for signum in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(signum, lambda signum, frame: stopping.append(signum))
+        signal.signal(signum, lambda received, frame: stopping.append(received))
     parent = os.getppid()
     try:
         with transport:

@@ -16,7 +16,7 @@ from advperc_ros.backend import EXTERNAL, Rollouts, Stack
 from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.guided import GuidedConfig
-from advperc_ros.core.search.pipeline import SearchConfig, budget, run_search
+from advperc_ros.core.search.pipeline import SearchConfig, budget, guided_budget, run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.search.refine import dropped_runs
@@ -68,7 +68,7 @@ class RolloutProgress:
     so far plus those still to come as far as the search has shown them: every agent's drop, the
     bisections (2 x iterations at most) of each agent whose drop collided, and once an agent is
     influential the random steps and refine's bisections of the best attack's dropped runs (the
-    guided method: the rest of its budget, which it spends), never past the budget; the joint drops,
+    guided method, once its rounds begin: the rest of its budget, which it spends), never past the budget; the joint drops,
     when no single drop collided, show one rollout at a time. The paper's
     bound would leave the bar at 12-39 %: most agents are not influential, and a bisection or a
     random step can end early; `close` ends the bar at the count."""
@@ -80,6 +80,7 @@ class RolloutProgress:
         self.bisecting = False  # the last agent dropped collided: its bisections are under way
         self.joint = False  # a joint drop has run
         self.approach = False  # the approach phase has run (no drop collided)
+        self.rounds_from: int | None = None  # guided method: the rollouts run before its rounds began
         self.bar = tqdm(total=1 + num_agents, desc=name, unit="rollout", disable=not enabled, file=sys.stderr,
                         mininterval=1.0)
 
@@ -112,9 +113,11 @@ class RolloutProgress:
         self.bar.update()
 
     def _still_to_run(self, phase: Phase) -> int:
+        if self.config.method == "guided" and phase in (Phase.GUIDED, Phase.REFINE):  # it spends its whole budget
+            if self.rounds_from is None:
+                self.rounds_from = self.bar.n
+            return guided_budget(self.config, self.rounds_from) - self.bar.n - 1
         left = budget(self.config, self.num_agents, self.joint, self.approach) - self.bar.n - 1
-        if self.config.method == "guided" and self.influential:  # it spends its whole budget
-            return left
         return min(left, self._paper_still_to_run(phase))
 
     def _paper_still_to_run(self, phase: Phase) -> int:

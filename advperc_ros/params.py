@@ -139,8 +139,9 @@ class GuidedParams:
 class SearchParams:
     method: str = _param("paper", "paper: heuristic, random search, refine (README Search); guided: heuristic, then "
                          "rounds that score many candidates and roll out the most promising", choices=METHODS)
-    budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound", low=0,
-                         high=1_000_000)
+    budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound (guided method: "
+                         "what finding its failure mode took, plus the most the paper's random steps and refine "
+                         "phase could run from it)", low=0, high=1_000_000)
     heuristic: HeuristicParams = HeuristicParams()
     joint: JointParams = JointParams()
     approach: ApproachParams = ApproachParams()

@@ -32,7 +32,7 @@ class SearchConfig:
     seed: int = 0  # of the random search
     method: str = "paper"  # paper: heuristic, random search, refine; guided: heuristic, guided search
     guided: GuidedConfig = GuidedConfig()
-    budget: int = 0  # rollouts at most; 0: `bound`, what the search can use at most
+    budget: int = 0  # rollouts at most; 0: `bound`, what the search can use at most (guided: `guided_budget`)
 
 
 @dataclass(frozen=True)
@@ -55,12 +55,26 @@ def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: 
     joint_worst = worst_case(config.joint_max_agents, num_agents) if joint else 0
     approach_worst = approach_phase.worst_case(config.approach_steps, num_agents) if approach else 0
     return (1 + num_agents * (1 + 2 * config.heuristic_iterations) + joint_worst + approach_worst
-            + config.random.steps + 2 * config.refine_iterations)
+            + after_failure_bound(config))
+
+
+def after_failure_bound(config: SearchConfig) -> int:
+    """Rollouts the paper's search runs at most once it has its failure mode: the random steps
+    (one rollout each at most) and refine's two bounds per iteration."""
+    return config.random.steps + 2 * config.refine_iterations
 
 
 def budget(config: SearchConfig, num_agents: int, joint: bool = False, approach: bool = False) -> int:
     """Rollouts the search runs at most: `config.budget`, or `bound` when 0."""
     return config.budget or bound(config, num_agents, joint, approach)
+
+
+def guided_budget(config: SearchConfig, used: int) -> int:
+    """Rollouts the guided search ends at, `used` having been run to find its failure mode:
+    `config.budget`, or when 0 no more than the paper's search could run from the same failure mode
+    (`after_failure_bound`). `bound` would also count the bisections of agents whose drop did not
+    collide, which a recording's dozens of cars make several times what the paper's search spends."""
+    return config.budget or used + after_failure_bound(config)
 
 
 def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
@@ -86,6 +100,7 @@ def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
         if heuristic is None:
             return SearchResult(None, None, None, None, joint, approached)
         if guided:
+            problem.budget = guided_budget(config, len(problem.log))
             guided_search(problem, rng, config.guided, problem.budget, config.refine_iterations)
         else:
             searched = random_search(problem, heuristic, rng, config.random)

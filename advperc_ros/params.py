@@ -137,8 +137,9 @@ class GuidedParams:
 
 @dataclass(frozen=True)
 class SearchParams:
-    method: str = _param("paper", "paper: heuristic, random search, refine (README Search); guided: heuristic, then "
-                         "rounds that score many candidates and roll out the most promising", choices=METHODS)
+    method: str = _param("guided", "guided: heuristic, then rounds that score many candidates and roll out the "
+                         "most promising (README Search); paper: heuristic, random search, refine, as the paper",
+                         choices=METHODS)
     budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound (guided method: "
                          "what finding its failure mode took, plus the most the paper's random steps and refine "
                          "phase could run from it)", low=0, high=1_000_000)
@@ -172,7 +173,8 @@ class AttackParams:
                       "the working directory, then the params file's directory, then the package share")
     planner: str = _param("idm", "bundled planner name or a plug-in as module:Class")
     objective: str = _param("nds_t", "perception metric the search maximises", choices=("nds", "nds_t", "pem_ll"))
-    seed: int = _param(0, "seed of the random search; same params and seed give the same attack", low=0, high=INT64_MAX)
+    seed: int = _param(0, "seed of the search's random draws; same params and seed give the same attack", low=0,
+                       high=INT64_MAX)
     stop_at_collision: bool = _param(True, "end a rollout at its first rule violation")
     rule: RuleParams = RuleParams()
     ego: EgoParams = EgoParams()

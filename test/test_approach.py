@@ -71,7 +71,7 @@ def swerve_problem(fail_at: float | None = None, spec: dict = SWERVE_SPEC) -> At
     return AttackProblem(scenario, lambda errors: rollout(scenario, errors, tracker, planner, config), "nds_t")
 
 
-CONFIG = SearchConfig(random=dataclasses.replace(SearchConfig().random, steps=5), refine_iterations=2)
+CONFIG = SearchConfig(random=dataclasses.replace(SearchConfig().random, steps=5), refine_iterations=2, method="paper")
 
 
 @pytest.fixture(scope="module")

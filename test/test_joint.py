@@ -74,7 +74,7 @@ def test_the_joint_rollouts_stay_within_their_bound(platoon):
 
 def test_the_whole_search_finds_the_attack_within_the_default_budget():
     problem, _, _ = make_problem(PLATOON_SPEC)
-    config = SearchConfig(heuristic_iterations=ITERATIONS)
+    config = SearchConfig(heuristic_iterations=ITERATIONS, method="paper")
     result = run_search(problem, config)
     assert result.best is not None and result.best.adversarial and result.heuristic is result.joint.mode
     assert sorted(result.joint.agents) == [NEAR, FAR]

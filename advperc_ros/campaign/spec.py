@@ -43,7 +43,7 @@ FIELDS = {
     "output": "folder of the cell folders and the summary (default results/campaign-<name>)",
     "scenarios": "params files or ground-truth bag folders to attack (required unless replay)",
     "objectives": "objectives to search for (default: each params file's own)",
-    "seeds": "seeds of the random search (default: each params file's own)",
+    "seeds": "seeds of the search's random draws (default: each params file's own)",
     "planners": "planners to attack, each {name, planner, planner_params} (default: each scenario's own)",
     "overrides": "parameters set in every cell, by dotted name (search.random.steps: 4)",
     "executor": "process (a pool of workers), ray, or serial (in this process)",

@@ -30,7 +30,7 @@ class SearchConfig:
     random: RandomSearchConfig = RandomSearchConfig()
     refine_iterations: int = 4  # 0: the paper's search only
     seed: int = 0  # of the random search
-    method: str = "paper"  # paper: heuristic, random search, refine; guided: heuristic, guided search
+    method: str = "guided"  # guided: heuristic, guided search; paper: heuristic, random search, refine
     guided: GuidedConfig = GuidedConfig()
     budget: int = 0  # rollouts at most; 0: `bound`, what the search can use at most (guided: `guided_budget`)
 

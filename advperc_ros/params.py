@@ -141,8 +141,8 @@ class SearchParams:
                          "most promising (README Search); paper: heuristic, random search, refine, as the paper",
                          choices=METHODS)
     budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound (guided method: "
-                         "what finding its failure mode took, plus the most the paper's random steps and refine "
-                         "phase could run from it)", low=0, high=1_000_000)
+                         "what finding its failure mode took, plus the share of the paper's bound its random steps "
+                         "and refine phase have)", low=0, high=1_000_000)
     heuristic: HeuristicParams = HeuristicParams()
     joint: JointParams = JointParams()
     approach: ApproachParams = ApproachParams()

@@ -86,13 +86,11 @@ def test_a_budget_ends_the_search_there(lane_following, method, budget, used):
     assert (outcome.best is not None and outcome.best.rollout.collided) == (used > 0)
 
 
-def test_the_default_search_is_guided_within_what_the_paper_s_could_run_from_the_same_failure_mode(lane_following,
-                                                                                                     capsys):
+def test_the_default_search_is_guided_with_the_paper_s_budget_after_the_failure_mode(lane_following, capsys):
     """Default params (README Table 1's guided row: NDS-t 0.943 in 60 rollouts): the heuristic's 12
-    rollouts, then the 40 random steps and 2 x 4 refine bisections the paper's search could run at
-    most from there, all spent (not the bound 1 + 7 x 5 + 48 = 84, which counts bisections of agents
-    whose drop did not collide); the progress bar ends at the count, having shown it since the
-    rounds began."""
+    rollouts, then the paper's bound's share for 40 random steps and 2 x 4 refine bisections, all
+    spent (not the whole bound 1 + 7 x 5 + 48 = 84, which counts bisections of agents whose drop
+    did not collide); the progress bar ends at the count, having shown it since the rounds began."""
     scenario, params = lane_following
     outcome = run_attack(scenario, params, progress=True)
     assert {row.phase for row in outcome.log[HEURISTIC_ROLLOUTS:]} == {Phase.GUIDED}

@@ -59,8 +59,8 @@ def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: 
 
 
 def after_failure_bound(config: SearchConfig) -> int:
-    """Rollouts the paper's search runs at most once it has its failure mode: the random steps
-    (one rollout each at most) and refine's two bounds per iteration."""
+    """The share of `bound` that follows the failure mode: the random steps (one rollout each at
+    most) and refine's two bounds per iteration."""
     return config.random.steps + 2 * config.refine_iterations
 
 
@@ -71,8 +71,8 @@ def budget(config: SearchConfig, num_agents: int, joint: bool = False, approach:
 
 def guided_budget(config: SearchConfig, used: int) -> int:
     """Rollouts the guided search ends at, `used` having been run to find its failure mode:
-    `config.budget`, or when 0 no more than the paper's search could run from the same failure mode
-    (`after_failure_bound`). `bound` would also count the bisections of agents whose drop did not
+    `config.budget`, or when 0 the share of `bound` that follows the failure mode
+    (`after_failure_bound`). `bound` itself also counts bisections of agents whose drop did not
     collide, which a recording's dozens of cars make several times what the paper's search spends."""
     return config.budget or used + after_failure_bound(config)
 

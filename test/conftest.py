@@ -68,6 +68,14 @@ def need_program(name: str) -> str:
 _ros_domains = itertools.cycle(range(200 + (os.getpid() % 3) * 11, 233))
 
 
+def bare_dds_domains(offset: int):
+    """Domain ids 100..199 for a module's bare-DDS tests, from `offset` on by this process's id,
+    wrapping round: the DDS group runs one test at a time, so an id comes back only after the test
+    that had it is over (a range ending at 199 ran out when the process id put its start at 190)."""
+    start = (os.getpid() % 10) * 10 + offset
+    return (100 + (start + i) % 100 for i in itertools.count())
+
+
 @pytest.fixture
 def fresh_domain(monkeypatch) -> int:
     """A domain id of its own for a test, also set as ROS_DOMAIN_ID (needs no ROS)."""

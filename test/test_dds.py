@@ -5,7 +5,6 @@ own, derived from this process's pid (100..199, never ROS's default 0).
 """
 
 import dataclasses
-import itertools
 import os
 import subprocess
 import sys
@@ -23,16 +22,17 @@ from advperc_ros.ros import dds, dds_types  # noqa: E402
 from advperc_ros.ros import messages as msgs  # noqa: E402
 from advperc_ros.ros.topics import TRACKING  # noqa: E402
 from advperc_ros.ros.topics import LATCHED, PERCEPTION, SUMMARY, TOPIC_TYPES
+from conftest import bare_dds_domains  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 T0 = 1_700_000_000_123_456_789
 TIMEOUT = 5.0
-_domain_ids = itertools.count(100 + (os.getpid() % 10) * 10)
+_domain_ids = bare_dds_domains(0)
 
 
 @pytest.fixture
 def domain_id() -> int:
-    """A fresh domain id per test (at most ten per run), never shared with another test."""
+    """A fresh domain id per test, never shared with a test running at the same time."""
     value = next(_domain_ids)
     assert 100 <= value < 200
     return value

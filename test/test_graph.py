@@ -21,7 +21,7 @@ import yaml
 
 pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; the graph backend needs it")
 
-from conftest import need_ros  # noqa: E402
+from conftest import bare_dds_domains, need_ros  # noqa: E402
 
 from advperc_ros.backend import Stack  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
@@ -38,7 +38,7 @@ REPO = Path(__file__).resolve().parent.parent
 BAG = REPO / "bags" / "idm_lane_following"
 TOLERANCE = 1e-9  # m, m/s, rad: graph against embedded (docs/graph.md)
 ARM = "ADVPERC_TEST_HANG"  # env var naming the file that arms HangingPlanner
-_domain_ids = iter(range(100 + ((os.getpid() % 10 + 5) % 10) * 10, 200))
+_domain_ids = bare_dds_domains(50)  # test_dds starts 50 ids away
 
 
 def next_domain_id() -> int:

@@ -16,7 +16,7 @@ from advperc_ros.backend import EXTERNAL, Rollouts, Stack
 from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.guided import GuidedConfig
-from advperc_ros.core.search.pipeline import SearchConfig, budget, guided_budget, run_search
+from advperc_ros.core.search.pipeline import SearchConfig, after_failure_bound, budget, guided_budget, run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.search.refine import dropped_runs
@@ -68,8 +68,9 @@ class RolloutProgress:
     so far plus those still to come as far as the search has shown them: every agent's drop, the
     bisections (2 x iterations at most) of each agent whose drop collided, and once an agent is
     influential the random steps and refine's bisections of the best attack's dropped runs (the
-    guided method, once its rounds begin: the rest of its budget, which it spends), never past the budget; the joint drops,
-    when no single drop collided, show one rollout at a time. The paper's
+    guided method: `after_failure_bound`, and once its rounds begin the rest of its budget, which it
+    spends), never past the budget; the joint drops, when no single drop collided, show one rollout
+    at a time. The paper's
     bound would leave the bar at 12-39 %: most agents are not influential, and a bisection or a
     random step can end early; `close` ends the bar at the count."""
 
@@ -77,7 +78,7 @@ class RolloutProgress:
                  enabled: bool = True) -> None:
         self.name, self.config, self.num_agents, self.best = name, config, num_agents, best
         self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
-        self.bisecting = False  # the last agent dropped collided: its bisections are under way
+        self.bisections_owed = 0  # bisections run plus those the influential agents' drops still owe
         self.joint = False  # a joint drop has run
         self.approach = False  # the approach phase has run (no drop collided)
         self.rounds_from: int | None = None  # guided method: the rollouts run before its rounds began
@@ -88,7 +89,9 @@ class RolloutProgress:
         phase = row.phase
         if phase == Phase.HEURISTIC_DROP:
             self.drops += 1
-            self.bisecting, self.bisections = row.collided, 0
+            if self.config.method == "paper":  # it bisects an agent before dropping the next: those are done
+                self.bisections_owed = self.bisections
+            self.bisections_owed += 2 * self.config.heuristic_iterations * row.collided  # guided: after all drops
             self.influential += row.collided
         elif phase == Phase.JOINT:  # no single drop collided: the joint drops run, within their own bound
             self.joint = True
@@ -118,17 +121,18 @@ class RolloutProgress:
                 self.rounds_from = self.bar.n
             return guided_budget(self.config, self.rounds_from) - self.bar.n - 1
         left = budget(self.config, self.num_agents, self.joint, self.approach) - self.bar.n - 1
-        return min(left, self._paper_still_to_run(phase))
+        return min(left, self._phases_still_to_run(phase))
 
-    def _paper_still_to_run(self, phase: Phase) -> int:
+    def _phases_still_to_run(self, phase: Phase) -> int:
         config = self.config
         refine = config.refine_iterations * self.refine_runs
         if phase == Phase.REFINE:
             return max(0, refine - self.refined)
-        tail = max(0, config.random.steps - self.random) + refine
+        tail = (after_failure_bound(config) if config.method == "guided"
+                else max(0, config.random.steps - self.random) + refine)
         if phase == Phase.RANDOM:
             return tail
-        bisections = max(0, 2 * config.heuristic_iterations - self.bisections) if self.bisecting else 0
+        bisections = max(0, self.bisections_owed - self.bisections)
         return self.num_agents - self.drops + bisections + (tail if self.influential else 0)
 
     def close(self) -> None:

@@ -84,7 +84,7 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, appr
     else:
         text = (f"no collision found: no agent is influential (dropping any one of the {len(drops)} agents "
                 f"({_ids([r.agent for r in drops])}) for the whole scenario never made the ego collide), so the "
-                f"heuristic had no failure to narrow and the random search none to improve")
+                f"heuristic had no failure to narrow and the search none to improve")
     if inconclusive:
         text += (f"; the drops of agents {_ids([r.agent for r in inconclusive])} were inconclusive "
                  f"({inconclusive[0].inconclusive})")

@@ -1,7 +1,7 @@
 """Speed of the pipeline, measured side by side in one run (the machine is shared: compare ratios).
 
     python benchmarks/bench.py            # everything
-    python benchmarks/bench.py --quick    # fewer repetitions; IDM searches with one objective
+    python benchmarks/bench.py --quick    # fewer repetitions; IDM searches with one objective, both methods
     python benchmarks/bench.py --sections 3 --scenarios obp_right_turn   # one scenario's searches
 
 1. Rollout: full rollout time against the planner alone (the floor): CPU time against the CPU time
@@ -18,7 +18,8 @@
 4. Recorded traffic (every CommonRoad recording in ../shared/data/commonroad, when present, 2 to 83
    vehicles; --quick: every third): per-frame rollout cost and whole-search wall time against the
    number of recorded vehicles, with the params import-commonroad writes: per frame for IDM and ObP,
-   the whole search for IDM (an ObP search takes minutes: benchmarks/recordings_bench.py).
+   the whole search by the paper's method for IDM (an ObP search takes minutes:
+   benchmarks/recordings_bench.py; the guided search on every recording: its --method guided).
 """
 
 import argparse
@@ -186,7 +187,7 @@ def bench_searches(scenarios: tuple[str, ...], objectives: tuple[str, ...], meth
 
 def bench_recordings(repeats: int, every: int) -> None:
     print("\n== 4. Recorded traffic: cost against the number of vehicles (ms per frame: IDM and ObP; search: IDM, "
-          "objective nds_t) ==")
+          "objective nds_t, the paper's method) ==")
     if not COMMONROAD.is_dir():
         print(f"(skipped: no recordings at {COMMONROAD})")
         return
@@ -215,7 +216,8 @@ def bench_recordings(repeats: int, every: int) -> None:
             search = f"{'-':>8s} {'-':>8s}  rejected by import-commonroad: unavoidable"
         else:
             try:
-                outcome = run_attack(scenario, params["idm"].with_values(stop_at_collision=True), progress=False)
+                outcome = run_attack(scenario, params["idm"].with_values(  # the README table's method
+                    stop_at_collision=True, **{"search.method": "paper"}), progress=False)
                 search = f"{outcome.wall_time_s:8.1f} {len(outcome.log):8d}  "
                 search += "collision found" if outcome.best else "no collision found"
             except GroundTruthFails:
@@ -232,7 +234,8 @@ def main() -> None:
                         help="which sections to run (default: all)")
     parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, help="section 3's scenarios")
     parser.add_argument("--objectives", nargs="+", choices=OBJECTIVES, help="section 3's objectives")
-    parser.add_argument("--methods", nargs="+", choices=METHODS, default=METHODS, help="section 3's search methods")
+    parser.add_argument("--methods", nargs="+", choices=METHODS, default=("guided", "paper"),
+                        help="section 3's search methods (default: both)")
     args = parser.parse_args()
     if 1 in args.sections:
         bench_rollouts(repeats=5 if args.quick else 20, obp_repeats=1 if args.quick else 3)

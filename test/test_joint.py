@@ -8,7 +8,7 @@ import pytest
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.search.heuristic import heuristic_search
 from advperc_ros.core.search.joint import joint_drops, worst_case
-from advperc_ros.core.search.pipeline import SearchConfig, bound, run_search
+from advperc_ros.core.search.pipeline import METHODS, SearchConfig, bound, run_search
 from advperc_ros.core.search.problem import AttackProblem
 from test_search import Recorder, make_problem
 from toy_scenarios import FOLLOW_SPEC, PLATOON_SPEC, RUNAWAY_LEAD_SPEC
@@ -119,9 +119,11 @@ def _log(config):
     return result, [dataclasses.astuple(row) for row in problem.log], recorder.calls
 
 
-def test_with_an_influential_agent_the_joint_drops_run_nothing():
+@pytest.mark.parametrize("method", METHODS)
+def test_with_an_influential_agent_the_joint_drops_run_nothing(method):
     """A single drop collides (the lead): the same rollouts, log and attack as with joint drops off."""
-    config = SearchConfig(heuristic_iterations=ITERATIONS, random=dataclasses.replace(SearchConfig().random, steps=5))
+    config = SearchConfig(heuristic_iterations=ITERATIONS, random=dataclasses.replace(SearchConfig().random, steps=5),
+                          method=method)
     with_joint, log, calls = _log(config)
     without, log_off, calls_off = _log(dataclasses.replace(config, joint_max_agents=0))
     assert with_joint.joint is None and not any(row[1] == "joint" for row in log)

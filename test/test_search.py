@@ -426,7 +426,7 @@ def test_a_budget_spent_within_the_heuristic_reports_its_failing_rollout_as_the_
     from advperc_ros.core.search.pipeline import SearchConfig, run_search
 
     problem, _, _ = make_problem(BASE_SPEC)
-    result = run_search(problem, SearchConfig(budget=3))
+    result = run_search(problem, SearchConfig(budget=3, method="paper"))  # one rollout at a time
     assert len(problem.log) == 3 and result.best is not None
     assert result.heuristic is result.best and result.heuristic.adversarial
 

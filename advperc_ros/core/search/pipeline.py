@@ -29,7 +29,7 @@ class SearchConfig:
     approach_patience: int = 30  # rollouts in a row that bring the ego no nearer before the approach phase gives up
     random: RandomSearchConfig = RandomSearchConfig()
     refine_iterations: int = 4  # 0: the paper's search only
-    seed: int = 0  # of the random search
+    seed: int = 0  # of the search's random draws
     method: str = "guided"  # guided: heuristic, guided search; paper: heuristic, random search, refine
     guided: GuidedConfig = GuidedConfig()
     budget: int = 0  # rollouts at most; 0: `bound`, what the search can use at most (guided: `guided_budget`)
@@ -47,9 +47,8 @@ class SearchResult:
 
 
 def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: bool = False) -> int:
-    """Rollouts the paper's search runs at most: ground truth, per agent a drop and two bisections,
-    the random steps (each rolls out one proposal, or none when no proposal improves) and refine's
-    two bounds per iteration; and the joint drops' worst case when they run (`joint`: no single drop
+    """Rollouts the paper's search may run: ground truth, per agent a drop and two bisections, and
+    `after_failure_bound`; and the joint drops' worst case when they run (`joint`: no single drop
     collided) and the approach phase's when it runs (`approach`: no drop collided), so a search where
     a drop collides keeps the paper's bound."""
     joint_worst = worst_case(config.joint_max_agents, num_agents) if joint else 0
@@ -60,7 +59,7 @@ def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: 
 
 def after_failure_bound(config: SearchConfig) -> int:
     """The share of `bound` that follows the failure mode: the random steps (one rollout each at
-    most) and refine's two bounds per iteration."""
+    most) and refine's bisections of two dropped runs (`refine_iterations` rollouts a run)."""
     return config.random.steps + 2 * config.refine_iterations
 
 

@@ -303,7 +303,6 @@ def test_the_trust_region_keeps_the_second_pick_between_the_noise_floor_and_the_
     assert trust_region(gain, np.inf, [0.5]).tolist() == [False, False, False, False, True]  # at most the largest
 
 
-
 def _progress_totals(method: str, rows: list[tuple[Phase, bool]]) -> list[int]:
     """The bar's total after each row of a search of 3 agents (heuristic 2 iterations, refine 2),
     whose best attack has one dropped run."""

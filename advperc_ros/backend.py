@@ -9,7 +9,7 @@ from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario

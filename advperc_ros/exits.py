@@ -4,14 +4,8 @@ An expected failure is one line on stderr (or the node's log) and its own exit c
 else is a bug and keeps its traceback.
 """
 
-from advperc_ros.core.feasibility import ScenarioRejected
-from advperc_ros.core.pem import PEMError
-from advperc_ros.core.planners.base import PlannerError
-from advperc_ros.core.scenario import ScenarioError
-from advperc_ros.core.search.problem import GroundTruthFails
-from advperc_ros.graph.errors import GraphError
-from advperc_ros.params import ParamsError
-from advperc_ros.ros.bag import BagError
+from advperc_ros.exceptions import (BagError, GraphError, GroundTruthFails, Interrupted, ParamsError, PEMError,
+                                   PlannerError, ScenarioError, ScenarioRejected)
 
 EXIT_OK = 0
 EXIT_NOTHING_TO_ATTACK = 1  # the stack fails with perfect perception, or check-typical found collisions
@@ -19,12 +13,6 @@ EXIT_INPUT = 2  # bad input: params, bag, planner, output folder
 EXIT_REJECTED = 3  # a recording whose traffic hits the ego whatever it does
 EXIT_GRAPH = 4  # the node graph could not be started or made ready
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT), as shells report it; an attack's checkpoint is kept
-
-
-
-class Interrupted(Exception):
-    """Ctrl-C during an attack: the text says how to finish it (its checkpoint is kept)."""
-
 
 INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError, PEMError)
 EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (

@@ -27,15 +27,12 @@ from advperc_ros.core.rollout import RolloutConfig
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.pipeline import METHODS
 from advperc_ros.core.tracker import TrackerConfig
+from advperc_ros.exceptions import ParamsError
 
 NODE = "orchestrator"
 PACKAGE = "advperc_ros"
 PLANNER_PARAMS = "planner_params"  # free mapping handed to the planner's constructor
 INT64_MAX = 2**63 - 1  # a ROS integer parameter is an int64
-
-
-class ParamsError(ValueError):
-    """A params file that cannot be used; the message names the file and the parameter."""
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from matplotlib.patches import Patch  # noqa: E402
 from matplotlib.ticker import MaxNLocator  # noqa: E402
 from PIL import Image  # noqa: E402
 
-from advperc_ros.core.errors import inject  # noqa: E402
+from advperc_ros.core.perception_errors import inject  # noqa: E402
 from advperc_ros.core.geometry import box_corners  # noqa: E402
 from advperc_ros.core.search.problem import LogRow  # noqa: E402
 from advperc_ros.outcome import AttackOutcome  # noqa: E402

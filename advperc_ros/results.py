@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros import __version__
-from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.approach import Approach

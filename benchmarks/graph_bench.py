@@ -34,7 +34,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
 from advperc_ros.backend import Stack  # noqa: E402
-from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
+from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.rollout import RolloutResult  # noqa: E402
 from advperc_ros.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters  # noqa: E402

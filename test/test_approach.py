@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, rollout
 from advperc_ros.core.scenario_spec import build_scenario

@@ -70,15 +70,32 @@ def _layer(module: str) -> str:
 
 
 @pytest.mark.parametrize("layer, may_import", [
-    ("core", {"core"}),
-    ("importers", {"core", "importers"}),
-    ("ros", {"core", "ros"}),
+    ("core", {"core", "exceptions"}),
+    ("importers", {"core", "importers", "exceptions"}),
+    ("ros", {"core", "ros", "exceptions"}),
 ])
 def test_lower_layers_import_only_below_them(graph, layer, may_import):
     for module, targets in graph.items():
         if _layer(module) == layer:
             above = sorted(t for t in targets if _layer(t) not in may_import and t != "advperc_ros")
             assert not above, f"{module} imports {above}"
+
+
+def test_the_exceptions_module_imports_nothing_of_the_package(graph):
+    """Every layer may raise the package's exceptions because that module is a leaf."""
+    assert not graph["advperc_ros.exceptions"]
+
+
+def test_every_exception_the_package_defines_derives_from_one_base():
+    from advperc_ros import exceptions
+
+    for path in PACKAGE.rglob("*.py"):
+        defined = re.findall(r"^class (\w+)\((?:\w+, )*\w*(?:Error|Exception)\w*\)", path.read_text(), flags=re.M)
+        assert path.name == "exceptions.py" or not defined, f"{path} defines {defined}: put them in exceptions.py"
+    for name in dir(exceptions):
+        kind = getattr(exceptions, name)
+        if isinstance(kind, type) and issubclass(kind, BaseException):
+            assert issubclass(kind, exceptions.AdvpercError), name
 
 
 def test_nothing_imports_the_cli_and_graph_nodes_stay_below_the_application(graph):

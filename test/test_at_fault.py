@@ -7,7 +7,7 @@ names; the agents replay constant-speed lanes.
 import numpy as np
 import pytest
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge, rollout
 from advperc_ros.core.rules import STOPPED_SPEED

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.backend import Stack
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import in_range
 from advperc_ros.core.scenario_spec import load_scenario_spec
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors

@@ -13,7 +13,7 @@ import yaml
 
 from advperc_ros.backend import Stack
 from advperc_ros.cli import main
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.feasibility import unavoidable_collision
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.params import load_params

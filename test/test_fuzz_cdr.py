@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mutations import damaged
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.ros import cdr, lockstep
 from advperc_ros.ros import messages as msgs

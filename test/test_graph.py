@@ -25,7 +25,7 @@ from conftest import bare_dds_domains, need_ros  # noqa: E402
 
 from advperc_ros.backend import Stack  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
-from advperc_ros.core.errors import PerceptionErrors  # noqa: E402
+from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
 from advperc_ros.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.backend import Stack
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
 from advperc_ros.params import load_params

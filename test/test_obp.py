@@ -9,7 +9,7 @@ import yaml
 
 from advperc_ros.backend import Stack
 from advperc_ros.core.ego_motion import follow_plan
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Planner, PlannerError, PlannerStats, PlanningContext, planner_stats
 from advperc_ros.core.planners.obp import OBPPlanner
 from advperc_ros.core.planners.obp.dynamics import NUMERIC, SYMBOLIC, bicycle_rk4
@@ -159,7 +159,7 @@ def test_failed_solve_without_previous_plan_brakes_along_the_route(scenario):
 
 def test_iteration_limit_counts_as_a_failure(scenario):
     """IPOPT stopped by max_iterations with an infeasible iterate is a failed solve."""
-    from advperc_ros.core.errors import inject
+    from advperc_ros.core.perception_errors import inject
     from advperc_ros.core.tracker import Tracker
 
     tracks = Tracker().step(0.0, inject(scenario.agents, PerceptionErrors.none(*scenario.agents.shape)).frame(0))

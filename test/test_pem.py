@@ -81,7 +81,7 @@ def test_samples_follow_the_model_marginals():
 def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
     from toy_scenarios import FOLLOW_SPEC
 
-    from advperc_ros.core.errors import PerceptionErrors
+    from advperc_ros.core.perception_errors import PerceptionErrors
     from advperc_ros.core.metrics.nds import in_range
     from advperc_ros.core.pem import default_pem, features
     from advperc_ros.core.scenario_spec import build_scenario
@@ -108,7 +108,7 @@ def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path,
     """Detections sampled from a known PEM into bags; `advperc pem fit` gets the model back."""
     from advperc_ros.backend import Stack
     from advperc_ros.cli import main
-    from advperc_ros.core.errors import PerceptionErrors, inject
+    from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.core.scenario import EgoState
     from advperc_ros.params import load_params
     from advperc_ros.ros import messages as msgs
@@ -148,7 +148,7 @@ def test_pem_fit_from_nuscenes_detection_results(tmp_path, repo):
 
     from advperc_ros.backend import Stack
     from advperc_ros.cli import main
-    from advperc_ros.core.errors import PerceptionErrors, inject
+    from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.params import load_params
     from advperc_ros.ros.bag import read_scenario
 

@@ -12,7 +12,7 @@ from importlib.util import find_spec
 import numpy as np
 import pytest
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import PlannerError, PlanningContext, planner_stats
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutConfig, rollout

@@ -22,7 +22,7 @@ import yaml
 
 from advperc_ros.backend import Stack
 from advperc_ros.cli import main
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.params import load_params
 from advperc_ros.results import load_errors
 from advperc_ros.ros.bag import read_scenario

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.robustness import perturb
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.errors import PerceptionErrors, confidence_scores, inject
+from advperc_ros.core.perception_errors import PerceptionErrors, confidence_scores, inject
 from advperc_ros.core.metrics.nds import ap_bound, nds
 from advperc_ros.core.metrics.scores import longest_drop_fraction, score
 

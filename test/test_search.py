@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.rollout import rollout

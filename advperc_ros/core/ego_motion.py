@@ -8,10 +8,7 @@ import numpy as np
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.scenario import EgoState
-
-
-class PlanError(ValueError):
-    """A plan the ego cannot follow; the rollout that received it is inconclusive."""
+from advperc_ros.exceptions import PlanError
 
 
 def follow_plan(plan: Trajectory, t_next: float) -> EgoState:

@@ -11,10 +11,7 @@ import numpy as np
 
 from advperc_ros.core.geometry import box_corners, signed_box_distance
 from advperc_ros.core.scenario import Scenario
-
-
-class ScenarioRejected(RuntimeError):
-    """Recorded traffic that no ego motion escapes: attacking it would say nothing about perception."""
+from advperc_ros.exceptions import ScenarioRejected
 
 
 def escape_profiles(

@@ -27,16 +27,13 @@ from scipy.optimize import minimize
 from scipy.special import expit, gammaln, log_expit
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.occlusion import occlusion
+from advperc_ros.exceptions import PEMError
 
 NUM_FEATURES = 5
 RANGE_SCALE = 50.0
-
-
-class PEMError(ValueError):
-    """A model file that cannot be used; the message names the file and the field."""
 
 
 def features(truth: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:

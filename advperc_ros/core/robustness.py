@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.search.problem import AttackProblem, Phase
 
 DEFAULT_STRENGTHS = (0.0, 0.01, 0.02, 0.05, 0.1, 0.2, 0.3, 0.5)

@@ -24,11 +24,12 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import PlanError, follow_plan
-from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
 from advperc_ros.core.rules import CollisionRule, excusable
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker
+from advperc_ros.exceptions import PlanTimeout
 
 
 STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes following the plan
@@ -150,10 +151,6 @@ def recorded_frames(frames: int, stopped_at_violation: bool, inconclusive: bool)
     frame that made it inconclusive."""
     tracked = frames - 1 if stopped_at_violation else frames
     return tracked, tracked - (1 if inconclusive else 0)
-
-
-class PlanTimeout(Exception):
-    """A plan call overran `RolloutConfig.plan_timeout` (raised inside it by the alarm)."""
 
 
 @contextmanager

@@ -10,10 +10,7 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
-
-
-class ScenarioError(ValueError):
-    """Ground truth that cannot be used; the message names the offending field."""
+from advperc_ros.exceptions import ScenarioError
 
 
 @dataclass(frozen=True)

@@ -7,9 +7,9 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.graph.assembly import PER_FRAME, RECORDED, complete
-from advperc_ros.graph.errors import RolloutFault
+from advperc_ros.exceptions import RolloutFault
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.lockstep import (RolloutDone, RolloutErrors, errors_message, parse_done, parse_presence,

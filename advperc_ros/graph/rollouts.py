@@ -38,12 +38,12 @@ from typing import Any
 import numpy as np
 
 from advperc_ros.backend import EXTERNAL, AttackedPlanner
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.graph.assembly import assemble, frames_in, kept_frames
 from advperc_ros.graph.client import SPIN, LockstepClient
-from advperc_ros.graph.errors import GraphError, RolloutFault
+from advperc_ros.exceptions import GraphError, RolloutFault
 from advperc_ros.graph.processes import NodeProcesses
 from advperc_ros.params import AttackParams, rollout_config
 from advperc_ros.ros.lockstep import Status

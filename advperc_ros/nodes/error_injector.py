@@ -3,8 +3,8 @@
 It holds the error tensor of the current rollout (latched /attack/errors, acknowledged on
 /attack/ready so the player starts frame 0 only once the tensor is here) and turns each
 /ground_truth/objects frame into /perception/objects with the same stamp: offsets added, dropped
-agents removed, confidences from the fixed scheme of `core.errors` (so the values are those of
-`core.errors.inject`, float for float: `core.errors.inject_frame`). Stateless between frames: nothing to reset.
+agents removed, confidences from the fixed scheme of `core.perception_errors` (so the values are those of
+`core.perception_errors.inject`, float for float: `core.perception_errors.inject_frame`). Stateless between frames: nothing to reset.
 """
 
 import sys
@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.core.errors import inject_frame
+from advperc_ros.core.perception_errors import inject_frame
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros.lockstep import RolloutErrors, parse_errors, ready_message

@@ -23,13 +23,10 @@ from advperc_ros.core.staging import staged_folder
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.topics import CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, ROUTE, TOPIC_TYPES, depth
+from advperc_ros.exceptions import BagError
 
 SCENARIO_KEY = "advperc.scenario"
 ROS_DISTRO = "jazzy"  # the message definitions come from rosbags' Jazzy typestore
-
-
-class BagError(ValueError):
-    """A bag that cannot be used; the message names the file and the topic or field."""
 
 
 def _qos(latched: bool) -> Qos:

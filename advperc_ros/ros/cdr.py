@@ -29,6 +29,7 @@ from typing import NamedTuple
 import numpy as np
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
+from advperc_ros.exceptions import MessageError
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
@@ -66,10 +67,6 @@ _POSE_SIZE = 56
 _IDENTITY = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0)
 _NO_ARROW = (0.0,) * 6  # velocity read as zero
 _BOX_FIELDS = ("x", "y", "yaw", "vx", "vy", "length", "width", "height", "score")
-
-
-class MessageError(ValueError):
-    """A message that does not follow the topic contract; the text names the field."""
 
 
 class Status(NamedTuple):

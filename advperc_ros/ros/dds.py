@@ -46,6 +46,7 @@ from cyclonedds.util import duration
 from advperc_ros.ros import dds_types
 from advperc_ros.ros.cdr import payload
 from advperc_ros.ros.topics import depth
+from advperc_ros.exceptions import DdsError
 
 try:  # the fast path: CDR bytes straight to Cyclone (see the module docstring)
     from cyclonedds._clayer import ddspy_take as _ddspy_take
@@ -71,10 +72,6 @@ _POLL_S = 0.002
 
 _DOMAINS: dict[int, tuple[Domain, bool]] = {}
 """Cyclone domains configured by this process: one per id, for the process's lifetime."""
-
-
-class DdsError(RuntimeError):
-    """A transport that cannot be set up as asked; the text says what and why."""
 
 
 def dds_topic_name(topic: str) -> str:

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs

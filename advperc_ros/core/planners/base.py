@@ -13,10 +13,7 @@ import numpy as np
 
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane
-
-
-class PlannerError(ValueError):
-    """A planner that cannot be found or built; the message names it."""
+from advperc_ros.exceptions import PlannerError
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from collections.abc import Callable, Generator
 from dataclasses import dataclass
 from typing import TypeVar
 
-from advperc_ros.core.errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, GroundTruthFails, Phase
 

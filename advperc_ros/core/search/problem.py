@@ -6,11 +6,12 @@ from enum import Enum
 
 import numpy as np
 
-from advperc_ros.core.errors import PerceptionErrors, inject
+from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.metrics.scores import PerceptionScores, score
 from advperc_ros.core.pem import features
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
+from advperc_ros.exceptions import BudgetSpent, GroundTruthFails
 
 OBJECTIVES = ("nds", "nds_t", "pem_ll")
 
@@ -36,14 +37,6 @@ class Phase(str, Enum):
     def heuristic(self) -> bool:
         return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END,
                         Phase.JOINT)
-
-
-class BudgetSpent(RuntimeError):
-    """A rollout was asked for beyond the search's rollout budget: the search ends there."""
-
-
-class GroundTruthFails(RuntimeError):
-    """The stack already breaks the rule with perfect perception: there is nothing to attack."""
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,84 @@
+"""Every exception advperc_ros raises on purpose, under one base class.
+
+`AdvpercError` is what a caller catches to tell "this tool refused the input or the situation"
+from a bug. The expected failures (`advperc_ros.exits` maps them to one line and an exit code)
+keep the standard base they always had (`ValueError` for bad input, `RuntimeError` for a state
+the tool cannot work in), so code that caught those still does. The internal ones (a rollout
+budget spent, a plan call overrunning its time) are control flow that never leaves the package.
+
+This module imports nothing of the package, so every layer (core included) may import it.
+"""
+
+
+class AdvpercError(Exception):
+    """Base of every exception this package raises on purpose."""
+
+
+# ----- bad input: exit code 2 (advperc_ros.exits.INPUT_ERRORS) -----
+
+class ParamsError(AdvpercError, ValueError):
+    """A params file that cannot be used; the message names the file and the parameter."""
+
+
+class BagError(AdvpercError, ValueError):
+    """A bag that cannot be used; the message names the file and the topic or field."""
+
+
+class ScenarioError(AdvpercError, ValueError):
+    """Ground truth that cannot be used; the message names the offending field."""
+
+
+class PlannerError(AdvpercError, ValueError):
+    """A planner that cannot be found or built; the message names it."""
+
+
+class PEMError(AdvpercError, ValueError):
+    """A model file that cannot be used; the message names the file and the field."""
+
+
+class MessageError(AdvpercError, ValueError):
+    """A message that does not follow the topic contract; the text names the field."""
+
+
+# ----- nothing to attack, or no way to attack it -----
+
+class GroundTruthFails(AdvpercError, RuntimeError):
+    """The stack already breaks the rule with perfect perception: there is nothing to attack."""
+
+
+class ScenarioRejected(AdvpercError, RuntimeError):
+    """Recorded traffic that no ego motion escapes: attacking it would say nothing about perception."""
+
+
+# ----- the graph backend and its transport -----
+
+class GraphError(AdvpercError, RuntimeError):
+    """The graph could not be started or made ready; the text says which node and why."""
+
+
+class RolloutFault(AdvpercError):
+    """A rollout the graph failed to finish (not the planner's verdict)."""
+
+
+class DdsError(AdvpercError, RuntimeError):
+    """A transport that cannot be set up as asked; the text says what and why."""
+
+
+# ----- the user stopped it -----
+
+class Interrupted(AdvpercError):
+    """Ctrl-C during an attack: the text says how to finish it (its checkpoint is kept)."""
+
+
+# ----- control flow inside the package -----
+
+class BudgetSpent(AdvpercError, RuntimeError):
+    """A rollout was asked for beyond the search's rollout budget: the search ends there."""
+
+
+class PlanTimeout(AdvpercError):
+    """A plan call overran `RolloutConfig.plan_timeout` (raised inside it by the alarm)."""
+
+
+class PlanError(AdvpercError, ValueError):
+    """A plan the ego cannot follow; the rollout that received it is inconclusive."""

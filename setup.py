@@ -52,7 +52,8 @@ setup(
     entry_points={
         "console_scripts": [
             "advperc = advperc_ros.cli:main",
-            *[f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES],
+            f"orchestrator = {PACKAGE}.orchestrator_node:main",  # an entry point like the CLI, above the backends
+            *[f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES if node != "orchestrator"],
         ],
     },
 )

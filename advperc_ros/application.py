@@ -4,16 +4,17 @@ run the same search and write the same report."""
 
 import sys
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
 
-from advperc_ros.backend import EXTERNAL, Rollouts, Stack
-from advperc_ros.checkpoint import Checkpoint, ResumedRollouts
+from advperc_ros.backends.base import EXTERNAL, Rollouts
+from advperc_ros.backends.embedded import Stack
+from advperc_ros.backends.registry import open_rollouts
+from advperc_ros.backends.resumed import Checkpoint, ResumedRollouts
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.guided import GuidedConfig
 from advperc_ros.core.search.pipeline import SearchConfig, after_failure_bound, budget, guided_budget, run_search
@@ -44,23 +45,6 @@ def search_config(params: AttackParams) -> SearchConfig:
         guided=GuidedConfig(candidates=search.guided.candidates, batch=search.guided.batch, random=random),
         budget=search.budget,
     )
-
-
-@contextmanager
-def open_rollouts(scenario: Scenario, params: AttackParams, bag_path: Path, transport: Any = None) -> Iterator[Rollouts]:
-    """The backend `rollout_backend` names, ready to use and shut down on exit. `transport`
-    (graph backend, nodes not spawned) lets an rclpy orchestrator reach nodes over its own node."""
-    if params.rollout_backend != "graph":
-        stack = Stack(scenario, params)
-        try:
-            yield stack
-        finally:
-            stack.close()
-        return
-    from advperc_ros.graph.rollouts import GraphRollouts
-
-    with GraphRollouts(scenario, params, bag_path, transport) as graph:
-        yield graph
 
 
 class RolloutProgress:
@@ -179,7 +163,7 @@ def default_output(params: AttackParams, scenario_name: str) -> Path:
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,
                      transport: Any = None, resume: bool = False) -> tuple[Path, dict]:
     """Run the attack the params describe and write its results folder; (folder, report). Every
-    rollout is checkpointed as it completes (advperc_ros.checkpoint); `resume` finishes an attack
+    rollout is checkpointed as it completes (advperc_ros.backends.resumed); `resume` finishes an attack
     that was killed, with the report it would have written. `transport`: an rclpy node's
     transport, to reach graph nodes already running."""
     bag_path = resolve_bag(params)

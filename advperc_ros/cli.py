@@ -107,7 +107,7 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
 
 
 def cmd_check_typical(args: argparse.Namespace) -> int:
-    from advperc_ros.backend import Stack
+    from advperc_ros.backends.embedded import Stack
     from advperc_ros.core.pem import PEM, default_pem
     from advperc_ros.core.typical import check_typical
     from advperc_ros.params import resolve_bag
@@ -127,7 +127,7 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     from dataclasses import asdict, fields
 
     from advperc_ros import plots
-    from advperc_ros.backend import Stack
+    from advperc_ros.backends.embedded import Stack
     from advperc_ros.core.robustness import RobustnessPoint, robustness_curve
     from advperc_ros.core.search.problem import AttackProblem
     from advperc_ros.results import ERRORS, read_attack

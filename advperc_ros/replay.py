@@ -13,7 +13,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from advperc_ros.application import open_rollouts
+from advperc_ros.backends.registry import open_rollouts
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import (

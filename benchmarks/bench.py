@@ -37,7 +37,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))  # time this checkout, not whichever advperc_ros is installed
 
 from advperc_ros.application import run_attack  # noqa: E402
-from advperc_ros.backend import Stack  # noqa: E402
+from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors, inject  # noqa: E402
 from advperc_ros.core.search.pipeline import METHODS  # noqa: E402
 from advperc_ros.core.search.problem import OBJECTIVES, GroundTruthFails  # noqa: E402

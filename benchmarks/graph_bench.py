@@ -33,10 +33,10 @@ import yaml
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 
-from advperc_ros.backend import Stack  # noqa: E402
+from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.rollout import RolloutResult  # noqa: E402
-from advperc_ros.graph.rollouts import GraphRollouts  # noqa: E402
+from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402

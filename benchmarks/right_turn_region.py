@@ -38,7 +38,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ros is installed
 
-from advperc_ros.backend import Stack  # noqa: E402
+from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.search.guided import AXES, PUSHES, displacement, merge  # noqa: E402
 from advperc_ros.core.search.problem import AttackProblem, Phase  # noqa: E402

@@ -28,7 +28,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ros is installed
 
-from advperc_ros.backend import Stack  # noqa: E402
+from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.metrics.nds import (DIST_THRESHOLDS, TP_METRICS, TP_THRESHOLD, ap_bound,  # noqa: E402
                                           in_range, nds_score)

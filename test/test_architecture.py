@@ -98,20 +98,43 @@ def test_every_exception_the_package_defines_derives_from_one_base():
             assert issubclass(kind, exceptions.AdvpercError), name
 
 
-def test_nothing_imports_the_cli_and_graph_nodes_stay_below_the_application(graph):
+ENTRY_POINTS = {"advperc_ros.cli", "advperc_ros.orchestrator_node"}
+APPLICATION = ("advperc_ros.application", "advperc_ros.results", "advperc_ros.report", "advperc_ros.replay",
+               "advperc_ros.plots", "advperc_ros.campaign")
+
+
+def _within(module: str, packages) -> bool:
+    return any(module == p or module.startswith(f"{p}.") for p in packages)
+
+
+def test_nothing_imports_an_entry_point(graph):
+    """The CLI and the orchestrator node are the top: nothing imports them."""
     for module, targets in graph.items():
-        assert "advperc_ros.cli" not in targets, f"{module} imports the CLI"
-        if _layer(module) == "nodes" and module != "advperc_ros.nodes.orchestrator":
-            # the orchestrator is an entry point like the CLI; the five graph nodes are not
-            assert not targets & {"advperc_ros.application", "advperc_ros.results", "advperc_ros.backend"}, module
+        assert not targets & ENTRY_POINTS, f"{module} imports {sorted(targets & ENTRY_POINTS)}"
+
+
+@pytest.mark.parametrize("layer, may_not_import", [
+    # core <- ros <- graph nodes <- backends <- application <- entry points (cli, orchestrator node)
+    ("advperc_ros.nodes", ("advperc_ros.backends", *APPLICATION)),
+    ("advperc_ros.backends", APPLICATION),
+    ("advperc_ros.params", ("advperc_ros.backends", "advperc_ros.nodes", *APPLICATION)),
+])
+def test_no_arrow_runs_back_up(graph, layer, may_not_import):
+    for module, targets in graph.items():
+        if _within(module, (layer,)):
+            up = sorted(t for t in targets if _within(t, may_not_import))
+            assert not up, f"{module} imports {up}"
 
 
 def test_node_executables_are_listed_once(repo):
-    """setup.py's console scripts are the orchestrator and the graph nodes of nodes.graph_nodes."""
+    """setup.py's console scripts are the orchestrator (advperc_ros.orchestrator_node, an entry point
+    like the CLI) and the graph nodes of nodes.graph_nodes, each its module in advperc_ros/nodes/."""
     from advperc_ros.nodes.graph_nodes import SPECS
 
     listed = re.search(r"^NODES = \(([^)]*)\)", (repo / "setup.py").read_text(), flags=re.M).group(1)
     assert tuple(re.findall(r'"(\w+)"', listed)) == ("orchestrator", *(spec.name for spec in SPECS))
+    assert (PACKAGE / "orchestrator_node.py").is_file()
+    assert all((PACKAGE / "nodes" / f"{spec.name}.py").is_file() for spec in SPECS)
 
 
 def test_readme_architecture_names_every_module():

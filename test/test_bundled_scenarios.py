@@ -5,7 +5,7 @@ from dataclasses import astuple
 import numpy as np
 import pytest
 
-from advperc_ros.backend import Stack
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import in_range
 from advperc_ros.core.scenario_spec import load_scenario_spec

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import yaml
 
-from advperc_ros.backend import Stack
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.feasibility import unavoidable_collision

@@ -23,11 +23,11 @@ pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; th
 
 from conftest import bare_dds_domains, need_ros  # noqa: E402
 
-from advperc_ros.backend import Stack  # noqa: E402
+from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
-from advperc_ros.graph.rollouts import GraphRollouts  # noqa: E402
+from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
 from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
@@ -281,7 +281,7 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
     params = load_params(params_for(tmp_path, planner="test_graph:HangingPlanner", **{"graph.timeout": 2.0}))
     truth = PerceptionErrors.none(*scenario.agents.shape)
     expected = Stack(scenario, params.with_values(planner="idm")).rollout(truth)
-    caplog.set_level("ERROR", logger="advperc_ros.graph")
+    caplog.set_level("ERROR", logger="advperc_ros.backends.graph")
     with GraphRollouts(scenario, params, BAG) as graph:
         # killed mid-rollout: once the planner hangs at t >= 2 s, kill its process
         arm.touch()
@@ -442,7 +442,7 @@ def test_two_graph_searches_on_one_domain_give_their_solo_reports(tmp_path):
 def test_a_killed_graph_s_log_folder_is_removed_by_the_next(tmp_path, monkeypatch):
     import tempfile
 
-    from advperc_ros.graph.processes import WORKDIR_PREFIX, remove_stale_workdirs
+    from advperc_ros.backends.graph.processes import WORKDIR_PREFIX, remove_stale_workdirs
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)

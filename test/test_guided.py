@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.application import RolloutProgress, attack_to_folder, run_attack, search_config
-from advperc_ros.backend import Stack
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
 from advperc_ros.core.rollout import RolloutResult

@@ -4,7 +4,7 @@ the car it must yield to, typical errors do not make it collide, and hiding that
 import numpy as np
 import pytest
 
-from advperc_ros.backend import Stack
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from advperc_ros.backend import Stack
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Planner, PlannerError, PlannerStats, PlanningContext, planner_stats

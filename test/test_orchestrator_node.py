@@ -7,7 +7,7 @@ import sys
 
 import yaml
 
-from advperc_ros.nodes.orchestrator import main, params_source
+from advperc_ros.orchestrator_node import main, params_source
 from advperc_ros.params import nest, parse_params
 
 
@@ -23,7 +23,7 @@ def test_dotted_parameters_nest_back_into_the_params_file_layout(repo):
 
 def test_without_rclpy_the_node_says_how_to_proceed():
     ros_free = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "AMENT_PREFIX_PATH", "LD_LIBRARY_PATH")}
-    run = subprocess.run([sys.executable, "-c", "from advperc_ros.nodes.orchestrator import main; raise SystemExit(main([]))"],
+    run = subprocess.run([sys.executable, "-c", "from advperc_ros.orchestrator_node import main; raise SystemExit(main([]))"],
                          env=ros_free, capture_output=True, text=True, timeout=120)
     assert run.returncode == 2 and "advperc attack" in run.stderr and len(run.stderr.strip().splitlines()) == 1
 

@@ -106,7 +106,7 @@ def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
 
 def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path, repo):
     """Detections sampled from a known PEM into bags; `advperc pem fit` gets the model back."""
-    from advperc_ros.backend import Stack
+    from advperc_ros.backends.embedded import Stack
     from advperc_ros.cli import main
     from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.core.scenario import EgoState
@@ -146,7 +146,7 @@ def test_pem_fit_from_nuscenes_detection_results(tmp_path, repo):
     """Detections of a known PEM written in the devkit's JSON formats; the fit recovers the PEM."""
     import json
 
-    from advperc_ros.backend import Stack
+    from advperc_ros.backends.embedded import Stack
     from advperc_ros.cli import main
     from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.params import load_params

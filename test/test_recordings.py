@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from advperc_ros.backend import Stack
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.params import load_params

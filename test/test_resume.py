@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from advperc_ros.checkpoint import checkpoint_folder
+from advperc_ros.backends.resumed import checkpoint_folder
 from conftest import REPO
 from test_cli import write_params
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 
-from advperc_ros.backend import Stack
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.exits import INPUT_ERRORS

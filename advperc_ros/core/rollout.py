@@ -10,7 +10,7 @@ rollout that ends in the ego being rear-ended or hit while stopped is no violati
 
 The rules of a frame (`violates`, `after_plan`) and of what a rollout records (`recorded_frames`)
 are written once here: `rollout` below runs them in one process, the graph's scenario player and
-orchestrator (advperc_ros.nodes.scenario_player, advperc_ros.graph) run them over DDS.
+orchestrator (advperc_ros.nodes.scenario_player, advperc_ros.backends.graph) run them over DDS.
 """
 
 import signal

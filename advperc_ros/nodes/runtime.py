@@ -8,7 +8,7 @@ executable runs two ways:
   not take is refused), the rest declared with defaults and descriptions, spun until shutdown;
 - without ROS (`tracker --params-file P.yaml --domain-id 42 --localhost-only true`): a Cyclone DDS
   participant speaking ROS 2's wire conventions, parameters read from an orchestrator params file.
-  This is how `advperc_ros.graph.GraphRollouts` starts the graph as separate OS processes.
+  This is how `advperc_ros.backends.graph.rollouts.GraphRollouts` starts the graph as separate OS processes.
 
 The Cyclone path is taken when rclpy is missing or the arguments are our own flags (no
 `--ros-args`), so a machine with ROS 2 sourced can run both.

@@ -1,6 +1,6 @@
 """The one small interface the graph nodes talk through, and its rclpy adapter.
 
-Node logic (advperc_ros.nodes) and the graph backend (advperc_ros.graph) only ever call
+Node logic (advperc_ros.nodes) and the graph backend (advperc_ros.backends.graph) only ever call
 `publisher(topic, msgtype, latched).publish(msg)`, `subscriber(topic, msgtype, latched,
 callback, raw, wake)` and `spin_once(timeout)`. Messages go in as rosbags message objects or as their
 CDR payload (bytes, encapsulation header first, as `advperc_ros.ros.cdr` packs them), and come

@@ -51,7 +51,7 @@ class NodeProcesses:
         self.running: dict[str, subprocess.Popen] = {}
 
     def start(self) -> None:
-        root = str(Path(__file__).resolve().parents[2])
+        root = str(Path(__file__).resolve().parents[3])
         env = dict(os.environ, PYTHONPATH=os.pathsep.join(p for p in (root, os.environ.get("PYTHONPATH")) if p))
         for name in NODES:
             with (Path(self._workdir.name) / f"{name}.log").open("ab") as output:

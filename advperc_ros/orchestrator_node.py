@@ -8,7 +8,7 @@ interrupted while writing to `output`, as `advperc attack --resume`). They are v
 attack`, and the attack runs through the same application layer, so both accept and refuse the
 same files and write the same report. A relative `bag` is looked up in the order of
 `params.find_bag`; the params file of that order is the `--params-file` that set `bag`. With
-`rollout_backend: graph` every rollout goes through the node graph (advperc_ros.graph): the
+`rollout_backend: graph` every rollout goes through the node graph (advperc_ros.backends.graph): the
 orchestrator starts the five nodes itself (`graph.spawn_nodes: true`, Cyclone DDS child
 processes) or, with `graph.spawn_nodes: false` (launch/attack.launch.py), drives the nodes
 already running through this rclpy node.

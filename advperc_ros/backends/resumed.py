@@ -1,5 +1,6 @@
-"""Resumable attacks: every rollout's result is kept on disk as it completes, so a killed search
-(Ctrl-C, SIGKILL, a crash) finishes later with exactly the report it would have written.
+"""The resumed backend, for resumable attacks: every rollout's result is kept on disk as it
+completes, so a killed search (Ctrl-C, SIGKILL, a crash) finishes later with exactly the report it
+would have written.
 
 The search is a deterministic function of its params, seed and rollout results, so a checkpoint
 need not hold the search's state (RNG, counters, best, log): resuming runs the search again and
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from advperc_ros.backend import AttackedPlanner, Rollouts
+from advperc_ros.backends.base import AttackedPlanner, Rollouts
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge

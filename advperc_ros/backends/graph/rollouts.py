@@ -37,14 +37,14 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.backend import EXTERNAL, AttackedPlanner
+from advperc_ros.backends.base import EXTERNAL, AttackedPlanner
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.graph.assembly import assemble, frames_in, kept_frames
-from advperc_ros.graph.client import SPIN, LockstepClient
+from advperc_ros.backends.graph.assembly import assemble, frames_in, kept_frames
+from advperc_ros.backends.graph.client import SPIN, LockstepClient
 from advperc_ros.exceptions import GraphError, RolloutFault
-from advperc_ros.graph.processes import NodeProcesses
+from advperc_ros.backends.graph.processes import NodeProcesses
 from advperc_ros.params import AttackParams, rollout_config
 from advperc_ros.ros.lockstep import Status
 from advperc_ros.ros.topics import ERRORS, PLAN
@@ -55,7 +55,7 @@ STARTUP_TIMEOUT = 60.0  # s for the children to start, discover each other and p
 WARMUP_STALL = 0.5  # s without progress after which a warm-up rollout is first re-sent
 GRACE = 5.0  # s beyond graph.timeout before a silent graph is declared dead
 
-log = logging.getLogger("advperc_ros.graph")
+log = logging.getLogger("advperc_ros.backends.graph")
 
 
 class GraphRollouts:
@@ -63,7 +63,8 @@ class GraphRollouts:
     `transport` (an rclpy node's `RclpyTransport`) is for `graph.spawn_nodes: false` only: nodes
     we start are reached over a Cyclone participant of our own, recreated with them on a restart."""
 
-    def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path, transport: Transport | None = None) -> None:
+    def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path,
+                 transport: Transport | None = None) -> None:
         if transport is not None and params.graph.spawn_nodes:
             raise ValueError("a transport can only be given with graph.spawn_nodes false")
         self.scenario = scenario

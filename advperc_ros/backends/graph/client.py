@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from advperc_ros.core.perception_errors import PerceptionErrors
-from advperc_ros.graph.assembly import PER_FRAME, RECORDED, complete
+from advperc_ros.backends.graph.assembly import PER_FRAME, RECORDED, complete
 from advperc_ros.exceptions import RolloutFault
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs

@@ -1,14 +1,11 @@
-"""What a rollout backend is, and the embedded one.
-
-The search only needs `rollout(errors, record)` and to know which planner it attacks; `Stack` does
-it in this process, `advperc_ros.graph.rollouts.GraphRollouts` through the node graph over DDS.
-"""
+"""The embedded backend: the system under attack built in this process (`Stack`)."""
 
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import dataclass
-from typing import Protocol
+from pathlib import Path
+from typing import Any
 
+from advperc_ros.backends.base import AttackedPlanner
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
@@ -17,32 +14,14 @@ from advperc_ros.core.tracker import Tracker
 from advperc_ros.params import (AttackParams, params_from_values, planning_context, rollout_config,
                                 tracker_config)
 
-EXTERNAL = "external"  # the `planner` of a report whose planner was a node of someone else's
-
-
-@dataclass(frozen=True)
-class AttackedPlanner:
-    """Which planner the rollouts went through: the params' own, or an external node (its name as
-    the middleware tells it, "" where it cannot), so the report names the system attacked."""
-
-    name: str
-    node: str | None = None
-
-
-class Rollouts(Protocol):
-    """What the search needs of a backend: one rollout of an error tensor; which planner it runs."""
-
-    attacked_planner: AttackedPlanner
-
-    def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult: ...
-
 
 class Stack:
     """The system under attack in this process, built from the params: tracker, planner, rollout.
     With `workers` > 1, `rollout_many` runs a batch on that many processes, each of which builds
     its own stack once (a planner is costly to build: ObP compiles its NLP)."""
 
-    def __init__(self, scenario: Scenario, params: AttackParams) -> None:
+    def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path | None = None,
+                 transport: Any = None) -> None:  # bag_path, transport: the graph backend's (registry)
         values = params.flat()
         self.scenario = scenario
         self.params = params
@@ -64,6 +43,12 @@ class Stack:
                                              initializer=_start_worker, initargs=(self.scenario, self.params.values(),
                                                                                    self.params.source))
         return list(self._pool.map(_worker_rollout, batch))
+
+    def __enter__(self) -> "Stack":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def close(self) -> None:
         if self._pool is not None:

@@ -3,6 +3,7 @@
 - `rollouts.GraphRollouts`: the backend the search uses (start, warm up, roll out, restart, stop);
 - `processes.NodeProcesses`: the node processes it starts and watches;
 - `client.LockstepClient`: its side of the lockstep protocol over a transport;
-- `assembly`: the RolloutResult built from what the graph published;
-- `errors`: what goes wrong (kept free of heavy imports: the exit-code table imports it).
+- `assembly`: the RolloutResult built from what the graph published.
+
+What goes wrong (`GraphError`, `RolloutFault`) is in `advperc_ros.exceptions`.
 """

@@ -42,6 +42,8 @@ setup(
         # TUM's sampling-based planner, attacked through advperc_ros.contrib.reactive; it pins commonroad-io<2025
         # (the importer is tested with 2026.1) and Python<3.12, so it too runs in a venv of its own (.ci/run)
         "reactive": ["commonroad-reactive-planner==2025.1"],
+        # the documentation site (docs/conf.py): Sphinx with MyST Markdown, as rosdoc2 on Jazzy builds it
+        "docs": ["sphinx>=7.2", "myst-parser>=2.0"],
         "test": ["pytest>=7", "pytest-xdist>=3.5", "hypothesis>=6", "shapely>=2.0", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],
     },
     zip_safe=True,

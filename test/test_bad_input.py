@@ -1,6 +1,6 @@
 """Every kind of bad input we know of, across every command: one line naming the file and the
-field, exit code 2, and nothing written. The README's table of them is produced from `CASES`
-(`ADVPERC_WRITE_README=1 python -m pytest test/test_bad_input.py` rewrites it), so it cannot drift.
+field, exit code 2, and nothing written. The table of them in docs/commands.md is produced from
+`CASES` (`ADVPERC_WRITE_DOCS=1 python -m pytest test/test_bad_input.py` rewrites it), so it cannot drift.
 """
 
 import json
@@ -19,14 +19,15 @@ from conftest import REPO
 from test_check_bag import boxes, write_bag
 
 GOOD_BAG = REPO / "bags" / "idm_lane_following"
-README_START = "<!-- bad-input table: test/test_bad_input.py -->"
-README_END = "<!-- end of bad-input table -->"
+DOCS_PAGE = Path("docs") / "commands.md"  # the Commands page, section "Bad input"
+TABLE_START = "<!-- bad-input table: test/test_bad_input.py -->"
+TABLE_END = "<!-- end of bad-input table -->"
 
 
 @dataclass(frozen=True)
 class Case:
-    command: str  # as the README shows it
-    bad: str  # what is wrong, as the README shows it
+    command: str  # as the docs table shows it
+    bad: str  # what is wrong, as the docs table shows it
     argv: Callable[[Path], list[str]]  # builds the inputs in a folder, returns the arguments
     says: str  # what the error line must contain (the field, or what is wrong with it)
     names_file: str | None = "?"  # a file name the line must contain ("?": the first file argument)
@@ -274,20 +275,21 @@ def _first_file(argv: list[str]) -> str | None:
     return next((a for a in argv[1:] if not a.startswith("-")), None)
 
 
-def readme_table() -> str:
+def docs_table() -> str:
     rows = ["| command | bad input | the line says |", "|---|---|---|"]
     rows += [f"| `{c.command}` | {c.bad} | `{c.says}` |" for c in CASES]
     return "\n".join(rows)
 
 
-def test_readme_lists_every_case(repo):
-    readme = (repo / "README.md").read_text()
-    table = readme_table()
-    if os.environ.get("ADVPERC_WRITE_README") == "1":
-        start, end = readme.index(README_START) + len(README_START), readme.index(README_END)
-        (repo / "README.md").write_text(readme[:start] + "\n" + table + "\n" + readme[end:])
-        readme = (repo / "README.md").read_text()
-    block = readme.split(README_START)[1].split(README_END)[0].strip()
-    assert block == table, "the README's bad-input table is out of date: ADVPERC_WRITE_README=1 rewrites it"
+def test_the_docs_list_every_case(repo):
+    page = repo / DOCS_PAGE
+    text = page.read_text()
+    table = docs_table()
+    if os.environ.get("ADVPERC_WRITE_DOCS") == "1":
+        start, end = text.index(TABLE_START) + len(TABLE_START), text.index(TABLE_END)
+        page.write_text(text[:start] + "\n" + table + "\n" + text[end:])
+        text = page.read_text()
+    block = text.split(TABLE_START)[1].split(TABLE_END)[0].strip()
+    assert block == table, f"{DOCS_PAGE}'s bad-input table is out of date: ADVPERC_WRITE_DOCS=1 rewrites it"
     assert len(CASES) >= 100 and len({(c.command, c.bad) for c in CASES}) == len(CASES)
-    assert re.search(rf"{len(CASES)} kinds of bad input", readme)
+    assert re.search(rf"{len(CASES)} kinds of bad input", text)

@@ -25,6 +25,12 @@ def _default(param) -> str:
     return "(required)" if param.default is None else _literal(param.default)
 
 
+def _number(value) -> str:
+    if value == 2**63 - 1:
+        return "2^63-1 (a ROS int64)"
+    return str(int(value)) if float(value).is_integer() and not isinstance(value, float) else f"{value:g}"
+
+
 def _bounds(param) -> str:
     """What the schema allows beyond the type: choices, or the range of a number."""
     if param.choices:
@@ -33,9 +39,9 @@ def _bounds(param) -> str:
     if param.positive:
         parts.append("> 0")
     elif param.low is not None:
-        parts.append(f">= {param.low:g}")
+        parts.append(f">= {_number(param.low)}")
     if param.high is not None:
-        parts.append(f"<= {param.high:g}")
+        parts.append(f"<= {_number(param.high)}")
     if param.type is float:
         parts.append("finite")
     return ", ".join(parts)

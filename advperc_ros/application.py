@@ -16,56 +16,41 @@ from advperc_ros.backends.embedded import Stack
 from advperc_ros.backends.registry import open_rollouts
 from advperc_ros.backends.resumed import Checkpoint, ResumedRollouts
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.search.guided import GuidedConfig
-from advperc_ros.core.search.pipeline import SearchConfig, after_failure_bound, budget, guided_budget, run_search
+from advperc_ros.configs import CoreConfigs, core_configs
+from advperc_ros.core.search.config import SearchConfig, budget
+from advperc_ros.core.search.method import Progress
+from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
-from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.search.refine import dropped_runs
+from advperc_ros.core.search.registry import search_method
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
-from advperc_ros.params import AttackParams, resolve_bag, rollout_config
+from advperc_ros.params import AttackParams, resolve_bag
 from advperc_ros.paths import check_output
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
-
-
-def search_config(params: AttackParams) -> SearchConfig:
-    search = params.search
-    random = RandomSearchConfig(steps=search.random.steps, proposals=search.random.proposals,
-                                max_offset=search.random.max_offset, yaw_std=search.random.yaw_std)
-    return SearchConfig(
-        heuristic_iterations=search.heuristic.iterations,
-        joint_max_agents=search.joint.max_agents,
-        approach_steps=search.approach.steps,
-        approach_patience=search.approach.patience,
-        random=random,
-        refine_iterations=search.refine.iterations,
-        seed=params.seed,
-        method=search.method,
-        guided=GuidedConfig(candidates=search.guided.candidates, batch=search.guided.batch, random=random),
-        budget=search.budget,
-    )
 
 
 class RolloutProgress:
     """The progress bar of a search, counting the rollouts that run. Its total is the rollouts run
     so far plus those still to come as far as the search has shown them: every agent's drop, the
     bisections (2 x iterations at most) of each agent whose drop collided, and once an agent is
-    influential the random steps and refine's bisections of the best attack's dropped runs (the
-    guided method: `after_failure_bound`, and once its rounds begin the rest of its budget, which it
-    spends), never past the budget; the joint drops, when no single drop collided, show one rollout
-    at a time. The paper's
+    influential what the search method still owes (`SearchMethod.still_owed`: the paper's random
+    steps and refine's bisections of the best attack's dropped runs; the guided method's share of
+    the bound, and once its rounds begin the rest of its budget, which it spends), never past the
+    budget; the joint drops, when no single drop collided, show one rollout at a time. The paper's
     bound would leave the bar at 12-39 %: most agents are not influential, and a bisection or a
     random step can end early; `close` ends the bar at the count."""
 
     def __init__(self, name: str, config: SearchConfig, num_agents: int, best: Callable[[], Evaluation | None],
                  enabled: bool = True) -> None:
         self.name, self.config, self.num_agents, self.best = name, config, num_agents, best
+        self.method = search_method(config)
         self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
         self.bisections_owed = 0  # bisections run plus those the influential agents' drops still owe
         self.joint = False  # a joint drop has run
         self.approach = False  # the approach phase has run (no drop collided)
-        self.rounds_from: int | None = None  # guided method: the rollouts run before its rounds began
+        self.began: int | None = None  # the rollouts run before the method's own phases began
         self.bar = tqdm(total=1 + num_agents, desc=name, unit="rollout", disable=not enabled, file=sys.stderr,
                         mininterval=1.0)
 
@@ -73,9 +58,9 @@ class RolloutProgress:
         phase = row.phase
         if phase == Phase.HEURISTIC_DROP:
             self.drops += 1
-            if self.config.method == "paper":  # it bisects an agent before dropping the next: those are done
+            if not self.method.batched_heuristic:  # it bisects an agent before dropping the next: those are done
                 self.bisections_owed = self.bisections
-            self.bisections_owed += 2 * self.config.heuristic_iterations * row.collided  # guided: after all drops
+            self.bisections_owed += 2 * self.config.heuristic_iterations * row.collided  # batched: after all drops
             self.influential += row.collided
         elif phase == Phase.JOINT:  # no single drop collided: the joint drops run, within their own bound
             self.joint = True
@@ -93,31 +78,24 @@ class RolloutProgress:
         if phase != Phase.REFINE and best is not None:  # refine bisects the runs of the best before it
             self.refine_runs = len(dropped_runs(best.errors.fn[: best.rollout.num_frames]))
         self.bar.total = self.bar.n + 1 + self._still_to_run(phase)
-        name = "heuristic" if phase.heuristic else {Phase.RANDOM: "random search", Phase.GUIDED: "guided search"}.get(
-            phase, str(phase))
+        name = "heuristic" if phase.heuristic else self.method.phases.get(phase, str(phase))
         self.bar.set_description(f"{self.name} ({name})", refresh=False)
         self.bar.set_postfix(best="none yet" if best is None else f"{best.metric:.4f}", refresh=False)
         self.bar.update()
 
     def _still_to_run(self, phase: Phase) -> int:
-        if self.config.method == "guided" and phase in (Phase.GUIDED, Phase.REFINE):  # it spends its whole budget
-            if self.rounds_from is None:
-                self.rounds_from = self.bar.n
-            return guided_budget(self.config, self.rounds_from) - self.bar.n - 1
         left = budget(self.config, self.num_agents, self.joint, self.approach) - self.bar.n - 1
-        return min(left, self._phases_still_to_run(phase))
-
-    def _phases_still_to_run(self, phase: Phase) -> int:
-        config = self.config
-        refine = config.refine_iterations * self.refine_runs
-        if phase == Phase.REFINE:
-            return max(0, refine - self.refined)
-        tail = (after_failure_bound(config) if config.method == "guided"
-                else max(0, config.random.steps - self.random) + refine)
-        if phase == Phase.RANDOM:
-            return tail
+        if phase in self.method.phases:
+            if self.began is None:
+                self.began = self.bar.n
+            return min(left, self.method.still_owed(phase, self._progress()))
         bisections = max(0, self.bisections_owed - self.bisections)
-        return self.num_agents - self.drops + bisections + (tail if self.influential else 0)
+        tail = self.method.still_owed(None, self._progress()) if self.influential else 0
+        return min(left, self.num_agents - self.drops + bisections + tail)
+
+    def _progress(self) -> Progress:
+        return Progress(run=self.bar.n, began=self.began, random=self.random, refined=self.refined,
+                        refine_runs=self.refine_runs)
 
     def close(self) -> None:
         self.bar.total = self.bar.n
@@ -125,11 +103,13 @@ class RolloutProgress:
 
 
 def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
-               rollouts: Rollouts | None = None) -> AttackOutcome:
-    """The whole search over `rollouts` (default: embedded), then the best attack recorded."""
+               rollouts: Rollouts | None = None, configs: CoreConfigs | None = None) -> AttackOutcome:
+    """The whole search over `rollouts` (default: embedded), then the best attack recorded.
+    `configs`: the params' core configs, when the caller built them."""
     started = time.perf_counter()
-    backend = rollouts if rollouts is not None else Stack(scenario, params)
-    config = search_config(params)
+    configs = configs if configs is not None else core_configs(params)
+    backend = rollouts if rollouts is not None else Stack(scenario, params, configs)
+    config = configs.search
     problem: AttackProblem | None = None
     counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], lambda: problem.best, progress)
     problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter,
@@ -171,11 +151,12 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     output = output if output is not None else default_output(params, scenario.name)
     check_output(output)
     checkpoint = Checkpoint(output, params, resume)
+    configs = core_configs(params)  # once, for the backend, the checkpoint and the search
     finished = False
     try:
-        with open_rollouts(scenario, params, bag_path, transport) as rollouts:
-            outcome = run_attack(scenario, params, progress=progress, rollouts=ResumedRollouts(
-                rollouts, checkpoint, scenario.agents, rollout_config(params.flat())))
+        with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
+            outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
+                rollouts, checkpoint, scenario.agents, configs.rollout))
         report = write_results(output, outcome, bag_path)
         finished = True
     except KeyboardInterrupt:

@@ -16,8 +16,8 @@ import numpy as np
 from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
-from advperc_ros.core.search.pipeline import METHODS as SEARCH_METHODS
 from advperc_ros.core.search.problem import OBJECTIVES
+from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
 from advperc_ros.exits import (EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES,
                                expected_failure)
 from advperc_ros.params import ParamsError, load_params

@@ -22,11 +22,7 @@ from typing import Any
 
 import yaml
 
-from advperc_ros.core.planners.base import PlanningContext
-from advperc_ros.core.rollout import RolloutConfig
-from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.search.pipeline import METHODS
-from advperc_ros.core.tracker import TrackerConfig
+from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
 
 NODE = "orchestrator"
@@ -136,7 +132,7 @@ class GuidedParams:
 class SearchParams:
     method: str = _param("guided", "guided: heuristic, then rounds that score many candidates and roll out the "
                          "most promising (README Search); paper: heuristic, random search, refine, as the paper",
-                         choices=METHODS)
+                         choices=tuple(METHODS))
     budget: int = _param(0, "rollouts the search may use at most; 0: the paper's search's bound (guided method: "
                          "what finding its failure mode took, plus the share of the paper's bound its random steps "
                          "and refine phase have)", low=0, high=1_000_000)
@@ -410,21 +406,3 @@ def find_bag(bag: str, source: Path | None) -> Path:
 def resolve_bag(params: AttackParams) -> Path:
     """The bag named in the params, found by `find_bag`."""
     return find_bag(params.bag, params.source)
-
-
-# ----- what the stack is built from: one place per rule, for the embedded stack and the graph nodes ----
-# (they take dotted values, as a graph node holds only its own parameters)
-
-def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
-    return TrackerConfig(gate=values["tracker.gate"], max_age=values["tracker.max_age"])
-
-
-def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
-    return RolloutConfig(ego_length=values["ego.length"], ego_width=values["ego.width"],
-                         stop_at_collision=values["stop_at_collision"], at_fault_only=values["rule.at_fault_only"],
-                         plan_timeout=values["graph.timeout"])
-
-
-def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningContext:
-    return PlanningContext(route=scenario.route, lanes=scenario.lanes, dt=scenario.dt,
-                           ego_length=values["ego.length"], ego_width=values["ego.width"])

@@ -39,7 +39,7 @@ sys.path.insert(0, str(REPO))  # time this checkout, not whichever advperc_ros i
 from advperc_ros.application import run_attack  # noqa: E402
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors, inject  # noqa: E402
-from advperc_ros.core.search.pipeline import METHODS  # noqa: E402
+from advperc_ros.core.search.registry import METHODS  # noqa: E402
 from advperc_ros.core.search.problem import OBJECTIVES, GroundTruthFails  # noqa: E402
 from advperc_ros.core.metrics.nds import nds  # noqa: E402
 from advperc_ros.core.rollout import STAGES  # noqa: E402

@@ -10,7 +10,8 @@ from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, rollout
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.search import approach
-from advperc_ros.core.search.pipeline import SearchConfig, bound, run_search
+from advperc_ros.core.search.config import SearchConfig, bound
+from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.tracker import Tracker
 from test_search import make_problem

@@ -13,7 +13,8 @@ from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge, rollou
 from advperc_ros.core.rules import STOPPED_SPEED
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker
-from advperc_ros.params import AttackParams, rollout_config
+from advperc_ros.configs import rollout_config
+from advperc_ros.params import AttackParams
 
 LANES = [
     {"id": "east", "centerline": [[-100.0, -1.75], [500.0, -1.75]], "width": 3.5},

@@ -8,7 +8,8 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from advperc_ros.application import RolloutProgress, attack_to_folder, run_attack, search_config
+from advperc_ros.application import RolloutProgress, attack_to_folder, run_attack
+from advperc_ros.configs import core_configs
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
@@ -16,7 +17,8 @@ from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.search import guided
 from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_still_fails, merge, next_radius,
                                             pick_batch, push, shown, trust_region, wrongness)
-from advperc_ros.core.search.pipeline import SearchConfig, run_search
+from advperc_ros.core.search.config import SearchConfig
+from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
 from advperc_ros.exits import Interrupted
 from advperc_ros.params import load_params
@@ -261,7 +263,7 @@ def _narrow_boundary_search(scenario, params, slack):
         return RolloutResult(ego=truth.ego, distances=distances)
 
     problem = AttackProblem(scenario, rollout, params.objective)
-    config = replace(search_config(params), method="guided", budget=40)  # at 60 even unbounded steps gain here
+    config = replace(core_configs(params).search, method="guided", budget=40)  # at 60 even unbounded steps gain here
     run_search(problem, config)
     return problem
 

@@ -8,7 +8,9 @@ import pytest
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.search.heuristic import heuristic_search
 from advperc_ros.core.search.joint import joint_drops, worst_case
-from advperc_ros.core.search.pipeline import METHODS, SearchConfig, bound, run_search
+from advperc_ros.core.search.config import SearchConfig, bound
+from advperc_ros.core.search.pipeline import run_search
+from advperc_ros.core.search.registry import METHODS
 from advperc_ros.core.search.problem import AttackProblem
 from test_search import Recorder, make_problem
 from toy_scenarios import FOLLOW_SPEC, PLATOON_SPEC, RUNAWAY_LEAD_SPEC

@@ -423,7 +423,8 @@ def test_refine_keeps_only_failing_rollouts_and_restores_perfect_detections():
 def test_a_budget_spent_within_the_heuristic_reports_its_failing_rollout_as_the_heuristic_s():
     """The lead's drop collides at rollout 2, the budget ends at 3 mid-bisection: the report needs a
     heuristic row for the attack it reports (it used to be None, and writing report.md failed)."""
-    from advperc_ros.core.search.pipeline import SearchConfig, run_search
+    from advperc_ros.core.search.config import SearchConfig
+    from advperc_ros.core.search.pipeline import run_search
 
     problem, _, _ = make_problem(BASE_SPEC)
     result = run_search(problem, SearchConfig(budget=3, method="paper"))  # one rollout at a time

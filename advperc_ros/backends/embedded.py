@@ -11,8 +11,8 @@ from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker
-from advperc_ros.params import (AttackParams, params_from_values, planning_context, rollout_config,
-                                tracker_config)
+from advperc_ros.configs import CoreConfigs, core_configs
+from advperc_ros.params import AttackParams, params_from_values
 
 
 class Stack:
@@ -20,14 +20,16 @@ class Stack:
     With `workers` > 1, `rollout_many` runs a batch on that many processes, each of which builds
     its own stack once (a planner is costly to build: ObP compiles its NLP)."""
 
-    def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path | None = None,
-                 transport: Any = None) -> None:  # bag_path, transport: the graph backend's (registry)
-        values = params.flat()
+    def __init__(self, scenario: Scenario, params: AttackParams, configs: CoreConfigs | None = None,
+                 bag_path: Path | None = None, transport: Any = None) -> None:
+        """`configs`: the params' core configs, when the caller built them (else built here);
+        `bag_path`, `transport`: the graph backend's, unused here (the registry gives both to every backend)."""
+        configs = configs if configs is not None else core_configs(params)
         self.scenario = scenario
         self.params = params
-        self.config = rollout_config(values)
-        self.tracker = Tracker(tracker_config(values))
-        self.planner = load_planner(params.planner, planning_context(values, scenario), params.planner_params)
+        self.config = configs.rollout
+        self.tracker = Tracker(configs.tracker)
+        self.planner = load_planner(params.planner, configs.planning_context(scenario), params.planner_params)
         self.attacked_planner = AttackedPlanner(params.planner)
         self._pool: ProcessPoolExecutor | None = None
 

@@ -12,10 +12,10 @@ come from the bag, as in the embedded stack; an external planner may take them f
 import sys
 from typing import Any
 
+from advperc_ros.configs import planning_context
 from advperc_ros.core.planners.base import Planner
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
-from advperc_ros.params import planning_context
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import read_scenario

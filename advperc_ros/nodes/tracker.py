@@ -9,9 +9,9 @@ rollout's first stamp, exactly as the embedded rollout counts it.
 import sys
 from typing import Any
 
+from advperc_ros.configs import tracker_config
 from advperc_ros.core.tracker import Tracker
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
-from advperc_ros.params import tracker_config
 from advperc_ros.ros import cdr
 from advperc_ros.ros.lockstep import RolloutClock
 from advperc_ros.ros.topics import PERCEPTION, TOPIC_TYPES, TRACKING

@@ -45,7 +45,8 @@ from advperc_ros.backends.graph.assembly import assemble, frames_in, kept_frames
 from advperc_ros.backends.graph.client import SPIN, LockstepClient
 from advperc_ros.exceptions import GraphError, RolloutFault
 from advperc_ros.backends.graph.processes import NodeProcesses
-from advperc_ros.params import AttackParams, rollout_config
+from advperc_ros.configs import CoreConfigs, core_configs
+from advperc_ros.params import AttackParams
 from advperc_ros.ros.lockstep import Status
 from advperc_ros.ros.topics import ERRORS, PLAN
 from advperc_ros.ros.transport import Transport
@@ -64,7 +65,7 @@ class GraphRollouts:
     we start are reached over a Cyclone participant of our own, recreated with them on a restart."""
 
     def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path,
-                 transport: Transport | None = None) -> None:
+                 transport: Transport | None = None, configs: CoreConfigs | None = None) -> None:
         if transport is not None and params.graph.spawn_nodes:
             raise ValueError("a transport can only be given with graph.spawn_nodes false")
         self.scenario = scenario
@@ -78,7 +79,7 @@ class GraphRollouts:
         # a graph we start talks in a DDS partition of its own: any number of them share a domain
         self._partition = f"advperc-{os.getpid()}-{secrets.token_hex(4)}" if params.graph.spawn_nodes else ""
         self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only, self._partition)
-        self._config = rollout_config(params.flat())
+        self._config = (configs if configs is not None else core_configs(params)).rollout
         self._client: LockstepClient | None = None
         self._recording = False
         try:

@@ -23,25 +23,18 @@ model's choice. A round's rollouts are independent, so a backend may run them at
 size is a param, so the attack does not depend on how many workers ran it.
 """
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
+from advperc_ros.core.search.config import GuidedConfig, SearchConfig, after_failure_bound
+from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
-from advperc_ros.core.search.random_search import RandomSearchConfig, propose
+from advperc_ros.core.search.random_search import propose
 from advperc_ros.core.search.refine import dropped_runs, refine_drops
 
 # m: pushes just inside each match threshold (a true positive at that threshold and every looser one)
 PUSHES = 0.95 * np.asarray(DIST_THRESHOLDS, dtype=float)
-
-
-@dataclass(frozen=True)
-class GuidedConfig:
-    candidates: int = 400  # scored per round
-    batch: int = 2  # rolled out per round
-    random: RandomSearchConfig = RandomSearchConfig()  # the paper's proposal: max offset, yaw noise
 
 
 def attacked_runs(errors: PerceptionErrors, frames: int) -> list[tuple[int, int, int]]:
@@ -337,3 +330,31 @@ def guided_search(
                 shows.append(tuple(seen[i]))
                 failed.append(trial.adversarial)
     return problem.best
+
+
+class GuidedMethod:
+    """The default method: the heuristic drops every agent before bisecting any (its rollouts may run
+    at once), then `guided_search` spends the rest of the budget."""
+
+    name = "guided"
+    batched_heuristic = True
+    phases = {Phase.GUIDED: "guided search", Phase.REFINE: "refine"}
+
+    def __init__(self, config: SearchConfig) -> None:
+        self.config = config
+
+    def tail_budget(self, used: int, budget: int) -> int:
+        """`config.budget`, or when 0 the share of the paper's bound that follows the failure mode
+        (`after_failure_bound`), `used` rollouts having found it. The paper's bound itself also counts
+        bisections of agents whose drop did not collide, which a recording's dozens of cars make
+        several times what the paper's search spends."""
+        return self.config.budget or used + after_failure_bound(self.config)
+
+    def run(self, problem: AttackProblem, heuristic: Evaluation, rng: np.random.Generator) -> None:
+        guided_search(problem, rng, self.config.guided, problem.budget, self.config.refine_iterations)
+
+    def still_owed(self, phase: Phase | None, progress: Progress) -> int:
+        """Before its rounds, `after_failure_bound`; once they began, the rest of its budget, which it spends."""
+        if progress.began is None:
+            return after_failure_bound(self.config)
+        return self.tail_budget(progress.began, 0) - progress.run - 1

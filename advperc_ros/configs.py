@@ -1,0 +1,85 @@
+"""The one path from the params tree to the core: every core config built in one place.
+
+`core_configs(params)` builds them once, and the application hands the result down to the
+backend, the checkpoint and the search, so no consumer reads params on its own. A graph node holds
+only its own parameters (dotted values, not a whole params tree), so each config also has a
+builder from dotted values, which `core_configs` uses too: one rule per config.
+
+Which parameter fills which field is written once, in the tables below; a test checks that every
+core config's default is the schema's default for the same parameter, so the two cannot drift.
+"""
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from advperc_ros.core.planners.base import PlanningContext
+from advperc_ros.core.rollout import RolloutConfig
+from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search.config import GuidedConfig, SearchConfig
+from advperc_ros.core.search.random_search import RandomSearchConfig
+from advperc_ros.core.tracker import TrackerConfig
+from advperc_ros.params import AttackParams
+
+# core config field -> the dotted parameter that sets it
+ROLLOUT = {"ego_length": "ego.length", "ego_width": "ego.width", "stop_at_collision": "stop_at_collision",
+           "at_fault_only": "rule.at_fault_only", "plan_timeout": "graph.timeout"}
+TRACKER = {"gate": "tracker.gate", "max_age": "tracker.max_age"}
+RANDOM = {"steps": "search.random.steps", "proposals": "search.random.proposals",
+          "max_offset": "search.random.max_offset", "yaw_std": "search.random.yaw_std"}
+GUIDED = {"candidates": "search.guided.candidates", "batch": "search.guided.batch"}
+SEARCH = {"heuristic_iterations": "search.heuristic.iterations", "joint_max_agents": "search.joint.max_agents",
+          "approach_steps": "search.approach.steps", "approach_patience": "search.approach.patience",
+          "refine_iterations": "search.refine.iterations", "seed": "seed", "method": "search.method",
+          "budget": "search.budget"}
+EGO = {"ego_length": "ego.length", "ego_width": "ego.width"}  # of PlanningContext, whose other fields are the scenario's
+TABLES: tuple[tuple[type, Mapping[str, str]], ...] = (
+    (RolloutConfig, ROLLOUT), (TrackerConfig, TRACKER), (RandomSearchConfig, RANDOM), (GuidedConfig, GUIDED),
+    (SearchConfig, SEARCH))
+"""Every (core config, table) pair whose defaults must be the schema's."""
+
+
+def _fields(table: Mapping[str, str], values: Mapping[str, Any]) -> dict[str, Any]:
+    return {name: values[dotted] for name, dotted in table.items()}
+
+
+def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
+    """How a rollout is run and judged (ego footprint, rule, plan timeout), from dotted values."""
+    return RolloutConfig(**_fields(ROLLOUT, values))
+
+
+def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
+    """The tracker's gate and track lifetime, from dotted values (the tracker node's own)."""
+    return TrackerConfig(**_fields(TRACKER, values))
+
+
+def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningContext:
+    """What a planner is built with: the scenario's road and period, the params' ego footprint."""
+    return PlanningContext(route=scenario.route, lanes=scenario.lanes, dt=scenario.dt, **_fields(EGO, values))
+
+
+def search_config(values: Mapping[str, Any]) -> SearchConfig:
+    """The whole search's settings, from dotted values."""
+    random = RandomSearchConfig(**_fields(RANDOM, values))
+    return SearchConfig(**_fields(SEARCH, values), random=random,
+                        guided=GuidedConfig(**_fields(GUIDED, values), random=random))
+
+
+@dataclass(frozen=True)
+class CoreConfigs:
+    """Every core config of one attack, built once from its params (`core_configs`)."""
+
+    rollout: RolloutConfig
+    tracker: TrackerConfig
+    search: SearchConfig
+    values: Mapping[str, Any]  # the dotted values they came from (a planning context needs the scenario too)
+
+    def planning_context(self, scenario: Scenario) -> PlanningContext:
+        return planning_context(self.values, scenario)
+
+
+def core_configs(params: AttackParams) -> CoreConfigs:
+    """The core configs of an attack, from its params: what the backend, checkpoint and search use."""
+    values = params.flat()
+    return CoreConfigs(rollout=rollout_config(values), tracker=tracker_config(values), search=search_config(values),
+                       values=values)

@@ -1,0 +1,30 @@
+"""Search methods by name, imported only when asked for (as the planners' registry).
+
+Adding a method: a module with a class that has the `method.SearchMethod` protocol, and one line
+here. `search.method`'s allowed values (advperc_ros.params) and `advperc attack --method` come
+from this table.
+"""
+
+import importlib
+
+from advperc_ros.core.search.config import SearchConfig
+from advperc_ros.core.search.method import SearchMethod
+
+# paper: the paper's Algorithms 1 and 2 and the refine phase; guided: Algorithm 1, then the guided search
+METHODS = {
+    "paper": "advperc_ros.core.search.paper:PaperMethod",
+    "guided": "advperc_ros.core.search.guided:GuidedMethod",
+}
+
+
+def method_class(name: str) -> type[SearchMethod]:
+    """The class of the method `name` (a key of METHODS)."""
+    if name not in METHODS:
+        raise ValueError(f"unknown search method '{name}' (known: {', '.join(METHODS)})")
+    module_name, _, class_name = METHODS[name].partition(":")
+    return getattr(importlib.import_module(module_name), class_name)
+
+
+def search_method(config: SearchConfig) -> SearchMethod:
+    """The method `config.method` names, built with `config`."""
+    return method_class(config.method)(config)

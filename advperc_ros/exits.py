@@ -4,8 +4,17 @@ An expected failure is one line on stderr (or the node's log) and its own exit c
 else is a bug and keeps its traceback.
 """
 
-from advperc_ros.exceptions import (BagError, GraphError, GroundTruthFails, Interrupted, ParamsError, PEMError,
-                                   PlannerError, ScenarioError, ScenarioRejected)
+from advperc_ros.exceptions import (
+    BagError,
+    GraphError,
+    GroundTruthFails,
+    Interrupted,
+    ParamsError,
+    PEMError,
+    PlannerError,
+    ScenarioError,
+    ScenarioRejected,
+)
 
 EXIT_OK = 0
 EXIT_NOTHING_TO_ATTACK = 1  # the stack fails with perfect perception, or check-typical found collisions

@@ -6,19 +6,19 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import LineCollection, PolyCollection  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.lines import Line2D  # noqa: E402
-from matplotlib.patches import Patch  # noqa: E402
-from matplotlib.ticker import MaxNLocator  # noqa: E402
-from PIL import Image  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
+from PIL import Image
 
-from advperc_ros.core.perception_errors import inject  # noqa: E402
-from advperc_ros.core.geometry import box_corners  # noqa: E402
-from advperc_ros.core.search.problem import LogRow  # noqa: E402
-from advperc_ros.outcome import AttackOutcome  # noqa: E402
+from advperc_ros.core.geometry import box_corners
+from advperc_ros.core.perception_errors import inject
+from advperc_ros.core.search.problem import LogRow
+from advperc_ros.outcome import AttackOutcome
 
 METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
 # one style per layer, shared by the bird's-eye view and the animation (the bag's colours where it has them)

@@ -40,13 +40,14 @@ def run_cell(cell: Cell, output: Path, progress: bool = False) -> CellResult:
     folder = output / cell.name
     try:
         if cell.attack is None:
-            attack_to_folder(cell.params, folder, progress=progress, resume=True)  # a killed cell goes on from its checkpoint
+            # a killed cell goes on from its checkpoint
+            attack_to_folder(cell.params, folder, progress=progress, resume=True)
         else:
             write_replay(folder, replay(load_attack(cell.attack), cell.params))
     except EXPECTED_TYPES as exc:
         line, code = expected_failure(exc)
         return CellResult(cell.name, line, code)
-    except Exception:  # noqa: BLE001 -- a bug: its traceback goes into the summary, and the other cells go on
+    except Exception:  # a bug: its traceback goes into the summary, and the other cells go on
         return CellResult(cell.name, traceback.format_exc())
     return CellResult(cell.name)
 

@@ -11,7 +11,7 @@ import numpy as np
 
 from advperc_ros.core.geometry import box_corners, signed_box_distance
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.exceptions import ScenarioRejected
+from advperc_ros.exceptions import ScenarioRejected as ScenarioRejected  # re-exported: its home before exceptions.py
 
 
 def escape_profiles(

@@ -27,9 +27,9 @@ from scipy.optimize import minimize
 from scipy.special import expit, gammaln, log_expit
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.occlusion import occlusion
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.exceptions import PEMError
 
 NUM_FEATURES = 5

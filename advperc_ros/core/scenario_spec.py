@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane, Scenario, ScenarioError
 
 

@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.pem import PEM
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
 

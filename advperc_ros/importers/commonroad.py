@@ -178,7 +178,8 @@ def _lane(lanelet) -> Lane:
         centerline = Polyline(lanelet.center_vertices)
     except ValueError:
         raise ScenarioError(f"field '{name}': its centre needs at least two distinct points") from None
-    return Lane(id=str(lanelet.lanelet_id), centerline=centerline, width=float(np.mean(np.linalg.norm(left - right, axis=1))))
+    return Lane(id=str(lanelet.lanelet_id), centerline=centerline,
+                width=float(np.mean(np.linalg.norm(left - right, axis=1))))
 
 
 def _route(network, start_xy: np.ndarray, goal) -> tuple[list[int], str]:

@@ -21,7 +21,7 @@ CLASS = "car"
 def _read(path: Path) -> dict[str, list[dict]]:
     try:
         document = json.loads(Path(path).read_text())
-        results = document["results"] if "results" in document else document
+        results = document["results"] if "results" in document else document  # noqa: SIM401 -- the document may be a list
         if not isinstance(results, dict):
             raise TypeError("expected a mapping of sample tokens to box lists")
         return results

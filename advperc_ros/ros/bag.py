@@ -20,10 +20,10 @@ from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane, Scenario
 from advperc_ros.core.staging import staged_folder
+from advperc_ros.exceptions import BagError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.topics import CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, ROUTE, TOPIC_TYPES, depth
-from advperc_ros.exceptions import BagError
 
 SCENARIO_KEY = "advperc.scenario"
 ROS_DISTRO = "jazzy"  # the message definitions come from rosbags' Jazzy typestore

@@ -1,8 +1,9 @@
 """The per-frame messages of the topic contract as CDR bytes, packed from and read into numpy.
 
 Every frame the graph nodes exchange object MarkerArrays, odometry, a clock, the rule value (a
-Float64 and a DiagnosticArray) and a plan (a nav_msgs/Path of some 80 poses). Going through rosbags message objects costs 0.2 to 0.9 ms per
-MarkerArray or Path (thousands of small Python objects built, serialised, decoded and read), more
+Float64 and a DiagnosticArray) and a plan (a nav_msgs/Path of some 80 poses). Going through
+rosbags message objects costs 0.2 to 0.9 ms per MarkerArray or Path (thousands of small Python
+objects built, serialised, decoded and read), more
 than a whole embedded IDM frame; packing the bytes straight from the arrays, or reading the arrays
 straight out of the bytes, costs a tenth of that. The bytes are exactly rosbags' (and so ROS
 2's): plain CDR, little endian (encapsulation 00 01 00 00), zero padding, alignment counted from
@@ -29,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
+
 from advperc_ros.exceptions import MessageError
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
@@ -159,7 +161,7 @@ def encode_objects(objects: dict[str, np.ndarray], ns_time: int, kind: str) -> b
     delete_all, cube, arrow = (_run(header, _string(ns)) for ns in ("", OBJECTS_NS, VELOCITY_NS))
     color = COLORS[kind]
     parts = [ENCAPSULATION, _U32.pack(1 + 2 * len(objects["ids"]))]
-    offset = _put_marker(parts, 4, delete_all, (0, CUBE, DELETEALL), _IDENTITY + (0.0, 0.0, 0.0), color)
+    offset = _put_marker(parts, 4, delete_all, (0, CUBE, DELETEALL), (*_IDENTITY, 0.0, 0.0, 0.0), color)
     x, y, height = objects["x"], objects["y"], objects["height"]
     rows = np.array([x, y, height / 2.0, *yaw_quaternion(objects["yaw"]), objects["length"], objects["width"], height,
                      x + objects["vx"], y + objects["vy"]]).T.tolist()

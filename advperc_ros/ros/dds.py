@@ -43,10 +43,10 @@ from cyclonedds.sub import DataReader, Subscriber
 from cyclonedds.topic import Topic
 from cyclonedds.util import duration
 
+from advperc_ros.exceptions import DdsError
 from advperc_ros.ros import dds_types
 from advperc_ros.ros.cdr import payload
 from advperc_ros.ros.topics import depth
-from advperc_ros.exceptions import DdsError
 
 try:  # the fast path: CDR bytes straight to Cyclone (see the module docstring)
     from cyclonedds._clayer import ddspy_take as _ddspy_take
@@ -95,7 +95,8 @@ def _domain(domain_id: int, localhost_only: bool) -> None:
     """Configure the Cyclone domain once per process; a second, different request is an error."""
     if domain_id in _DOMAINS:
         if _DOMAINS[domain_id][1] != localhost_only:
-            raise DdsError(f"domain {domain_id}: already set up with localhost_only={_DOMAINS[domain_id][1]} in this process")
+            raise DdsError(f"domain {domain_id}: already set up with localhost_only={_DOMAINS[domain_id][1]} "
+                           "in this process")
         return
     config = LOCALHOST_CONFIG.format(max_index=MAX_PROCESSES - 1) if localhost_only else None
     # without a config Cyclone reads CYCLONEDDS_URI or its defaults: the user widened discovery

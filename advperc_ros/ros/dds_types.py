@@ -28,8 +28,8 @@ from typing import Any
 from cyclonedds.idl import IdlStruct, make_idl_struct
 from cyclonedds.idl import types as idl
 
-from advperc_ros.ros.topics import TOPIC_TYPES
 from advperc_ros.ros.cdr import TYPESTORE, payload
+from advperc_ros.ros.topics import TOPIC_TYPES
 
 # rosbags Nodetype values (rosbags.interfaces.Nodetype): BASE, NAME, ARRAY, SEQUENCE
 _BASE, _NAME, _ARRAY, _SEQUENCE = 1, 2, 3, 4

@@ -17,7 +17,7 @@ then restarts the nodes it owns.
 /rules/diagnostics carries the rule value of frame k stamped t_k: one DiagnosticStatus named
 `collision` whose KeyValues are `min_signed_distance` and `agent <id>` per agent present, values
 written with `repr` (exact round trip; `inf` where nothing is present).
-"""
+"""  # noqa: E501 -- a Markdown table keeps each row on one line
 
 import json
 import math

@@ -12,8 +12,8 @@ import numpy as np
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.scenario import EgoState, Lane
 from advperc_ros.ros import cdr
-from advperc_ros.ros.cdr import (COLORS, DIAGNOSTICS, FRAME_ID, MARKER_ARRAY, ODOMETRY, PATH, TYPESTORE,  # noqa: F401
-                                  MessageError)
+from advperc_ros.ros.cdr import COLORS, DIAGNOSTICS, FRAME_ID, MARKER_ARRAY, ODOMETRY, PATH, TYPESTORE
+from advperc_ros.ros.cdr import MessageError as MessageError  # re-exported beside the codecs' names
 
 T = TYPESTORE.types
 LANES_NS = "lanes"
@@ -117,7 +117,8 @@ def lanes_to_markers(lanes: tuple[Lane, ...], ns_time: int):
     for i, lane in enumerate(lanes):
         points = [_point(x, y) for x, y in lane.centerline.points]
         marker = _marker(
-            ns_time, LANES_NS, i, Marker.LINE_STRIP, Marker.ADD, _pose(0, 0, 0), (lane.width, 0, 0), _color("lanes"), points, lane.id
+            ns_time, LANES_NS, i, Marker.LINE_STRIP, Marker.ADD, _pose(0, 0, 0), (lane.width, 0, 0), _color("lanes"), points,
+            lane.id,
         )
         markers.append(marker)
     return T["visualization_msgs/msg/MarkerArray"](markers=markers)

@@ -208,7 +208,7 @@ def nds(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> NDSResult:
     precision = tp / np.arange(1, pf.size + 1)  # tp + fp is the rank
 
     ap: dict[float, float] = {}
-    tp_errors = {name: 1.0 for name in TP_METRICS}
+    tp_errors = dict.fromkeys(TP_METRICS, 1.0)
     for i, th in enumerate(DIST_THRESHOLDS):
         if npos == 0 or not is_tp[i].any():
             ap[th] = 0.0

@@ -13,10 +13,10 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, NDSResult, nds
 from advperc_ros.core.pem import PEM, default_pem
+from advperc_ros.core.perception_errors import PerceptionErrors
 
 
 @dataclass(frozen=True)

@@ -12,9 +12,24 @@ import casadi as ca
 import numpy as np
 from scipy.sparse import csc_matrix
 
-from advperc_ros.core.planners.obp.config import (CROSS_BUFFER, GRID_STEP, HEADWAY, MAX_CLASSES, PASS_CLEARANCE,
-                                                  PASS_SPEED_RATIO, RAMP_MAX, RAMP_MIN, RAMP_TIME, STANDSTILL_GAP,
-                                                  STATIC_SPEED, W1_ACCEL, W1_HEADWAY, W1_JERK, W1_LATERAL, Setup)
+from advperc_ros.core.planners.obp.config import (
+    CROSS_BUFFER,
+    GRID_STEP,
+    HEADWAY,
+    MAX_CLASSES,
+    PASS_CLEARANCE,
+    PASS_SPEED_RATIO,
+    RAMP_MAX,
+    RAMP_MIN,
+    RAMP_TIME,
+    STANDSTILL_GAP,
+    STATIC_SPEED,
+    W1_ACCEL,
+    W1_HEADWAY,
+    W1_JERK,
+    W1_LATERAL,
+    Setup,
+)
 from advperc_ros.core.planners.obp.prediction import Obstacle
 
 

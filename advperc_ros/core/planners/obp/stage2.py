@@ -10,8 +10,20 @@ import numpy as np
 
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.planners.base import Trajectory
-from advperc_ros.core.planners.obp.config import (CONSTRAINT_TOL, FEASIBLE_ENOUGH, IPOPT_OPTIONS, SUCCESS, W_ACCEL,
-                                                  W_HEADING, W_JERK, W_LATERAL, W_SPEED, W_STEER, W_STEER_RATE, Setup)
+from advperc_ros.core.planners.obp.config import (
+    CONSTRAINT_TOL,
+    FEASIBLE_ENOUGH,
+    IPOPT_OPTIONS,
+    SUCCESS,
+    W_ACCEL,
+    W_HEADING,
+    W_JERK,
+    W_LATERAL,
+    W_SPEED,
+    W_STEER,
+    W_STEER_RATE,
+    Setup,
+)
 from advperc_ros.core.planners.obp.dynamics import NUMERIC, SYMBOLIC, bicycle_rk4
 from advperc_ros.core.planners.obp.prediction import Obstacle
 from advperc_ros.core.planners.obp.stage1 import Reference

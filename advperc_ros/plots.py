@@ -1,6 +1,7 @@
 """Plots of an attack: best metric against rollouts (the paper's figure 3), a bird's-eye view of the
 last seconds and an animation of the whole attack rollout. Headless (Agg)."""
 
+from collections.abc import Mapping
 from pathlib import Path
 
 import matplotlib
@@ -17,10 +18,14 @@ from PIL import Image
 
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.perception_errors import inject
-from advperc_ros.core.search.problem import LogRow
+from advperc_ros.core.search.problem import LogRow, Phase
+from advperc_ros.core.search.registry import every_phase
 from advperc_ros.outcome import AttackOutcome
 
 METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
+# the metric plot's (colour, line) of a search method's phase; a phase not here takes the next of OTHER_LINES
+PHASE_LINES = {Phase.RANDOM: ("tab:cyan", "--"), Phase.REFINE: ("tab:green", ":"), Phase.GUIDED: ("tab:purple", "-.")}
+OTHER_LINES = (("tab:olive", "--"), ("tab:pink", "-."), ("tab:gray", ":"))
 # one style per layer, shared by the bird's-eye view and the animation (the bag's colours where it has them)
 BOX_STYLES = {
     "truth": dict(facecolor="none", edgecolor="black", linewidth=1.2, label="ground truth"),
@@ -39,13 +44,15 @@ GIF_MAX_FRAMES = 80  # a longer scenario plays faster rather than costing more
 GIF_WINDOW = ((-15.0, 45.0), (-15.0, 15.0))  # m, ego frame: x ahead, y left
 
 
-def metric_figure(log: list[LogRow], objective: str) -> Figure:
-    """The paper's figure 3 when the search found a collision, else why it did not (closest approaches)."""
+def metric_figure(log: list[LogRow], objective: str, phases: Mapping[Phase, str] | None = None) -> Figure:
+    """The paper's figure 3 when the search found a collision, else why it did not (closest approaches).
+    `phases`: the search method's phases and their names (`SearchMethod.phases`; default: every
+    registered method's)."""
     fig, ax = plt.subplots(figsize=(6, 4))
     index = np.array([row.rollout for row in log])
     collided = np.array([row.collided for row in log], dtype=bool)
     if collided.any():
-        _best_metric(ax, log, index, collided, objective)
+        _best_metric(ax, log, index, collided, objective, every_phase() if phases is None else phases)
     else:
         _closest_approaches(ax, log, index)
     ax.grid(alpha=0.3)
@@ -55,18 +62,21 @@ def metric_figure(log: list[LogRow], objective: str) -> Figure:
     return fig
 
 
-def _best_metric(ax, log: list[LogRow], index: np.ndarray, collided: np.ndarray, objective: str) -> None:
-    """Best adversarial metric after each rollout; heuristic solid, random search dashed, refine
-    dotted, guided rounds dash-dotted (refine may run between two stretches of rounds), the approach
-    phase (when no drop collided) solid brown."""
+def _best_metric(ax, log: list[LogRow], index: np.ndarray, collided: np.ndarray, objective: str,
+                 phases: Mapping[Phase, str]) -> None:
+    """Best adversarial metric after each rollout; heuristic solid, the approach phase (when no drop
+    collided) solid brown, and each of the method's phases as the method names it: random search
+    dashed, refine dotted, guided rounds dash-dotted (refine may run between two stretches of rounds)."""
     best = np.array([row.best_metric for row in log])
-    phases = np.array([{"random": 1, "refine": 2, "guided": 3, "approach": 4}.get(row.phase, 0) for row in log])
-    styles = {0: ("heuristic", "tab:orange", "-"), 1: ("random search", "tab:cyan", "--"), 2: ("refine", "tab:green", ":"),
-              3: ("guided rounds", "tab:purple", "-."), 4: ("approach", "tab:brown", "-")}
-    starts = np.flatnonzero(np.diff(phases, prepend=-1))  # each stretch of one phase
+    styles = {str(Phase.APPROACH): ("approach", "tab:brown", "-")}
+    for i, (phase, name) in enumerate(phases.items()):
+        styles[str(phase)] = (name, *PHASE_LINES.get(phase, OTHER_LINES[i % len(OTHER_LINES)]))
+    kinds = [str(row.phase) if str(row.phase) in styles else "" for row in log]  # "": the heuristic's
+    styles[""] = ("heuristic", "tab:orange", "-")
+    starts = [i for i, kind in enumerate(kinds) if i == 0 or kind != kinds[i - 1]]  # each stretch of one phase
     labelled = set()
     for start, end in zip(starts, [*starts[1:], len(log)]):
-        label, color, line = styles[int(phases[start])]
+        label, color, line = styles[kinds[start]]
         first = max(start - 1, 0)  # join the previous stretch's curve
         ax.step(index[first:end], best[first:end], where="post", color=color, linestyle=line,
                 label=None if label in labelled else label)
@@ -107,8 +117,8 @@ def _closest_approaches(ax, log: list[LogRow], index: np.ndarray) -> None:
     ax.set_title(f"No collision found in {len(log)} rollouts")
 
 
-def metric_vs_rollouts(path: Path, log: list[LogRow], objective: str) -> None:
-    _save(metric_figure(log, objective), path, dpi=120)
+def metric_vs_rollouts(path: Path, log: list[LogRow], objective: str, phases: Mapping[Phase, str] | None = None) -> None:
+    _save(metric_figure(log, objective, phases), path, dpi=120)
 
 
 def _save(fig: Figure, path: Path, dpi: int) -> None:

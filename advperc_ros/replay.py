@@ -30,14 +30,8 @@ from advperc_ros.params import (
     params_from_values,
     resolve_bag,
 )
-from advperc_ros.results import (
-    ERRORS,
-    REPORT_JSON,
-    load_errors,
-    report_scores,
-    rounded,
-    versions,
-)
+from advperc_ros.report import report_scores, rounded, versions
+from advperc_ros.results import ERRORS, REPORT_JSON, load_errors
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros.bag import BagError, read_scenario
 

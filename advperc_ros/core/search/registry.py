@@ -9,6 +9,7 @@ import importlib
 
 from advperc_ros.core.search.config import SearchConfig
 from advperc_ros.core.search.method import SearchMethod
+from advperc_ros.core.search.problem import Phase
 
 # paper: the paper's Algorithms 1 and 2 and the refine phase; guided: Algorithm 1, then the guided search
 METHODS = {
@@ -28,3 +29,8 @@ def method_class(name: str) -> type[SearchMethod]:
 def search_method(config: SearchConfig) -> SearchMethod:
     """The method `config.method` names, built with `config`."""
     return method_class(config.method)(config)
+
+
+def every_phase() -> dict[Phase, str]:
+    """Every registered method's phases and their names: for a log whose method is not known."""
+    return {phase: name for method in METHODS for phase, name in method_class(method).phases.items()}

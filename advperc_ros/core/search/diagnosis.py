@@ -1,0 +1,97 @@
+"""Why a search found no collision: the diagnosis of a null result, from the search's own log.
+
+A search that finds nothing still says something: which agents were tried, how close the ego came
+with each hidden, whether hiding every vehicle at once could matter at all, and how near the
+approach phase brought it. The report (`advperc_ros.report`) writes this as its `message` and
+its `closest_approach` fields.
+"""
+
+import math
+from collections.abc import Callable
+
+from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.search.approach import Approach
+from advperc_ros.core.search.problem import LogRow
+
+
+def listed_ids(ids: list[int], shown: int = 10) -> str:
+    """Agent ids as a sentence shows them: the first `shown`, then how many in all."""
+    text = ", ".join(str(i) for i in ids[:shown])
+    return text + (f", ... ({len(ids)} in all)" if len(ids) > shown else "")
+
+
+def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, approach: Approach | None = None,
+                     distance: Callable[[float], float] = float) -> dict:
+    """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
+    refines only a drop that collides) and how close the ego came, hidden agent or not; from the
+    joint drops' `blind` rollout (every vehicle hidden), whether any drop could matter; and how close
+    the `approach` phase (cars shown displaced) brought the ego at its fault. `distance`: how a
+    distance is to be written (the report rounds them, `advperc_ros.report.rounded`)."""
+    truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
+    drops = [row for row in log if row.phase == "heuristic_drop"]
+    conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]
+    inconclusive = [row for row in drops if row.inconclusive]
+    if not drops:
+        text = "no collision found: no agent to attack, the scenario has none"
+    else:
+        text = (f"no collision found: no agent is influential (dropping any one of the {len(drops)} agents "
+                f"({listed_ids([r.agent for r in drops])}) for the whole scenario never made the ego collide), so the "
+                f"heuristic had no failure to narrow and the search none to improve")
+    if inconclusive:
+        text += (f"; the drops of agents {listed_ids([r.agent for r in inconclusive])} were inconclusive "
+                 f"({inconclusive[0].inconclusive})")
+    nearest = min(conclusive, key=lambda row: row.min_signed_distance, default=truth)
+    if nearest.min_signed_distance < truth.min_signed_distance:
+        text += (f"; closest approach {nearest.min_signed_distance:.2f} m, with agent {nearest.agent} dropped "
+                 f"(rollout {nearest.rollout}; perfect perception {truth.min_signed_distance:.2f} m)")
+    else:
+        nearest = truth
+        text += (f"; {'no single drop brought the ego closer than perfect perception does: ' if conclusive else ''}"
+                 f"closest approach {truth.min_signed_distance:.2f} m")
+    blind_report = None
+    if blind is not None:
+        text += "; " + _blind_clause(blind)
+        blind_report = {"collided": blind.collided, "inconclusive": blind.inconclusive,
+                        "min_signed_distance": distance(blind.min_signed_distance),
+                        "margin": distance(blind.margin)}
+    approach_report = None
+    if approach is not None:
+        text += "; " + _approach_clause(approach)
+        approach_report = {"rollouts": approach.rollouts,
+                           "start_margin": distance(approach.start.rollout.margin),
+                           "closest_margin": distance(approach.closest.rollout.margin)}
+    return {
+        "message": text,
+        "blind": blind_report,
+        "approach": approach_report,
+        "agents_tried": [row.agent for row in drops],
+        "closest_approach": {
+            "min_signed_distance": distance(nearest.min_signed_distance),
+            "agent": nearest.agent if nearest.agent >= 0 else None,
+            "rollout": nearest.rollout,
+        },
+        "closest_approach_by_agent": {
+            str(row.agent): distance(row.min_signed_distance) for row in conclusive
+        },
+        "ground_truth_min_signed_distance": distance(truth.min_signed_distance),
+    }
+
+
+def _blind_clause(blind: RolloutResult) -> str:
+    """What hiding every vehicle does, which tells whether missed detections can matter at all: an ego
+    that stays clear of the recorded traffic even blind to it is not put in its way by hiding some. (A
+    blind rollout that collides is an attack: the joint drops narrow it.)"""
+    if blind.inconclusive is not None:
+        return f"with every vehicle hidden at once the rollout was inconclusive ({blind.inconclusive})"
+    at_fault = (f", {blind.margin:.2f} m where a contact would be its fault"
+                if blind.margin != blind.min_signed_distance else "")
+    return (f"even with every vehicle hidden at once the ego collides with none at its fault (closest approach "
+            f"{blind.min_signed_distance:.2f} m{at_fault}): unseen, the recorded traffic still does not come into its way")
+
+
+def _approach_clause(approach: Approach) -> str:
+    """How near showing the cars nearest the ego wrongly brought it to a collision at its fault."""
+    return (f"showing the cars nearest the ego displaced or hidden for a while ({approach.rollouts} rollouts of "
+            f"the approach phase) "
+            f"brought its margin to a collision at its fault from {approach.start.rollout.margin:.2f} m to "
+            f"{approach.closest.rollout.margin:.2f} m")

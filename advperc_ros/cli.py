@@ -183,70 +183,29 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     return run.exit_code
 
 
-def aligned(ground_truth: Path, perceived: Path, topic: str):
-    """(truth, perceived, ego_xy) on the frames both bags share; the 50 m range uses /ego/odometry
-    of the perceived bag, else of the ground-truth bag (latest pose at or before each frame)."""
-    from advperc_ros.ros.bag import read_objects, read_topics
-    from advperc_ros.ros.messages import odometry_to_ego, stamp_ns
-    from advperc_ros.ros.topics import GROUND_TRUTH, ODOMETRY
-
-    gt_stamps, truth = read_objects(ground_truth, GROUND_TRUTH)
-    pred_stamps, boxes = read_objects(perceived, topic)
-    common = np.intersect1d(gt_stamps, pred_stamps)
-    if common.size == 0:
-        raise BagError(f"{perceived}: topic '{topic}' shares no header.stamp with {ground_truth}")
-    odometry = []
-    for source in (perceived, ground_truth):
-        odometry = read_topics(source, [ODOMETRY])[0][ODOMETRY]
-        if odometry:
-            break
-    if not odometry:
-        raise BagError(f"{perceived}: topic '{ODOMETRY}' is missing in both bags (needed for the 50 m range)")
-    odo_stamps = np.array([stamp_ns(m.header.stamp) for _, m in odometry])
-    odo_xy = np.array([[odometry_to_ego(m).x, odometry_to_ego(m).y] for _, m in odometry])
-    latest = np.clip(np.searchsorted(odo_stamps, common, side="right") - 1, 0, len(odometry) - 1)
-    boxes = boxes.select(np.searchsorted(pred_stamps, common))
-    if np.any(np.isnan(boxes.score[boxes.valid])):
-        raise BagError(f"{perceived}: topic '{topic}': field 'text' (confidence) is empty on some markers")
-    return truth.select(np.searchsorted(gt_stamps, common)), boxes, odo_xy[latest]
-
-
 def cmd_score(args: argparse.Namespace) -> int:
     from advperc_ros.core.metrics.scores import score
+    from advperc_ros.ros.bag import aligned_objects
 
-    truth, perceived, ego_xy = aligned(Path(args.ground_truth), Path(args.perceived), args.topic)
+    truth, perceived, ego_xy = aligned_objects(Path(args.ground_truth), Path(args.perceived), args.topic)
     result = score(truth, perceived, ego_xy)
     print(json.dumps({"frames": int(truth.shape[0]), **result.as_dict()}, indent=2))
     return 0
 
 
 def cmd_pem_fit(args: argparse.Namespace) -> int:
-    from advperc_ros.core.metrics.scores import matched_errors
-    from advperc_ros.core.pem import bearings, features, fit
+    from advperc_ros.core.pem_fit import fit_pem
     from advperc_ros.importers.nuscenes import load_pairs
     from advperc_ros.paths import check_output
+    from advperc_ros.ros.bag import aligned_objects
 
     check_output(Path(args.output), "model file")
     if args.nuscenes_gt:
         sources = [load_pairs(Path(args.nuscenes_gt), Path(results)) for results in args.inputs]
     else:
         gt = Path(args.ground_truth) if args.ground_truth else None
-        sources = [aligned(gt or Path(bag), Path(bag), args.topic) for bag in args.inputs]
-    phis, detected, rts, yaws = [], [], [], []
-    for truth, perceived, ego_xy in sources:
-        errors, counted, _ = matched_errors(truth, perceived, ego_xy)
-        bearing = bearings(truth, ego_xy)
-        c, s = np.cos(bearing), np.sin(bearing)
-        rt = np.stack([c * errors.dx + s * errors.dy, -s * errors.dx + c * errors.dy], axis=-1)
-        phis.append(features(truth, ego_xy)[counted])
-        detected.append(~errors.fn[counted])
-        rts.append(rt[counted])
-        yaws.append(errors.dyaw[counted])
-    detected_all = np.concatenate(detected)
-    if detected_all.size < 50 or detected_all.sum() < 20:
-        raise BagError(f"{args.inputs[0]}: too few object-frames to fit ({detected_all.size}, {detected_all.sum()} detected)")
-    source = f"fitted by advperc pem fit on {', '.join(args.inputs)} ({detected_all.size} object-frames)"
-    model = fit(np.concatenate(phis), detected_all, np.concatenate(rts), np.concatenate(yaws), source)
+        sources = [aligned_objects(gt or Path(bag), Path(bag), args.topic) for bag in args.inputs]
+    model, source = fit_pem(sources, args.inputs)
     output = Path(args.output)
     staging = output.with_name(f".{output.name}.partial")
     model.save(staging)

@@ -330,3 +330,28 @@ def read_scenario(path: Path) -> Scenario:
     if check.problems:
         raise BagError(check.problems[0])
     return check.scenario
+
+
+def aligned_objects(ground_truth: Path, perceived: Path, topic: str) -> tuple[BoxSequence, BoxSequence, np.ndarray]:
+    """(truth, perceived, ego_xy) on the frames both bags share; the 50 m range uses /ego/odometry
+    of the perceived bag, else of the ground-truth bag (latest pose at or before each frame): what
+    `advperc score` scores and `advperc pem fit` fits to."""
+    gt_stamps, truth = read_objects(ground_truth, GROUND_TRUTH)
+    pred_stamps, boxes = read_objects(perceived, topic)
+    common = np.intersect1d(gt_stamps, pred_stamps)
+    if common.size == 0:
+        raise BagError(f"{perceived}: topic '{topic}' shares no header.stamp with {ground_truth}")
+    odometry = []
+    for source in (perceived, ground_truth):
+        odometry = read_topics(source, [ODOMETRY])[0][ODOMETRY]
+        if odometry:
+            break
+    if not odometry:
+        raise BagError(f"{perceived}: topic '{ODOMETRY}' is missing in both bags (needed for the 50 m range)")
+    odo_stamps = np.array([msgs.stamp_ns(m.header.stamp) for _, m in odometry])
+    odo_xy = np.array([[msgs.odometry_to_ego(m).x, msgs.odometry_to_ego(m).y] for _, m in odometry])
+    latest = np.clip(np.searchsorted(odo_stamps, common, side="right") - 1, 0, len(odometry) - 1)
+    boxes = boxes.select(np.searchsorted(pred_stamps, common))
+    if np.any(np.isnan(boxes.score[boxes.valid])):
+        raise BagError(f"{perceived}: topic '{topic}': field 'text' (confidence) is empty on some markers")
+    return truth.select(np.searchsorted(gt_stamps, common)), boxes, odo_xy[latest]

@@ -13,6 +13,10 @@ BOX_FIELDS = ("x", "y", "yaw", "vx", "vy", "length", "width", "height", "score")
 
 @dataclass(frozen=True)
 class BoxSequence:
+    """Boxes over frames in fixed slots (frames x slots arrays, `valid` marks presence): ground truth,
+    detections and tracks share this one layout, so injecting errors, scoring and rule checks are
+    array operations over a whole scenario rather than loops over objects."""
+
     ids: np.ndarray  # (F, M) int64
     valid: np.ndarray  # (F, M) bool
     x: np.ndarray  # (F, M) float64, metres in frame `map`

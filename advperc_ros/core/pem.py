@@ -45,6 +45,8 @@ def features(truth: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
 
 
 def bearings(truth: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
+    """Bearing (rad) of every ground-truth box from the ego: the PEM's position errors are radial and
+    tangential to it, as a sensor's are."""
     return np.arctan2(truth.y - ego_xy[:, 1:2], truth.x - ego_xy[:, :1])
 
 
@@ -69,6 +71,11 @@ def _student_t_1d_logpdf(e: np.ndarray, scale: np.ndarray, nu: float):
 
 @dataclass(frozen=True)
 class PEM:
+    """A fitted perception error model: how likely a detector is to detect an object and how its
+    position and yaw errors are distributed, given the object's features. It tells typical errors
+    from adversarial ones (the PEM log-likelihood objective, `check-typical`); frozen and saved as JSON
+    so a report names the model it was scored with."""
+
     detection: tuple[float, ...]  # logit weights on phi
     position_loc: tuple[float, float]  # m, radial and tangential bias
     radial_log_scale: tuple[float, ...]  # weights on phi

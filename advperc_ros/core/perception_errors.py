@@ -18,6 +18,10 @@ CONFIDENCE_SEED = 20240617
 
 @dataclass(frozen=True)
 class PerceptionErrors:
+    """The paper's error tensor e: per frame and agent, a position and yaw offset and a dropped flag.
+    Everything the search changes is in it and nothing else, so an attack is this tensor; it is
+    saved with the results (attack_errors.npz) and replayed from there."""
+
     dx: np.ndarray  # (T, N) metres
     dy: np.ndarray  # (T, N) metres
     dyaw: np.ndarray  # (T, N) rad

@@ -37,6 +37,11 @@ STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes follow
 
 @dataclass(frozen=True)
 class RolloutConfig:
+    """How a rollout is run and judged: the ego's footprint, whether a contact ends it, whether only
+    contacts at the ego's fault count, and how long a plan call may take. Built from the params by
+    `advperc_ros.configs`; its defaults are the schema's (a test checks), but for `plan_timeout`, None
+    here so library and test rollouts set no alarm."""
+
     ego_length: float = 4.6  # m
     ego_width: float = 1.9  # m
     stop_at_collision: bool = True
@@ -46,6 +51,10 @@ class RolloutConfig:
 
 @dataclass
 class RolloutResult:
+    """What a rollout produced: the ego's trajectory and its signed distance to every agent per frame,
+    which is all the search needs to judge it (`collided`) and score it; the tracks and plans only
+    when recorded, for the attack bag. Every backend returns this, so the search cannot tell them apart."""
+
     ego: np.ndarray  # (K, 4): x, y, yaw, v at frames 0..K-1
     distances: np.ndarray  # (K, N): signed distance to each agent, +inf where absent
     inconclusive: str | None = None  # why the rollout has no verdict (planner failed), else None
@@ -183,6 +192,10 @@ def rollout(
     config: RolloutConfig = RolloutConfig(),
     record: bool = False,
 ) -> RolloutResult:
+    """One run of the stack on the scenario with `errors` injected, agents replaying ground truth and
+    only the ego reacting: per frame rule check, injection, tracking, planning, ego motion.
+    Deterministic in its inputs, so an attack found is reproducible and a checkpoint can answer a
+    rollout it already ran. `record` keeps tracks and plans."""
     clock = time.perf_counter
     stage_times = dict.fromkeys(STAGES, 0.0)
     started = clock()

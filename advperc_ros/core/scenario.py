@@ -25,6 +25,9 @@ class EgoState:
 
 @dataclass(frozen=True)
 class Lane:
+    """A lane of the road map: planners use the lanes to keep to the road and to tell which agents
+    share the ego's lane."""
+
     id: str
     centerline: Polyline
     width: float
@@ -32,6 +35,10 @@ class Lane:
 
 @dataclass(frozen=True)
 class Scenario:
+    """A recorded drive, what an attack is run on: the agents' ground truth (which they replay whatever
+    the ego does), the road, the ego's route and start. Read from a rosbag2 bag, built from a YAML
+    scenario description or imported from CommonRoad; immutable, so every rollout starts the same."""
+
     name: str
     stamps_ns: np.ndarray  # (T,) int64, uniformly spaced
     agents: BoxSequence  # slot j is agent j in every frame; `valid` marks presence

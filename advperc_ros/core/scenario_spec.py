@@ -137,6 +137,8 @@ def build_scenario(spec: dict, source: str = "<scenario>") -> Scenario:
 
 
 def load_scenario_spec(path: str | Path) -> Scenario:
+    """The Scenario a YAML scenario description file describes (`advperc make-bag`); one ScenarioError
+    line naming the file for whatever is wrong."""
     path = Path(path)
     try:
         spec = yaml.safe_load(path.read_text())

@@ -9,6 +9,7 @@ from pathlib import Path
 
 
 def staging_path(path: Path) -> Path:
+    """The hidden sibling a folder or file is written to before it is renamed into place."""
     return path.with_name(f".{path.name}.partial")
 
 

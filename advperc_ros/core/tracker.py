@@ -39,6 +39,9 @@ _NONE = np.zeros(0, dtype=np.int64)
 
 @dataclass(frozen=True)
 class TrackerConfig:
+    """The tracker's association gate, track lifetime and noise. The gate and lifetime are params
+    (`tracker.*`, defaults the schema's, a test checks); the noise is fixed, as the paper's."""
+
     gate: float = 2.0  # m, centre distance, applied before and after assignment
     max_age: float = 1.0  # s without an observation before a track is deleted
     position_std: float = 0.3  # m, measurement noise
@@ -109,6 +112,10 @@ def _renormalise_heading(heading: np.ndarray) -> None:
 
 
 class Tracker:
+    """The paper's tracker between perception and the planner: the attack acts through it, since a
+    dropped detection lets a track coast or die and a displaced one drags or splits it. `reset` before
+    each rollout; `step` per frame."""
+
     def __init__(self, config: TrackerConfig = TrackerConfig()) -> None:
         self.config = config
         self._r = np.array([config.position_std**2] * 2 + [config.heading_std**2] * 2)[:, None]  # R's diagonal

@@ -18,12 +18,16 @@ from advperc_ros.core.scenario import Scenario
 
 @dataclass(frozen=True)
 class TypicalErrorConfig:
+    """The model-free stand-in for typical errors: Gaussian position and yaw noise, isolated drops."""
+
     position_std: float = 0.2  # m, per axis
     yaw_std: float = 0.05  # rad
     drop_probability: float = 0.05  # per object-frame, never two frames in a row
 
 
 def sample_typical_errors(shape: tuple[int, int], rng: np.random.Generator, cfg: TypicalErrorConfig) -> PerceptionErrors:
+    """Typical errors of a scenario's shape (frames x agents) under `cfg`: noise everywhere, single-frame
+    drops only, so no car disappears for long."""
     fn = rng.random(shape) < cfg.drop_probability
     fn[1:] &= ~fn[:-1]  # single-frame drops only
     return PerceptionErrors(
@@ -36,6 +40,9 @@ def sample_typical_errors(shape: tuple[int, int], rng: np.random.Generator, cfg:
 
 @dataclass(frozen=True)
 class TypicalCheck:
+    """The paper's check that typical errors cause no collision: an attack on a stack that fails under
+    typical errors would say nothing about adversarial ones."""
+
     samples: int
     collisions: int
     inconclusive: int

@@ -37,6 +37,9 @@ class Matching:
 
 @dataclass(frozen=True)
 class NDSResult:
+    """The nuScenes detection score of a sequence and what it was computed from: the matchings are
+    kept because NDS-t and the TP/FN counts reuse them instead of matching again."""
+
     nds: float
     mean_ap: float
     ap: dict[float, float]
@@ -47,6 +50,8 @@ class NDSResult:
 
 
 def in_range(boxes: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
+    """Which boxes count (frames x slots): present and within the nuScenes class range of the ego,
+    as the devkit filters both ground truth and predictions before matching."""
     dist = np.hypot(boxes.x - ego_xy[:, :1], boxes.y - ego_xy[:, 1:2])
     return boxes.valid & (dist < CLASS_RANGE)
 

@@ -21,6 +21,9 @@ from advperc_ros.core.perception_errors import PerceptionErrors
 
 @dataclass(frozen=True)
 class PerceptionScores:
+    """Every perception metric of one rollout's perceived boxes against ground truth: the search
+    maximises one (`objective`), the report shows them all (the paper's Table 1 columns)."""
+
     nds: float
     nds_t: float
     longest_drop_fraction: float

@@ -40,6 +40,9 @@ class PlanningContext:
 
 @runtime_checkable
 class Planner(Protocol):
+    """The protocol every planner under attack has: the search treats the planner as a black box that
+    is reset before each rollout and asked for a plan each frame, so any team's planner plugs in."""
+
     def reset(self) -> None:
         """Forget all state; called before every rollout."""
 

@@ -19,6 +19,8 @@ from advperc_ros.core.scenario import EgoState
 
 @dataclass(frozen=True)
 class IDMConfig:
+    """The IDM planner's parameters (a params file's `planner_params`), checked against their ranges."""
+
     target_speed: float = 10.0  # m/s
     min_gap: float = 1.0  # m
     headway: float = 1.5  # s
@@ -50,6 +52,9 @@ def idm_acceleration(v: float, v_lead: float | None, gap: float, cfg: IDMConfig)
 
 
 class IDMPlanner:
+    """A lane-following planner with the Intelligent Driver Model's speed law: the simplest planner
+    that brakes for what it perceives ahead, so dropping or displacing that detection shows at once."""
+
     def __init__(self, context: PlanningContext, **params: float) -> None:
         self.context = context
         self.config = config_from_params(IDMConfig, params)

@@ -39,6 +39,9 @@ NEAREST = 4  # cars a candidate may show displaced: the nearest to the ego, in t
 
 @dataclass(frozen=True)
 class Approach:
+    """What the approach phase did, when no drop collided: where it started and how near a collision
+    at the ego's fault it came, which the no-collision report gives as the search's best effort."""
+
     start: Evaluation  # the conclusive rollout of lowest margin before the phase
     closest: Evaluation  # the conclusive rollout of lowest margin it reached: the collision, when it found one
     rollouts: int  # rolled out by the phase

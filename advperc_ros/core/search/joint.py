@@ -28,6 +28,9 @@ from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 
 @dataclass(frozen=True)
 class Joint:
+    """What the joint drops found, when no single agent's drop collided: whether hiding everyone
+    collides (`blind`) and, if so, the few agents whose joint drop does (the failure mode)."""
+
     blind: Evaluation  # every agent dropped at once
     agents: tuple[int, ...]  # ids of the agents the failure mode drops; () when the blind rollout did not collide
     mode: Evaluation | None  # their segments bisected; None when the blind rollout did not collide

@@ -55,6 +55,9 @@ class Evaluation:
 
 @dataclass
 class LogRow:
+    """One rollout of the search as search_log.csv holds it: what was tried, what it scored and
+    whether it collided, so a search can be followed and plotted rollout by rollout."""
+
     rollout: int
     phase: Phase
     agent: int  # agent id the step concerns, -1 for none

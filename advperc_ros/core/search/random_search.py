@@ -16,6 +16,9 @@ from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 
 @dataclass(frozen=True)
 class RandomSearchConfig:
+    """The paper's Algorithm 2: its steps, proposals per step, and how far a proposal displaces a
+    re-detected segment; the guided search and the approach phase draw their proposals with it too."""
+
     steps: int = 40
     proposals: int = 100
     max_offset: float = 5.0  # m

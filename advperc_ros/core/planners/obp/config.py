@@ -14,6 +14,8 @@ from advperc_ros.core.planners.parameters import check_ranges
 
 @dataclass(frozen=True)
 class OBPConfig:
+    """The ObP planner's parameters (a params file's `planner_params`), checked against their ranges."""
+
     target_speed: float = 10.0  # m/s: the cost drives towards it; also the speed limit
     max_accel: float = 2.0  # m/s^2
     max_decel: float = 5.0  # m/s^2; also the fallback's emergency braking

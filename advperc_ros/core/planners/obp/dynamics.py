@@ -15,6 +15,9 @@ import numpy as np
 
 @dataclass(frozen=True)
 class Operations:
+    """The math one bicycle model is written with: numpy's for simulating, CasADi's for the NLP, so
+    both stages integrate exactly the same model."""
+
     cos: Callable[[Any], Any]
     sin: Callable[[Any], Any]
     tan: Callable[[Any], Any]

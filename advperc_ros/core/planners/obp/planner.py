@@ -18,6 +18,9 @@ from advperc_ros.core.scenario import EgoState
 
 
 class OBPPlanner:
+    """The paper's optimisation-based planner: stage 1 picks a homotopy class and speed profile (LP),
+    stage 2 refines it as an NLP, with a fallback when the solve fails; the planner the paper attacks."""
+
     def __init__(self, context: PlanningContext, **params) -> None:
         self.context = context
         self.config = config_from_params(OBPConfig, params)

@@ -63,6 +63,9 @@ def straight_reference(setup: Setup, s0: float, d0: float, v0: float, speed: flo
 
 
 class Stage1:
+    """ObP's first stage: which side to pass each obstacle on and at what speed (one LP per homotopy
+    class), the reference stage 2 starts from, so the NLP solves near a good local optimum."""
+
     def __init__(self, setup: Setup) -> None:
         self.setup = setup
         self.lp = SpeedLP(setup)

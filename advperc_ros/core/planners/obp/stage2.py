@@ -31,6 +31,9 @@ from advperc_ros.core.scenario import EgoState
 
 
 class Stage2:
+    """ObP's second stage: the NLP over the bicycle model that smooths stage 1's reference into a
+    drivable plan, compiled once per planner (CasADi) because it runs every frame."""
+
     def __init__(self, setup: Setup) -> None:
         self.setup = setup
         cfg, N, h, M, dt = setup.config, setup.N, setup.h, setup.config.max_obstacles, setup.context.dt

@@ -126,6 +126,24 @@ def test_no_arrow_runs_back_up(graph, layer, may_not_import):
             assert not up, f"{module} imports {up}"
 
 
+@pytest.mark.parametrize("interface, implementations", [
+    ("advperc_ros.core.search.method", ("advperc_ros.core.search.paper", "advperc_ros.core.search.guided",
+                                        "advperc_ros.core.search.registry")),
+    ("advperc_ros.core.search.registry", ("advperc_ros.core.search.paper", "advperc_ros.core.search.guided")),
+    ("advperc_ros.core.planners.base", ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp",
+                                        "advperc_ros.core.planners.registry")),
+    ("advperc_ros.core.planners.registry", ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp")),
+    ("advperc_ros.backends.base", ("advperc_ros.backends.embedded", "advperc_ros.backends.graph",
+                                   "advperc_ros.backends.resumed", "advperc_ros.backends.registry")),
+    ("advperc_ros.backends.registry", ("advperc_ros.backends.embedded", "advperc_ros.backends.graph")),
+])
+def test_interfaces_and_registries_import_no_implementation(graph, interface, implementations):
+    """A plug-in's interface imports none of them, and its registry imports them only when one is
+    chosen, so a new one is a module and a registry line and nothing imports back into the registry."""
+    wrong = sorted(t for t in graph[interface] if _within(t, implementations))
+    assert not wrong, f"{interface} imports {wrong}"
+
+
 def test_node_executables_are_listed_once(repo):
     """setup.py's console scripts are the orchestrator (advperc_ros.orchestrator_node, an entry point
     like the CLI) and the graph nodes of nodes.graph_nodes, each its module in advperc_ros/nodes/."""

@@ -277,6 +277,11 @@ def test_the_html_page_shows_every_cell_with_its_picture(serial):
     ({"planners": [{"name": "x", "planner_params": {"min_gap": -1.0}}]}, "planners"),
     ({"planners": [{"name": "a b"}]}, "planners[0].name"),
     ({"thresholds": {"map": 0.5}}, "thresholds"),
+    ({"thresholds": {"nds": float("nan")}}, "thresholds.nds"),
+    ({"thresholds": {"nds_t": float("inf")}}, "thresholds.nds_t"),
+    ({"thresholds": {"nds": 5.0}}, "thresholds.nds"),
+    ({"thresholds": {"nds_t": -1.0}}, "thresholds.nds_t"),
+    ({"thresholds": {"pem_ll": float("-inf")}}, "thresholds.pem_ll"),
     ({"replay": "."}, "scenarios"),
 ])
 def test_a_bad_campaign_file_is_refused_before_any_work(repo, tmp_path, capsys, fields, field):
@@ -328,3 +333,35 @@ def test_an_output_that_cannot_be_a_folder_is_refused_before_any_work(repo, tmp_
     assert main(["campaign", str(campaign), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and err.startswith(f"advperc: error: {campaign}: field 'output' {output}"), err
+
+
+def test_every_objective_has_the_range_of_its_thresholds():
+    from advperc_ros.core.search.problem import OBJECTIVES
+
+    assert set(spec.THRESHOLD_RANGES) == set(OBJECTIVES)
+
+
+def _tree(folder: Path) -> dict[str, bytes | None]:
+    return {str(path.relative_to(folder)): path.read_bytes() if path.is_file() else None
+            for path in sorted(folder.rglob("*"))}
+
+
+@pytest.mark.parametrize("owner", ["the user's files", "another campaign's output"])
+def test_a_folder_the_campaign_did_not_make_is_refused_and_left_untouched(serial, repo, tmp_path, capsys, owner):
+    """A campaign never writes into, nor clears anything of, a folder that is not its own."""
+    output = tmp_path / "mine"
+    if owner == "the user's files":
+        output.mkdir()
+        (output / "notes.txt").write_text("mine")
+        (output / ".draft.partial").mkdir()  # looks like a campaign's staging: must survive
+        (output / ".draft.partial" / "keep.txt").write_text("mine too")
+    else:
+        shutil.copytree(serial, output)  # the module's campaign "small" of another file
+    before = _tree(output)
+    campaign = write_campaign(tmp_path / "other.yaml", repo, output)
+    capsys.readouterr()
+    assert main(["campaign", str(campaign), "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"advperc: error: {campaign}: field 'output' {output} is a "
+                                                         "folder that campaign 'small' of this file did not make"), err
+    assert _tree(output) == before

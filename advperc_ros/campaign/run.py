@@ -4,6 +4,7 @@ killed at any point is resumed by running it again.
 """
 
 import fcntl
+import json
 import shutil
 import sys
 from collections import deque
@@ -19,6 +20,7 @@ from advperc_ros.campaign.spec import Campaign, plan
 from advperc_ros.campaign.summary import (
     ERROR,
     FAILURE,
+    SUMMARY_JSON,
     CellStatus,
     verdict,
     write_summary,
@@ -62,7 +64,30 @@ def _clear_staging(output: Path) -> None:
         shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
 
 
+def refuse_foreign_output(campaign: Campaign) -> None:
+    """A campaign writes only into a folder of its own: new, empty, or holding the summary of a campaign
+    of the same name and file. Any other folder is the user's, and a campaign run there would write
+    among their files and clear their `.*.partial` entries."""
+    output = campaign.output
+    if output.is_dir():
+        found = sorted(entry.name for entry in output.iterdir() if entry.name != LOCK)
+        if found and _summary_owner(output) != (campaign.name, str(campaign.source.resolve())):
+            raise campaign.fail("output", f"{output} is a folder that campaign '{campaign.name}' of this file did not "
+                                          f"make (it holds {found[0]!r}, and no {SUMMARY_JSON} of this campaign): "
+                                          "choose a new or empty folder")
+
+
+def _summary_owner(output: Path) -> tuple[str, str] | None:
+    """(campaign name, campaign file) of the summary a campaign wrote in `output`, None if there is none."""
+    try:
+        summary = json.loads((output / SUMMARY_JSON).read_text())
+        return summary["campaign"], summary["source"]
+    except (OSError, ValueError, TypeError, KeyError):
+        return None
+
+
 def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
+    refuse_foreign_output(campaign)
     cells = plan(campaign)  # everything checked before any work
     output = campaign.output.resolve()
     output.mkdir(parents=True, exist_ok=True)

@@ -10,6 +10,7 @@ finished when its folder holds its report (results are renamed into place when c
 import json
 import os
 import re
+import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from importlib.util import find_spec
@@ -38,6 +39,9 @@ from advperc_ros.results import ERRORS, REPORT_JSON
 from advperc_ros.ros.bag import read_scenario
 
 EXECUTORS = ("process", "ray", "serial")
+# the values each objective's metric can take: NDS and NDS-t are scores in [0, 1]; PEM LL is a mean log
+# density, any finite number
+THRESHOLD_RANGES = {"nds": (0.0, 1.0), "nds_t": (0.0, 1.0), "pem_ll": (-sys.float_info.max, sys.float_info.max)}
 FIELDS = {
     "name": "campaign name: JUnit suite and default output folder (default: the file's name)",
     "output": "folder of the cell folders and the summary (default results/campaign-<name>)",
@@ -174,6 +178,10 @@ def _thresholds(path: Path, raw: Any) -> dict[str, float]:
             raise _fail(path, "thresholds", f"names '{objective}', not one of {', '.join(OBJECTIVES)}")
         if not isinstance(value, (int, float)) or isinstance(value, bool):
             raise _fail(path, f"thresholds.{objective}", f"must be a number, got {value!r}")
+        low, high = THRESHOLD_RANGES[objective]
+        if not low <= value <= high:  # NaN fails this too: a gate no attack can reach never fails CI
+            raise _fail(path, f"thresholds.{objective}", f"must be a finite number in [{low:g}, {high:g}] "
+                                                        f"(a threshold outside it no attack reaches), got {value!r}")
     return {objective: float(value) for objective, value in raw.items()}
 
 

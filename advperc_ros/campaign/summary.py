@@ -238,7 +238,7 @@ def _write(path: Path, text: str) -> None:
 def write_summary(campaign: Campaign, output: Path, statuses: list[CellStatus]) -> list[dict]:
     """All five summary files; returns the records."""
     records = [record(status, dict(campaign.thresholds)) for status in statuses]
-    _write(output / SUMMARY_JSON, json.dumps({"campaign": campaign.name, "source": str(campaign.source),
+    _write(output / SUMMARY_JSON, json.dumps({"campaign": campaign.name, "source": str(campaign.source.resolve()),
                                               "thresholds": dict(campaign.thresholds), "cells": records}, indent=2) + "\n")
     _write(output / SUMMARY_CSV, _csv(records))
     _write(output / SUMMARY_MD, markdown(campaign, records))

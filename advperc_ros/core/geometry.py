@@ -1,13 +1,18 @@
 """Planar geometry shared by scenarios, planners and rules: polylines and oriented boxes."""
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import overload
 
 import numpy as np
 
 FloatArray = np.ndarray
 
 
+@overload
+def wrap_angle(angle: float) -> float: ...
+@overload
+def wrap_angle(angle: FloatArray) -> FloatArray: ...
 def wrap_angle(angle: FloatArray | float) -> FloatArray | float:
     """Map angles to [-pi, pi). A Python float stays one: numpy's % on one number costs 40 times
     Python's, which computes it alike (fmod, then the divisor's sign), to the bit."""
@@ -21,6 +26,9 @@ class Polyline:
     """A 2D path parameterised by arc length; the route and lane centrelines use it."""
 
     points: FloatArray  # (M, 2)
+    # derived in __post_init__: unit direction of each segment (M-1, 2) and arc length of each vertex (M,)
+    _seg_dir: FloatArray = field(init=False, repr=False, compare=False)
+    _s: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=float)
@@ -77,7 +85,8 @@ class Polyline:
         return s, lateral
 
 
-def box_corners(x: FloatArray, y: FloatArray, yaw: FloatArray, length: FloatArray, width: FloatArray) -> FloatArray:
+def box_corners(x: FloatArray | float, y: FloatArray | float, yaw: FloatArray, length: FloatArray | float,
+                width: FloatArray | float) -> FloatArray:
     """Corners (..., 4, 2) of oriented boxes, counter-clockwise."""
     c, s = np.cos(yaw), np.sin(yaw)
     hl, hw = np.asarray(length) / 2.0, np.asarray(width) / 2.0

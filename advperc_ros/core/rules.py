@@ -37,7 +37,7 @@ class CollisionRule:
 
     def may_touch(self, ego: EgoState, k: int) -> bool:
         """Whether the ego's box may touch an agent's at frame k; if not, every distance there is > 0."""
-        return np.count_nonzero(np.abs(self._centres[k] - complex(ego.x, ego.y)) <= self._reach[k]) > 0
+        return bool(np.count_nonzero(np.abs(self._centres[k] - complex(ego.x, ego.y)) <= self._reach[k]) > 0)
 
     def distances(self, ego: np.ndarray, frames: np.ndarray) -> np.ndarray:
         """(K, N) signed distance from the ego to every agent slot at the K frames `frames`, the ego's

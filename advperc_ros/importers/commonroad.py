@@ -88,9 +88,11 @@ def _check_orientations(path: Path) -> None:
     for owner in root:  # lanelets, obstacles, planning problems: what the error can name
         for orientation in owner.iter("orientation"):
             for element in orientation.iter():
+                if element.text is None:
+                    continue  # no text: the reader's to refuse
                 try:
                     angle = float(element.text)
-                except (TypeError, ValueError):
+                except ValueError:
                     continue  # not a number: the reader's to refuse
                 if not abs(angle) <= MAX_ANGLE:
                     raise ScenarioError(f"{path}: field '{owner.tag} {owner.get('id')}.orientation' must be within "

@@ -13,6 +13,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
+from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.metadata import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
@@ -49,7 +50,7 @@ class BagWriter:
 
     def __init__(self, writer: Writer) -> None:
         self._writer = writer
-        self._connections: dict[str, object] = {}
+        self._connections: dict[str, Connection] = {}
 
     def write(self, topic: str, ns_time: int, message) -> None:
         """Write a rosbags message, or its CDR payload (bytes, as `cdr` encodes it)."""
@@ -137,7 +138,7 @@ def _one_line(exc: BaseException) -> str:
 
 class _Contents(NamedTuple):
     messages: dict[str, list[tuple[int, bytes]]]  # wanted topic -> (log time, CDR payload), in log-time order
-    topics: dict[str, tuple[str, int]]  # every topic of the bag -> (type, message count)
+    topics: dict[str, tuple[str | None, int]]  # every topic of the bag -> (type, None if its connections differ; count)
     wrong: dict[str, str]  # wanted topic of another type than the contract's -> the problem (its messages left out)
 
 
@@ -184,8 +185,10 @@ def read_topics(path: Path, topics: Iterable[str], raw: bool = False
     return out, _custom_data(Path(path))
 
 
-def _deserialize(data: bytes, msgtype: str, where: str):
+def _deserialize(data: bytes, msgtype: str | None, where: str):
     """A CDR payload as a rosbags message; a BagError naming `where` if it is not one."""
+    if msgtype is None:
+        raise BagError(f"{where}: its connections differ in message type")
     try:
         return msgs.TYPESTORE.deserialize_cdr(data, msgtype)
     except Exception as exc:  # rosbags raises several types for malformed CDR
@@ -289,7 +292,7 @@ def _lanes(messages: list[tuple[int, bytes]], where: str) -> tuple[Lane, ...]:
 
 class GroundTruthCheck(NamedTuple):
     scenario: Scenario | None  # None when there is any problem
-    topics: dict[str, tuple[str, int]]  # every topic of the bag -> (type, message count)
+    topics: dict[str, tuple[str | None, int]]  # every topic of the bag -> (type, None if its connections differ; count)
     problems: list[str]  # one line each, naming the bag, the topic or field, the frame
 
 
@@ -301,7 +304,8 @@ def check_ground_truth(path: Path) -> GroundTruthCheck:
     validated. A bag that cannot be read at all raises a BagError."""
     path = Path(path)
     contents = _read(path, [GROUND_TRUTH, ODOMETRY, ROUTE, LANES])
-    problems, parts = [], {}
+    problems: list[str] = []
+    parts: dict[str, Any] = {}  # topic -> what its decoder returns
     for topic, decode in ((GROUND_TRUTH, _objects), (ODOMETRY, _ego), (ROUTE, _route), (LANES, _lanes)):
         if topic == LANES and not contents.messages[LANES] and LANES not in contents.wrong:
             parts[LANES] = ()  # the map is optional
@@ -329,6 +333,7 @@ def read_scenario(path: Path) -> Scenario:
     check = check_ground_truth(path)
     if check.problems:
         raise BagError(check.problems[0])
+    assert check.scenario is not None  # no problem: check_ground_truth made one
     return check.scenario
 
 

@@ -25,15 +25,18 @@ colours, textures, meshes, or big endian through rosbags), since external nodes 
 import functools
 import math
 import struct
-from typing import NamedTuple
+from typing import Any, NamedTuple, overload
 
 import numpy as np
+from numpy.typing import ArrayLike
 from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from advperc_ros.exceptions import MessageError
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+# a message's CDR as it comes: bytes from rclpy and Cyclone, a memoryview from rosbags' serialize_cdr
+Cdr = bytes | memoryview
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
 PATH = "nav_msgs/msg/Path"
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -49,7 +52,7 @@ COLORS = {
     "tracking": (0.2, 0.4, 1.0, 0.8),
     "lanes": (0.3, 0.3, 0.3, 0.5),
 }
-_MARKER = TYPESTORE.types["visualization_msgs/msg/Marker"]
+_MARKER: Any = TYPESTORE.types["visualization_msgs/msg/Marker"]  # built at run time: its constants are not typed
 ARROW, CUBE, ADD, DELETEALL = _MARKER.ARROW, _MARKER.CUBE, _MARKER.ADD, _MARKER.DELETEALL
 
 ENCAPSULATION = b"\x00\x01\x00\x00"  # plain CDR, little endian
@@ -86,6 +89,10 @@ def yaw_quaternion(yaw: np.ndarray | float) -> tuple[np.ndarray | float, np.ndar
     return np.sin(yaw / 2.0), np.cos(yaw / 2.0)
 
 
+@overload
+def quaternion_yaw(x: float, y: float, z: float, w: float) -> float: ...
+@overload
+def quaternion_yaw(x: np.ndarray | float, y: np.ndarray | float, z: np.ndarray, w: np.ndarray | float) -> np.ndarray: ...
 def quaternion_yaw(x: np.ndarray | float, y: np.ndarray | float, z: np.ndarray | float,
                    w: np.ndarray | float) -> np.ndarray | float:
     """The yaw (rotation about z) of a quaternion, or of arrays of them (numpy's call costs more
@@ -187,7 +194,7 @@ def _stamped_pose(length: int, start: int) -> np.dtype:
                      "offsets": [0, 4, 8, 12, pose], "itemsize": pose + _POSE_SIZE})
 
 
-def encode_path(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, stamps: np.ndarray, ns_time: int) -> bytes:
+def encode_path(xs: ArrayLike, ys: ArrayLike, yaws: ArrayLike, stamps: ArrayLike, ns_time: int) -> bytes:
     """A nav_msgs/Path's CDR: stamped `ns_time`, pose i at (xs[i], ys[i], 0) with yaw yaws[i],
     stamped stamps[i] (ns), all in FRAME_ID."""
     xs, ys, yaws, stamps = np.asarray(xs), np.asarray(ys), np.asarray(yaws), np.asarray(stamps, dtype=np.int64)
@@ -241,7 +248,7 @@ def payload(msg: object, msgtype: str) -> bytes:
 # -- decoding ----------------------------------------------------------------------------------
 
 
-def _body(data: bytes, msgtype: str, where: str) -> bytes:
+def _body(data: Cdr, msgtype: str, where: str) -> bytes:
     """The CDR after the encapsulation header, little endian (big endian is re-encoded by rosbags)."""
     if len(data) < 4 or data[0] != 0 or data[1] not in (0, 1):
         raise MessageError(f"{where}: not a plain CDR payload (encapsulation {bytes(data[:4]).hex()})")
@@ -313,7 +320,7 @@ def _read_marker(body: bytes, pos: int) -> tuple[tuple, int]:
     return (sec * 1_000_000_000 + nanosec, ns, fields[0], fields[2], fields[3:13], points, text), pos
 
 
-def _read_markers(data: bytes, where: str) -> list[tuple]:
+def _read_markers(data: Cdr, where: str) -> list[tuple]:
     body = _body(data, MARKER_ARRAY, where)
     try:
         pos, markers = 4, []
@@ -335,7 +342,7 @@ def _score(text: bytes, marker_id: int, where: str) -> float:
                            f"{text.decode(errors='replace')!r}") from None
 
 
-def decode_objects(data: bytes, where: str) -> tuple[int | None, dict[str, np.ndarray]]:
+def decode_objects(data: Cdr, where: str) -> tuple[int | None, dict[str, np.ndarray]]:
     """The CDR of an object MarkerArray as (its stamp: the first marker's, None if it has no
     marker; the boxes as a dict of 1-D arrays, sorted by id); `where` prefixes any error. An id
     is one object: a second CUBE (or ARROW) with an id already seen is an error, not dropped."""
@@ -367,7 +374,7 @@ def decode_objects(data: bytes, where: str) -> tuple[int | None, dict[str, np.nd
     return (markers[0][0] if markers else None), objects
 
 
-def decode_odometry(data: bytes, where: str) -> tuple[int, tuple[float, float, float, float]]:
+def decode_odometry(data: Cdr, where: str) -> tuple[int, tuple[float, float, float, float]]:
     """The CDR of a nav_msgs/Odometry as (its stamp, (x, y, yaw, speed along the body's x axis));
     `where` prefixes any error."""
     body = _body(data, ODOMETRY, where)
@@ -396,7 +403,7 @@ def _read_status(body: bytes, pos: int) -> tuple[Status, int]:
     return Status(level, name, message, hardware_id, values), pos
 
 
-def decode_diagnostics(data: bytes, where: str) -> tuple[int, list[Status]]:
+def decode_diagnostics(data: Cdr, where: str) -> tuple[int, list[Status]]:
     """The CDR of a diagnostic_msgs/DiagnosticArray as (its stamp, its statuses); `where`
     prefixes any error."""
     body = _body(data, DIAGNOSTICS, where)
@@ -438,7 +445,7 @@ def _read_poses(body: bytes, pos: int, count: int, where: str) -> tuple[np.ndarr
     return (np.concatenate(stamps), np.concatenate(poses)) if stamps else (np.zeros(0, np.int64), np.zeros((0, 7)))
 
 
-def decode_path(data: bytes, where: str) -> tuple[int, np.ndarray, np.ndarray]:
+def decode_path(data: Cdr, where: str) -> tuple[int, np.ndarray, np.ndarray]:
     """The CDR of a nav_msgs/Path as (header stamp ns; poses (P, 3) as x, y, yaw; pose stamps
     (P,) ns); `where` prefixes any error."""
     body = _body(data, PATH, where)

@@ -61,11 +61,13 @@ def dds_type_name(msgtype: str) -> str:
 
 
 def _field_type(desc: tuple, where: str) -> Any:
+    # cyclonedds' bounded_str, array and sequence are subscripted at run time (__class_getitem__ returns an
+    # Annotated type), which mypy reads as a generic class that is not one: hence the three ignores
     kind, rest = int(desc[0]), desc[1]
     if kind == _BASE:
         name, bound = rest
         if name == "string":
-            return idl.bounded_str[bound] if bound else str
+            return idl.bounded_str[bound] if bound else str  # type: ignore[misc]
         if name in _PRIMITIVES:
             return _PRIMITIVES[name]
         raise TypeError(f"{where}: ROS type {name!r} has no DDS mapping here")
@@ -73,11 +75,11 @@ def _field_type(desc: tuple, where: str) -> Any:
         return idl_type(rest)
     if kind == _ARRAY:
         element, length = rest
-        return idl.array[_field_type(element, where), int(length)]
+        return idl.array[_field_type(element, where), int(length)]  # type: ignore[misc]
     if kind == _SEQUENCE:
         element, bound = rest
         sub = _field_type(element, where)
-        return idl.sequence[sub, int(bound)] if bound else idl.sequence[sub]
+        return idl.sequence[sub, int(bound)] if bound else idl.sequence[sub]  # type: ignore[misc]
     raise TypeError(f"{where}: unknown rosbags node type {desc!r}")
 
 

@@ -7,6 +7,8 @@ message classes have no defaults and want numpy arrays for primitive arrays; the
 below fill every field.
 """
 
+from typing import Any
+
 import numpy as np
 
 from advperc_ros.core.planners.base import Trajectory
@@ -84,7 +86,7 @@ def ego_to_cdr(ego: EgoState, ns_time: int) -> bytes:
     return cdr.encode_odometry(ego.x, ego.y, ego.yaw, ego.v, ns_time)
 
 
-def ego_from_cdr(data: bytes, where: str) -> tuple[int, EgoState]:
+def ego_from_cdr(data: cdr.Cdr, where: str) -> tuple[int, EgoState]:
     """(stamp, ego state) of a nav_msgs/Odometry's CDR; `where` prefixes any error."""
     stamp, state = cdr.decode_odometry(data, where)
     return stamp, EgoState(*state)
@@ -112,7 +114,7 @@ def trajectory_to_path(plan: Trajectory, ns_time: int):
 
 def lanes_to_markers(lanes: tuple[Lane, ...], ns_time: int):
     """Lanes as LINE_STRIP markers along the centreline, scale.x = lane width."""
-    Marker = T["visualization_msgs/msg/Marker"]
+    Marker: Any = T["visualization_msgs/msg/Marker"]  # built at run time: its constants are not typed
     markers = []
     for i, lane in enumerate(lanes):
         points = [_point(x, y) for x, y in lane.centerline.points]

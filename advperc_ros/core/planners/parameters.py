@@ -5,15 +5,19 @@ either into a PlannerError naming the planner as well."""
 
 import math
 from dataclasses import fields
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
-Config = TypeVar("Config")
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+Config = TypeVar("Config", bound="DataclassInstance")
 
 
 def config_from_params(config_type: type[Config], params: dict[str, Any]) -> Config:
     """`config_type(**params)` with numbers for number fields (a YAML 10 is a fine 10.0), whole
     numbers for int fields and true/false for bool fields; its __post_init__ checks the ranges."""
-    kinds = {field.name: field.type for field in fields(config_type)}
+    # types, not strings: no config postpones its annotations
+    kinds: dict[str, Any] = {field.name: field.type for field in fields(config_type)}
     values = {}
     for name, value in params.items():
         if name not in kinds:

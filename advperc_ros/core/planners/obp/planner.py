@@ -11,7 +11,7 @@ from advperc_ros.core.planners.base import PlannerStats, PlanningContext, Trajec
 from advperc_ros.core.planners.obp.config import OBPConfig, Setup
 from advperc_ros.core.planners.obp.fallback import FALLBACKS, fallback
 from advperc_ros.core.planners.obp.prediction import predict
-from advperc_ros.core.planners.obp.stage1 import Stage1, straight_reference
+from advperc_ros.core.planners.obp.stage1 import Reference, Stage1, straight_reference
 from advperc_ros.core.planners.obp.stage2 import Stage2, resample
 from advperc_ros.core.planners.parameters import config_from_params
 from advperc_ros.core.scenario import EgoState
@@ -49,6 +49,7 @@ class OBPPlanner:
         s0, d0 = (float(v) for v in self.context.route.project(np.array([ego.x, ego.y])))
         v0 = max(float(ego.v), 0.0)
         obstacles = predict(setup, s0, tracks)
+        ref: Reference | None  # stage 1 finds none when no class is feasible
         if cfg.single_stage:
             ref = straight_reference(setup, s0, d0, v0, cfg.target_speed, "single-stage")
         else:

@@ -104,7 +104,8 @@ class Stage1:
                 if not blocked.any():
                     continue
                 k1 = int(np.argmax(blocked))
-                options = []  # (label, upper bound on s, lower bound on s, bound on s + HEADWAY v)
+                # (label, upper bound on s, lower bound on s, bound on s + HEADWAY v)
+                options: list[tuple[str, np.ndarray | None, np.ndarray | None, np.ndarray | None]] = []
                 in_lane_ahead = abs(ob.d[0]) < lane_half and ob.s[0] > s0
                 if in_lane_ahead and ob.speed_along >= STATIC_SPEED:
                     # follow a car in the lane: never into its ellipse (hard), keep the headway (soft)
@@ -143,7 +144,8 @@ class Stage1:
                 d, slope = d_of(s, blend_in=False)
                 cost += W1_LATERAL * float(np.sum(np.abs(d[1:]))) * setup.h
                 if best is None or cost < best.cost - 1e-9:
-                    best = Reference(s, v, a, d, slope, *d_of(s), cost=cost, label=" ".join(label))
+                    d_warm, slope_warm = d_of(s)
+                    best = Reference(s, v, a, d, slope, d_warm, slope_warm, cost=cost, label=" ".join(label))
         return best
 
 

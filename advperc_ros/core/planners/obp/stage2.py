@@ -4,6 +4,7 @@ steering rate. Built once with parameters; each call sets parameters, bounds and
 from stage 1's reference. Formulation: docs/obp.md."""
 
 import math
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -60,7 +61,7 @@ class Stage2:
         for k in range(1, N):
             g.append((U[:, k] - U[:, k - 1]) / h)
             kinds += ["rate_a", "rate_d"]
-        cost = 0
+        cost: ca.SX | float = 0  # a CasADi expression from its first term on
         for k in range(1, N + 1):
             px, py, c, s = p_frame[0, k], p_frame[1, k], p_frame[2, k], p_frame[3, k]
             cos_yaw, sin_yaw = ca.cos(X[2, k]), ca.sin(X[2, k])
@@ -82,12 +83,13 @@ class Stage2:
             cost += W_ACCEL * U[0, k] ** 2 + W_STEER * U[1, k] ** 2
         for k in range(1, N):
             cost += W_JERK * ((U[0, k] - U[0, k - 1]) / h) ** 2 + W_STEER_RATE * ((U[1, k] - U[1, k - 1]) / h) ** 2
-        nlp = {"x": ca.vertcat(ca.vec(X), ca.vec(U)), "p": params, "f": cost * h, "g": ca.vertcat(*g)}
+        variables = ca.vertcat(ca.vec(X), ca.vec(U))
+        nlp: dict[str, ca.SX | float] = {"x": variables, "p": params, "f": cost * h, "g": ca.vertcat(*g)}
         ipopt = {**IPOPT_OPTIONS, "max_iter": int(cfg.max_iterations), "max_cpu_time": float(cfg.max_cpu_time)}
-        opts = {"print_time": False, "ipopt": ipopt}
+        opts: dict[str, Any] = {"print_time": False, "ipopt": ipopt}
         self._solver = ca.nlpsol("obp", "ipopt", nlp, opts)
         self._kinds = np.array(kinds)
-        self.size = {"variables": int(nlp["x"].numel()), "constraints": len(kinds), "parameters": int(params.numel())}
+        self.size = {"variables": int(variables.numel()), "constraints": len(kinds), "parameters": int(params.numel())}
 
     def solve(self, ego: EgoState, ref: Reference, obstacles: list[Obstacle],
               u_prev: np.ndarray | None) -> tuple[bool, np.ndarray, np.ndarray]:

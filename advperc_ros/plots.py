@@ -3,12 +3,15 @@ last seconds and an animation of the whole attack rollout. Headless (Agg)."""
 
 from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.artist import Artist
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.collections import LineCollection, PolyCollection
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
@@ -18,6 +21,7 @@ from PIL import Image
 
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.perception_errors import inject
+from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.search.problem import LogRow, Phase
 from advperc_ros.core.search.registry import every_phase
 from advperc_ros.outcome import AttackOutcome
@@ -27,14 +31,14 @@ METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
 PHASE_LINES = {Phase.RANDOM: ("tab:cyan", "--"), Phase.REFINE: ("tab:green", ":"), Phase.GUIDED: ("tab:purple", "-.")}
 OTHER_LINES = (("tab:olive", "--"), ("tab:pink", "-."), ("tab:gray", ":"))
 # one style per layer, shared by the bird's-eye view and the animation (the bag's colours where it has them)
-BOX_STYLES = {
+BOX_STYLES: dict[str, dict[str, Any]] = {  # matplotlib keyword arguments
     "truth": dict(facecolor="none", edgecolor="black", linewidth=1.2, label="ground truth"),
     "perceived": dict(facecolor="tab:green", edgecolor="none", alpha=0.45, label="perceived"),
     "tracks": dict(facecolor="none", edgecolor="tab:blue", linewidth=1.0, linestyle="--", label="tracks"),
     "ego": dict(facecolor="tab:red", edgecolor="none", alpha=0.7, label="ego"),
 }
-PLAN_STYLE = dict(color="tab:orange", linewidth=1.5, label="plan")
-LANE_STYLE = dict(color="0.8", linewidth=1.0, zorder=0)
+PLAN_STYLE: dict[str, Any] = dict(color="tab:orange", linewidth=1.5, label="plan")
+LANE_STYLE: dict[str, Any] = dict(color="0.8", linewidth=1.0, zorder=0)
 NEAR = 10.0  # m: agents closer than this to the ego are kept inside the bird's-eye view
 LOOK_AHEAD = 2.0  # s: the view reaches where the ego will be this much later, so it follows its heading
 MIN_HALF_WIDTH = 12.0  # m
@@ -126,6 +130,13 @@ def _save(fig: Figure, path: Path, dpi: int) -> None:
     plt.close(fig)
 
 
+def _recorded(outcome: AttackOutcome) -> RolloutResult:
+    """The recorded attack rollout the bird's-eye view and the animation draw (an outcome with a best attack has one)."""
+    if outcome.recorded is None:
+        raise ValueError(f"{outcome.scenario.name}: no attack rollout recorded to draw")
+    return outcome.recorded
+
+
 def _corners(boxes: dict[str, np.ndarray]) -> np.ndarray:
     return box_corners(boxes["x"], boxes["y"], boxes["yaw"], boxes["length"], boxes["width"]).reshape(-1, 4, 2)
 
@@ -134,23 +145,28 @@ class _Scene:
     """What is drawn at a frame of the recorded attack rollout, in map coordinates."""
 
     def __init__(self, outcome: AttackOutcome) -> None:
+        rollout = _recorded(outcome)
+        if outcome.best is None or rollout.tracks is None or rollout.plans is None:
+            raise ValueError(f"{outcome.scenario.name}: the attack rollout was recorded without its tracks and plans")
         self.outcome = outcome
-        self.rollout = outcome.recorded
+        self.rollout = rollout
+        self.tracks, self.plans = rollout.tracks, rollout.plans
         self.perceived = inject(outcome.scenario.agents, outcome.best.errors)
         self.ego_size = (outcome.params.ego.length, outcome.params.ego.width)
 
     def boxes(self, k: int) -> dict[str, np.ndarray]:
         """Corners (n, 4, 2) per layer of BOX_STYLES; no tracks at the collision frame (nothing was planned)."""
-        tracks = self.rollout.tracks
+        tracks = self.tracks
+        x, y, yaw = self.rollout.ego[k, :3]
         return {
             "truth": _corners(self.outcome.scenario.agents.frame(k)),
             "perceived": _corners(self.perceived.frame(k)),
             "tracks": _corners(tracks[k]) if k < len(tracks) else np.zeros((0, 4, 2)),
-            "ego": box_corners(*self.rollout.ego[k, :3], *self.ego_size)[None],
+            "ego": box_corners(x, y, yaw, *self.ego_size)[None],
         }
 
     def plan(self, k: int) -> np.ndarray:
-        plans = self.rollout.plans
+        plans = self.plans
         return np.column_stack([plans[k].x, plans[k].y]) if k < len(plans) else np.zeros((0, 2))
 
     def involved(self, k: int, slot: int) -> np.ndarray:
@@ -158,7 +174,8 @@ class _Scene:
         perceived) and every agent within NEAR of the ego."""
         agents, ego = self.outcome.scenario.agents, self.rollout.ego[k]
         slots = (self.rollout.distances[k] < NEAR) | (np.arange(agents.shape[1]) == slot)
-        points = [box_corners(*ego[:3], *self.ego_size),
+        x, y, yaw = ego[:3]
+        points = [box_corners(x, y, yaw, *self.ego_size),
                   ego[None, :2] + LOOK_AHEAD * max(ego[3], 1.0) * np.array([[np.cos(ego[2]), np.sin(ego[2])]])]
         for boxes in (agents, self.perceived):
             keep = slots & boxes.valid[k]
@@ -168,7 +185,8 @@ class _Scene:
 
 
 def _legend(fig: Figure, **kwargs) -> None:
-    handles = [Patch(**style) for style in BOX_STYLES.values()] + [Line2D([], [], **PLAN_STYLE)]
+    handles: list[Artist] = [Patch(**style) for style in BOX_STYLES.values()]
+    handles += [Line2D([], [], **PLAN_STYLE)]
     fig.legend(handles=handles, ncol=len(handles), frameon=False, **kwargs)
 
 
@@ -193,7 +211,8 @@ def bev_figure(outcome: AttackOutcome, seconds_before: float = 3.0, panels: int 
         ax.add_collection(LineCollection(_lanes(outcome), **LANE_STYLE))
         ax.plot(scene.rollout.ego[: k + 1, 0], scene.rollout.ego[: k + 1, 1], color="tab:red", linewidth=0.8)
         for name, corners in scene.boxes(k).items():
-            ax.add_collection(PolyCollection(corners, **_unlabelled(BOX_STYLES[name])))
+            # matplotlib's stub wants a sequence of polygons; it documents (and has a fast path for) an (N, M, 2) array
+            ax.add_collection(PolyCollection(corners, **_unlabelled(BOX_STYLES[name])))  # type: ignore[arg-type]
         plan = scene.plan(k)
         ax.plot(plan[:, 0], plan[:, 1], **_unlabelled(PLAN_STYLE))
         ax.set_xlim(centre[0] - half, centre[0] + half)
@@ -227,7 +246,7 @@ def _to_ego(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
 def animation_frames(outcome: AttackOutcome) -> np.ndarray:
     """Frames of the recorded rollout the animation shows: every GIF_PERIOD, at most GIF_MAX_FRAMES,
     always ending on the last (the collision)."""
-    last = outcome.recorded.num_frames - 1
+    last = _recorded(outcome).num_frames - 1
     step = max(1, int(round(GIF_PERIOD / outcome.scenario.dt)), int(np.ceil((last + 1) / GIF_MAX_FRAMES)))
     return np.arange(last, -1, -step)[::-1]
 
@@ -239,9 +258,12 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
     to Pillow the way it hands them over.)"""
     scene, scenario = _Scene(outcome), outcome.scenario
     fig, ax = plt.subplots(figsize=(5.6, 3.4), dpi=dpi)
-    lanes = ax.add_collection(LineCollection([], animated=True, **LANE_STYLE))
-    layers = {name: ax.add_collection(PolyCollection([], animated=True, **_unlabelled(style)))
-              for name, style in BOX_STYLES.items()}
+    lanes = LineCollection([], animated=True, **LANE_STYLE)
+    ax.add_collection(lanes)
+    layers: dict[str, PolyCollection] = {}
+    for name, style in BOX_STYLES.items():
+        layers[name] = PolyCollection([], animated=True, **_unlabelled(style))
+        ax.add_collection(layers[name])
     (plan,) = ax.plot([], [], animated=True, **_unlabelled(PLAN_STYLE))
     label = ax.text(0.01, 0.98, "", transform=ax.transAxes, va="top", fontsize=8, family="monospace", animated=True,
                     bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=1.5))
@@ -256,6 +278,7 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
     _legend(fig, loc="lower center", fontsize=7, handlelength=1.2, columnspacing=1.0)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     canvas = fig.canvas
+    assert isinstance(canvas, FigureCanvasAgg)  # matplotlib.use("Agg") above: blitting and the RGBA buffer are Agg's
     canvas.draw()
     background = canvas.copy_from_bbox(fig.bbox)
     _, slot = scene.rollout.closest_approach()
@@ -266,7 +289,7 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
         pose = scene.rollout.ego[k, :3]
         lanes.set_segments([_to_ego(points, pose) for points in _lanes(outcome)])
         for name, corners in scene.boxes(k).items():
-            layers[name].set_verts(_to_ego(corners, pose))
+            layers[name].set_verts(_to_ego(corners, pose))  # type: ignore[arg-type]  # an (N, 4, 2) array, as above
         plan.set_data(*_to_ego(scene.plan(k), pose).T)
         text = f"t = {scenario.times[k]:4.1f} s   nearest agent {scene.rollout.rule[k]:5.2f} m"
         if k == last and scene.rollout.collided:

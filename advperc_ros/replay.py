@@ -97,7 +97,8 @@ def replay(attack: FoundAttack, params: AttackParams) -> Replay:
     digest = bags.digest(bag_path)
     if digest != attack.report["bag_sha256"]:
         raise ParamsError(f"{params.source or 'params'}: parameter 'bag' names {bag_path}, not the scenario the attack "
-                          f"in {attack.folder} was found on (bag_sha256 {digest[:12]}, not {attack.report['bag_sha256'][:12]})")
+                          f"in {attack.folder} was found on (bag_sha256 {digest[:12]}, "
+                          f"not {attack.report['bag_sha256'][:12]})")
     scenario = read_scenario(bag_path)
     if attack.errors.shape != scenario.agents.shape:
         raise BagError(f"{attack.folder / ERRORS}: field 'fn' has shape {attack.errors.shape}, the bag {bag_path} has "
@@ -153,7 +154,8 @@ def replay_markdown(report: dict) -> str:
         "",
         "| | planner | min signed distance (m) | metric |",
         "|---|---|---|---|",
-        f"| attack | {report['attack_planner']} | {report['attack_min_signed_distance']:.3f} | {report['attack_metric']:.4f} |",
+        f"| attack | {report['attack_planner']} | {report['attack_min_signed_distance']:.3f} "
+        f"| {report['attack_metric']:.4f} |",
         f"| replay | {report['planner']} | {report['min_signed_distance']:.3f} | {report['metric']:.4f} |",
         "",
         (f"- scenario {report['scenario']}, objective {report['objective']}, seed {report['seed']}; closest approach "

@@ -66,7 +66,8 @@ class SerialExecutor:
     """In this process, one cell at a time, each with its rollout progress bar."""
 
     def __init__(self, output: Path, progress: bool) -> None:
-        self.output, self.progress, self.queue = output, progress, deque()
+        self.output, self.progress = output, progress
+        self.queue: deque[Cell] = deque()
 
     def submit(self, cell: Cell) -> None:
         self.queue.append(cell)

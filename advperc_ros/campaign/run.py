@@ -114,6 +114,7 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
         pool = executor(campaign, output, progress) if todo else None
         try:
             while todo or running:
+                assert pool is not None  # made whenever a cell is to run
                 while todo and len(running) < in_flight:
                     cell = todo.popleft()
                     pool.submit(cell)

@@ -17,7 +17,6 @@ from importlib.util import find_spec
 from pathlib import Path
 from typing import Any
 
-
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.search.problem import OBJECTIVES
@@ -157,9 +156,11 @@ def _planner_entries(path: Path, raw: Any) -> tuple[PlannerEntry, ...]:
     for i, item in enumerate(raw):
         field = f"planners[{i}]"
         if not isinstance(item, dict) or set(item) - set(ENTRY_FIELDS) or "name" not in item:
-            raise _fail(path, field, f"must be a mapping with 'name' and optionally 'planner', 'planner_params', got {item!r}")
+            raise _fail(path, field,
+                        f"must be a mapping with 'name' and optionally 'planner', 'planner_params', got {item!r}")
         if not isinstance(item["name"], str) or not LABEL.fullmatch(item["name"]):
-            raise _fail(path, f"{field}.name", f"must be a name of letters, digits, _ . + - (a folder name), got {item['name']!r}")
+            raise _fail(path, f"{field}.name",
+                        f"must be a name of letters, digits, _ . + - (a folder name), got {item['name']!r}")
         if not isinstance(item.get("planner", ""), str):
             raise _fail(path, f"{field}.planner", f"must be a planner name, got {item['planner']!r}")
         if not isinstance(item.get(PLANNER_PARAMS, {}), dict):
@@ -226,7 +227,8 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
         if key in AXES:
             raise _fail(path, "overrides", f"sets '{key}', which the cells vary: use scenarios, objectives, seeds, planners")
         if key in EXECUTION:
-            raise _fail(path, "overrides", f"sets '{key}': campaign cells roll out embedded, the workers being the parallelism")
+            raise _fail(path, "overrides",
+                        f"sets '{key}': campaign cells roll out embedded, the workers being the parallelism")
     replay = document.get("replay")
     axes = ("scenarios", "objectives", "seeds")
     if replay is not None:
@@ -299,13 +301,13 @@ def _attack_cells(campaign: Campaign) -> list[Cell]:
     return cells
 
 
-def _replay_cells(campaign: Campaign) -> list[Cell]:
+def _replay_cells(campaign: Campaign, replay: Path) -> list[Cell]:
     """Every attack that collided in the `replay` folder, on each planner."""
-    folders = sorted(folder for folder in campaign.replay.iterdir()
+    folders = sorted(folder for folder in replay.iterdir()
                      if not folder.name.startswith(".") and (folder / ERRORS).is_file())
     attacks = [load_attack(folder) for folder in folders]
     if not attacks:
-        raise campaign.fail("replay", f"names {campaign.replay}, which holds no results folder of an attack that collided")
+        raise campaign.fail("replay", f"names {replay}, which holds no results folder of an attack that collided")
     cells = []
     for attack in attacks:
         base = _checked(campaign, "overrides", attack.params.with_values, **campaign.overrides)
@@ -323,7 +325,7 @@ def plan(campaign: Campaign) -> list[Cell]:
             check_output(campaign.output, "output folder")
         except ParamsError as exc:
             raise campaign.fail("output", str(exc)) from None
-    cells = _replay_cells(campaign) if campaign.replay is not None else _attack_cells(campaign)
+    cells = _replay_cells(campaign, campaign.replay) if campaign.replay is not None else _attack_cells(campaign)
     names = [cell.name for cell in cells]
     for cell in cells:
         if not LABEL.fullmatch(cell.name):

@@ -202,8 +202,8 @@ def junit(campaign: Campaign, statuses: list[CellStatus], records: list[dict]) -
     total = sum(r["wall_time_s"] or 0.0 for r in records)
     counts = {"tests": str(len(records)), "failures": str(outcomes.count(FAILURE)), "errors": str(outcomes.count(ERROR)),
               "skipped": str(outcomes.count(PENDING)), "time": f"{total:.3f}"}
-    suites = ET.Element("testsuites", name=f"advperc campaign {campaign.name}", **counts)
-    suite = ET.SubElement(suites, "testsuite", name=campaign.name, **counts)
+    suites = ET.Element("testsuites", {"name": f"advperc campaign {campaign.name}", **counts})
+    suite = ET.SubElement(suites, "testsuite", {"name": campaign.name, **counts})
     for status, record in zip(statuses, records):
         case = ET.SubElement(suite, "testcase", classname=f"{campaign.name}.{record['scenario']}", name=record["cell"],
                              time=f"{record['wall_time_s'] or 0.0:.3f}")

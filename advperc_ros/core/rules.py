@@ -10,6 +10,8 @@ their recorded motion and the ego never reverses, so an agent behind the rear bu
 the ego has come from behind.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
@@ -39,7 +41,7 @@ class CollisionRule:
         """Whether the ego's box may touch an agent's at frame k; if not, every distance there is > 0."""
         return bool(np.count_nonzero(np.abs(self._centres[k] - complex(ego.x, ego.y)) <= self._reach[k]) > 0)
 
-    def distances(self, ego: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    def distances(self, ego: np.ndarray, frames: np.ndarray | Sequence[int]) -> np.ndarray:
         """(K, N) signed distance from the ego to every agent slot at the K frames `frames`, the ego's
         states at them `ego` (K, >= 3: x, y, yaw, ...); +inf for absent agents."""
         agents = self.agents

@@ -5,6 +5,7 @@ registry imports no implementation (IDM needs no CasADi) and no module imports b
 """
 
 import importlib
+from collections.abc import Mapping
 from typing import Any
 
 from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext
@@ -15,7 +16,7 @@ BUNDLED = {
 }
 
 
-def load_planner(name: str, context: PlanningContext, params: dict[str, Any]) -> Planner:
+def load_planner(name: str, context: PlanningContext, params: Mapping[str, Any]) -> Planner:
     """Build a bundled planner by name, or a plug-in given as `module:Class`, as
     `Class(context, **params)`. Every refusal is a one-line PlannerError naming the planner."""
     if name in BUNDLED:

@@ -27,6 +27,7 @@ class AttackedPlanner:
 class Rollouts(Protocol):
     """What the search needs of a backend: one rollout of an error tensor; which planner it runs."""
 
-    attacked_planner: AttackedPlanner
+    @property
+    def attacked_planner(self) -> AttackedPlanner: ...
 
     def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult: ...

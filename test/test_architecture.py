@@ -155,10 +155,10 @@ def test_node_executables_are_listed_once(repo):
     assert all((PACKAGE / "nodes" / f"{spec.name}.py").is_file() for spec in SPECS)
 
 
-def test_readme_architecture_names_every_module():
-    """The README's Architecture block stays true to the code: every package (as `name/`) and module
+def test_docs_architecture_names_every_module():
+    """docs/architecture.md's Architecture block stays true to the code: every package (as `name/`) and module
     (by name) of advperc_ros is in it, so a new module cannot land undocumented."""
-    block = (REPO / "README.md").read_text().split("\n## Architecture\n")[1].split("\n## ")[0]
+    block = (REPO / "docs" / "architecture.md").read_text().split("\n## Architecture\n")[1].split("\n## ")[0]
     missing = []
     for path in sorted(PACKAGE.rglob("*.py")):
         if "data" in path.relative_to(PACKAGE).parts:
@@ -168,4 +168,4 @@ def test_readme_architecture_names_every_module():
                 missing.append(f"{path.parent.name}/")
         elif not re.search(rf"\b{re.escape(path.stem)}\b", block):
             missing.append(str(path.relative_to(REPO)))
-    assert not missing, f"README Architecture does not name: {missing}"
+    assert not missing, f"docs/architecture.md does not name: {missing}"

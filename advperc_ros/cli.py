@@ -48,6 +48,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
 
 def cmd_make_bags(args: argparse.Namespace) -> int:
     from advperc_ros.core.scenario_spec import load_scenario_spec
+    from advperc_ros.paths import check_output
     from advperc_ros.ros.bag import write_ground_truth_bag
 
     specs = [Path(p) for p in args.scenarios] or sorted(Path("scenarios").glob("*.yaml"))
@@ -55,11 +56,20 @@ def cmd_make_bags(args: argparse.Namespace) -> int:
         raise ScenarioError("scenarios/: no scenario descriptions given or found")
     scenarios = [load_scenario_spec(spec) for spec in specs]  # validate all before writing any
     out_dir = Path(args.output_dir)
+    for scenario in scenarios:  # every target checked before any is written
+        target = out_dir / scenario.name
+        if target.is_dir() and not target.is_symlink() and args.force:
+            if not (target / "metadata.yaml").is_file():  # --force rewrites bags, never a folder of the user's
+                raise BagError(f"{target}: exists and is not a rosbag2 bag (no metadata.yaml): --force rewrites "
+                               "bags only")
+            check_output(target / "metadata.yaml", "bag")  # writable: the check a new bag folder gets
+        elif target.exists() or target.is_symlink():
+            raise BagError(f"{target}: exists already" + (" (use --force to rewrite)" if target.is_dir() else ""))
+        else:
+            check_output(target, "bag folder")
     for scenario in scenarios:
         target = out_dir / scenario.name
         if target.exists():
-            if not args.force:
-                raise BagError(f"{target}: exists already (use --force to rewrite)")
             shutil.rmtree(target)
         write_ground_truth_bag(target, scenario)
         print(f"{target}: {scenario.num_frames} frames, {scenario.agents.shape[1]} agents")
@@ -248,6 +258,13 @@ def _count(text: str) -> int:
     return value
 
 
+def _path(text: str) -> str:
+    """A path argument: an empty one (`--output ''`) names nothing, and was taken for the default."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("an empty path names nothing; give one or leave the flag out")
+    return text
+
+
 def _strengths(text: str) -> tuple[float, ...]:
     """Perturbation strengths: comma-separated probabilities in [0, 1]."""
     try:
@@ -265,13 +282,13 @@ def build_parser() -> argparse.ArgumentParser:
 
     attack = sub.add_parser("attack", help="search for an adversarial perception attack (no ROS needed)")
     attack.add_argument("params", help="params YAML in the ROS layout (orchestrator: ros__parameters: ...)")
-    attack.add_argument("--output", help="results folder to create (default results/<params>-seed<N>)")
+    attack.add_argument("--output", type=_path, help="results folder to create (default results/<params>-seed<N>)")
     attack.add_argument("--seed", type=int, help="override the params file's seed")
     attack.add_argument("--objective", choices=OBJECTIVES, help="override the params file's objective")
     attack.add_argument("--method", choices=SEARCH_METHODS, help="override the params file's search.method (paper: the "
                         "paper's Algorithms 1 and 2, for reproducing it)")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
-    attack.add_argument("--resume", metavar="OUTPUT", help="finish the interrupted attack whose results folder was to be "
+    attack.add_argument("--resume", metavar="OUTPUT", type=_path, help="finish the interrupted attack whose results folder was to be "
                         "OUTPUT (same params): rollouts already run are not run again, and the report is the one an "
                         "uninterrupted run writes")
     attack.add_argument("--backend", choices=("embedded", "graph"),
@@ -280,21 +297,21 @@ def build_parser() -> argparse.ArgumentParser:
 
     make_bags = sub.add_parser("make-bags", help="write ground-truth bags from scenario descriptions")
     make_bags.add_argument("scenarios", nargs="*", help="scenario YAML files (default scenarios/*.yaml)")
-    make_bags.add_argument("--output-dir", default="bags", help="where to write the bags (default bags/)")
+    make_bags.add_argument("--output-dir", type=_path, default="bags", help="where to write the bags (default bags/)")
     make_bags.add_argument("--force", action="store_true", help="rewrite bags that exist")
     make_bags.set_defaults(func=cmd_make_bags)
 
     importer = sub.add_parser("import-commonroad", help="CommonRoad scenario of recorded traffic -> ground-truth bag")
     importer.add_argument("scenario", help="CommonRoad XML file")
-    importer.add_argument("--output", help="bag directory to write (default bags/<scenario id>)")
-    importer.add_argument("--params", help="params file to write for attacking it (default <output>.yaml)")
+    importer.add_argument("--output", type=_path, help="bag directory to write (default bags/<scenario id>)")
+    importer.add_argument("--params", type=_path, help="params file to write for attacking it (default <output>.yaml)")
     importer.set_defaults(func=cmd_import_commonroad)
 
     typical = sub.add_parser("check-typical", help="roll out PEM-sampled typical errors; exit 1 on any collision")
     typical.add_argument("params", help="params YAML, as for attack")
     typical.add_argument("--samples", type=_count, default=100, help="rollouts (paper: 100)")
     typical.add_argument("--seed", type=int, default=0)
-    typical.add_argument("--model", help="PEM JSON (default: the shipped reference model)")
+    typical.add_argument("--model", type=_path, help="PEM JSON (default: the shipped reference model)")
     typical.set_defaults(func=cmd_check_typical)
 
     robust = sub.add_parser("robustness", help="perturb a found attack at growing strength (paper figure 5)")
@@ -308,7 +325,7 @@ def build_parser() -> argparse.ArgumentParser:
     campaign = sub.add_parser("campaign", help="attack scenarios x objectives x seeds x planners (or replay found "
                               "attacks) into one table, JUnit XML included; resumable")
     campaign.add_argument("campaign", help="campaign YAML (see the README's Campaigns)")
-    campaign.add_argument("--output", help="override the campaign's output folder")
+    campaign.add_argument("--output", type=_path, help="override the campaign's output folder")
     campaign.add_argument("--executor", choices=("process", "ray", "serial"), help="override the campaign's executor")
     campaign.add_argument("--workers", type=int, help="override the campaign's workers")
     campaign.add_argument("--quiet", action="store_true", help="no progress bar, no per-cell lines")
@@ -316,9 +333,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     replay_cmd = sub.add_parser("replay", help="re-run a found attack's errors against another planner or configuration")
     replay_cmd.add_argument("results", help="results folder of an attack that collided (report.json + attack_errors.npz)")
-    replay_cmd.add_argument("--params", help="params YAML of the planner or configuration to replay against (same bag); "
+    replay_cmd.add_argument("--params", type=_path, help="params YAML of the planner or configuration to replay against (same bag); "
                             "default: the attack's own")
-    replay_cmd.add_argument("--output", help="replay folder to write (replay.json, replay.md, bev.png); default: none")
+    replay_cmd.add_argument("--output", type=_path, help="replay folder to write (replay.json, replay.md, bev.png); default: none")
     replay_cmd.add_argument("--backend", choices=("embedded", "graph"), help="override rollout_backend")
     replay_cmd.set_defaults(func=cmd_replay)
 
@@ -330,7 +347,7 @@ def build_parser() -> argparse.ArgumentParser:
     pem_fit.add_argument("--ground-truth", help="one ground-truth bag for all the detection bags")
     pem_fit.add_argument("--nuscenes-gt", help="nuScenes ground-truth boxes JSON (devkit-serialised, with ego_translation)")
     pem_fit.add_argument("--topic", default="/perception/objects", help="detections topic")
-    pem_fit.add_argument("--output", required=True, help="model JSON to write")
+    pem_fit.add_argument("--output", required=True, type=_path, help="model JSON to write")
     pem_fit.set_defaults(func=cmd_pem_fit)
 
     score_cmd = sub.add_parser("score", help="perception metrics of a perceived bag against ground truth, as JSON")

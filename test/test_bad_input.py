@@ -182,6 +182,12 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml --output", "output folder exists", lambda f: (f / "out").mkdir() or ["attack", _params(f), "--output", str(f / "out")], "exists already", "out"),
         Case("advperc attack P.yaml --output", "output under a file", lambda f: (f / "file").write_text("x") and ["attack", _params(f), "--output", str(f / "file" / "out")], "is not a folder", "file"),
         Case("advperc attack P.yaml --output", "output where nothing can be made (`/proc`, a read-only mount: root passes access() there)", lambda f: ["attack", _params(f), "--output", "/proc/advperc-out"], "cannot create the output folder", "/proc/advperc-out"),
+        Case("advperc attack P.yaml --output", "`--output ''`", attack_flags("--output", ""), "an empty path names nothing", None),
+        Case("advperc attack P.yaml --output", "output a symbolic link to nothing", lambda f: _link(f / "out", "nowhere") or ["attack", _params(f), "--output", str(f / "out")], "is a symbolic link", "out"),
+        Case("advperc attack P.yaml --output", "output a symbolic link loop", lambda f: _link(f / "out", "out") or ["attack", _params(f), "--output", str(f / "out")], "is a symbolic link", "out"),
+        Case("advperc attack P.yaml --output", "output under a symbolic link loop", lambda f: _link(f / "loop", "loop") or ["attack", _params(f), "--output", str(f / "loop" / "out")], "symbolic link loop", "loop"),
+        Case("advperc attack P.yaml --output", "output under a symbolic link to nothing", lambda f: _link(f / "gone", "nowhere") or ["attack", _params(f), "--output", str(f / "gone" / "out")], "symbolic link to nothing", "gone"),
+        Case("advperc attack P.yaml --output", "output name over 255 bytes", lambda f: ["attack", _params(f), "--output", str(f / ("o" * 300))], "longer than the file system allows", None),
         Case("advperc attack P.yaml --resume", "`--resume` and another `--output`", attack_flags("--resume", "elsewhere"), "give the folder once", None),
         Case("advperc attack P.yaml", "bag folder empty", lambda f: (f / "bag").mkdir() or ["attack", _params(f, bag=str(f / "bag"))], "bag", "bag"),
         Case("advperc attack P.yaml", "bag file not MCAP", lambda f: _broken_bag(f) and ["attack", _params(f, bag=str(f / "bag"))], "not a readable rosbag2 bag", "bag"),
@@ -223,9 +229,18 @@ def _cases() -> list[Case]:
         Case("advperc import-commonroad XML", "recording missing", lambda f: ["import-commonroad", str(f / "none.xml")], "none.xml", "none.xml"),
         Case("advperc import-commonroad XML", "recording not XML", lambda f: (f / "r.xml").write_text("<<<") and ["import-commonroad", str(f / "r.xml"), "--output", str(f / "bag")], "r.xml", "r.xml"),
         Case("advperc make-bags SCENARIO", "scenario file missing", lambda f: ["make-bags", str(f / "none.yaml"), "--output-dir", str(f / "bags")], "none.yaml", "none.yaml"),
+        Case("advperc make-bags SCENARIO --output-dir", "output folder a file", lambda f: (f / "file").write_text("x") and ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "file")], "is not a folder", "file"),
+        Case("advperc make-bags SCENARIO --output-dir", "output folder a symbolic link to nothing", lambda f: _link(f / "bags", "nowhere") or ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "bags")], "symbolic link to nothing", "bags"),
+        Case("advperc make-bags SCENARIO --force", "`--force` onto a folder of the user's that is not a bag", lambda f: (f / "bags" / "idm_lane_following").mkdir(parents=True) or ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "bags"), "--force"], "not a rosbag2 bag", "idm_lane_following"),
+        Case("advperc campaign FILE --output", "output a symbolic link to nothing", lambda f: _link(f / "out", "nowhere") or ["campaign", str(REPO / "examples" / "campaign.yaml"), "--output", str(f / "out")], "is a symbolic link", "out"),
+        Case("advperc pem fit BAG --output", "output under a symbolic link loop", lambda f: _link(f / "loop", "loop") or ["pem", "fit", str(GOOD_BAG), "--output", str(f / "loop" / "m.json")], "symbolic link loop", "loop"),
         Case("advperc make-bags SCENARIO", "scenario not YAML", lambda f: (f / "s.yaml").write_text("a: [") and ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "s.yaml", "s.yaml"),
     ]
     return cases
+
+
+def _link(path: Path, target: str) -> None:
+    path.symlink_to(target)
 
 
 def _broken_bag(folder: Path) -> bool:

@@ -206,10 +206,13 @@ def test_without_thresholds_every_attack_found_fails(serial):
 
 
 def test_an_attack_fails_its_test_case_when_its_metric_reaches_the_threshold(serial, repo, tmp_path, capsys):
+    """Thresholds set in the campaign's own file after it ran: the verdicts change, no cell runs again
+    (the output folder is the campaign's own only for its own file)."""
     output = tmp_path / "thresholds"
-    shutil.copytree(serial, output)
+    campaign = write_campaign(tmp_path / "small.yaml", repo, output)
+    assert run(campaign, capsys=capsys)["ran"] == 2
     nds = json.loads((serial / CELLS[0] / "report.json").read_text())["nds"]
-    campaign = write_campaign(tmp_path / "small.yaml", repo, output, thresholds={"nds": nds, "nds_t": 1.0})
+    write_campaign(campaign, repo, output, thresholds={"nds": nds, "nds_t": 1.0})
     assert run(campaign, capsys=capsys)["ran"] == 0  # only the verdicts change: no cell runs again
     cases = _junit(output)
     assert cases[CELLS[0]].find("failure") is not None  # reaches nds exactly

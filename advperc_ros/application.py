@@ -22,7 +22,9 @@ from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.refine import dropped_runs
+from advperc_ros.core.search.diagnosis import inconclusive_search
 from advperc_ros.core.search.registry import search_method
+from advperc_ros.exceptions import InconclusiveSearch
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, resolve_bag
@@ -120,6 +122,9 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         counter.close()
         if rollouts is None:  # this function's own stack: its worker pool ends here
             backend.close()
+    unsure = inconclusive_search(problem.log)
+    if unsure is not None:
+        raise InconclusiveSearch(unsure)
     recorded = backend.rollout(result.best.errors, record=True) if result.best is not None else None
     attacked = backend.attacked_planner
     if attacked.node is not None:
@@ -155,13 +160,17 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     finished = False
     try:
         with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
-            outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
-                rollouts, checkpoint, scenario.agents, configs.rollout))
+            try:
+                outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
+                    rollouts, checkpoint, scenario.agents, configs.rollout))
+            except InconclusiveSearch:
+                finished = True  # rollouts that found nothing out are not worth resuming: a rerun starts afresh
+                raise
         report = write_results(output, outcome, bag_path)
         finished = True
     except KeyboardInterrupt:
         source = params.source or "PARAMS"
-        raise Interrupted(f"finish it with: advperc attack {source} --resume {output}") from None
+        raise Interrupted(f"finish it with: advperc attack {source} --resume {output}", output) from None
     finally:
         checkpoint.close(finished)
     return output, report

@@ -9,6 +9,8 @@ budget spent, a plan call overrunning its time) are control flow that never leav
 This module imports nothing of the package, so every layer (core included) may import it.
 """
 
+from pathlib import Path
+
 
 class AdvpercError(Exception):
     """Base of every exception this package raises on purpose."""
@@ -56,6 +58,11 @@ class GraphError(AdvpercError, RuntimeError):
     """The graph could not be started or made ready; the text says which node and why."""
 
 
+class InconclusiveSearch(AdvpercError, RuntimeError):
+    """Most rollouts of a search found nothing out (a node dead or silent, another graph on the
+    domain, a planner raising): no collision found would be a claim the search cannot make."""
+
+
 class RolloutFault(AdvpercError):
     """A rollout the graph failed to finish (not the planner's verdict)."""
 
@@ -67,7 +74,12 @@ class DdsError(AdvpercError, RuntimeError):
 # ----- the user stopped it -----
 
 class Interrupted(AdvpercError):
-    """Ctrl-C during an attack: the text says how to finish it (its checkpoint is kept)."""
+    """Ctrl-C (or SIGTERM) during an attack: the text says how to finish it (its checkpoint is kept);
+    `output` is the results folder it was writing, so each way in (CLI, ROS node) can say it its way."""
+
+    def __init__(self, text: str, output: Path | None = None) -> None:
+        super().__init__(text)
+        self.output = output
 
 
 # ----- control flow inside the package -----

@@ -48,13 +48,14 @@ def main(args: list[str] | None = None) -> int:
         print("orchestrator: rclpy not found; source ROS 2 Jazzy, or run `advperc attack PARAMS` instead", file=sys.stderr)
         return 2  # exits.EXIT_INPUT; importing the whole stack first would hide this message behind its imports
     from advperc_ros.application import attack_to_folder, summary
+    from advperc_ros.exceptions import Interrupted
     from advperc_ros.nodes.runtime import given_parameters, run_rclpy
     from advperc_ros.ros.transport import RclpyTransport
 
     argv = sys.argv[1:] if args is None else list(args)
 
     def body(node: Any) -> int:
-        flat = given_parameters(node)
+        flat = given_parameters(node, argv)
         output = flat.pop(OUTPUT, "")
         resume = flat.pop(RESUME, False)
         if not isinstance(resume, bool) or (resume and not output):
@@ -64,11 +65,17 @@ def main(args: list[str] | None = None) -> int:
         params = parse_params({NODE: {"ros__parameters": nest(flat)}}, str(source or f"node '{NODE}' parameters"), source)
         node.get_logger().info(f"attacking {params.bag} ({params.planner}, objective {params.objective})")
         transport = None if params.graph.spawn_nodes else RclpyTransport(node)
-        folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport, resume=resume)
+        try:
+            folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport,
+                                              resume=resume)
+        except Interrupted as exc:  # the checkpoint is kept; say how to finish it the ROS way
+            raise Interrupted(f"{exc.output}: the attack stopped with its checkpoint kept; finish it with the same "
+                              f"command and -p {OUTPUT}:={exc.output} -p {RESUME}:=true (launch: output:={exc.output} "
+                              f"{RESUME}:=true)") from None
         node.get_logger().info(f"{json.dumps(summary(report))}; results in {folder}")
         return 0
 
-    return run_rclpy(NODE, argv, body)
+    return run_rclpy(NODE, argv, body, interruptible=True)
 
 
 if __name__ == "__main__":

@@ -3,12 +3,24 @@ orchestrator driving its search through them, all configured from one params fil
 
     ros2 launch advperc_ros attack.launch.py params:=config/idm_lane_following.yaml
     ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external output:=results/mine
+    ros2 launch advperc_ros attack.launch.py params:=my.yaml output:=results/mine resume:=true  # after Ctrl-C
 
 `planner:=external` leaves our planner node out: run yours on the planner topics (docs/graph.md).
 The params file is validated before any node starts; the launch ends when the orchestrator does.
 The orchestrator reads the params file itself (only the graph settings are overridden), so its
 report is the one `ros2 run advperc_ros orchestrator` and `advperc attack` write for that file.
+
+`ros2 launch` itself exits 0 whatever its processes did; this launch file makes it exit with the
+orchestrator's code instead (2 bad input, 4 inconclusive, 130 on Ctrl-C, ...), so a script or CI job
+can tell: an argument it does not declare or a bad params file ends it with one line and code 2
+before any node starts.
 """
+
+import atexit
+import logging
+import os
+import signal
+import sys
 
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
@@ -16,18 +28,57 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from advperc_ros.exits import EXIT_INPUT
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
-from advperc_ros.params import load_params, resolve_bag
+from advperc_ros.params import ParamsError, load_params, resolve_bag
 from launch import LaunchDescription
 
 PACKAGE = "advperc_ros"
+ARGUMENTS = ("params", "planner", "output", "resume")  # every launch argument this file declares
+
+
+def _exit_with(code: int) -> None:
+    """Make the `ros2 launch` process exit with `code` once the launch has shut down: ros2launch
+    returns only 0 or 1, so the code is set by the last exit handler, after output is flushed."""
+    def finish() -> None:
+        logging.shutdown()
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+
+    if code:
+        atexit.register(finish)
+
+
+def _refuse(text: str) -> RuntimeError:
+    """One line from the launch (`[ERROR] [launch]: Caught exception in launch ...: <text>`), code 2."""
+    _exit_with(EXIT_INPUT)
+    return RuntimeError(text)
+
+
+def _orchestrator_exited(event, context):
+    """The launch ends when the orchestrator does, with its exit code (a signal's as the shell gives it)."""
+    code = event.returncode if event.returncode >= 0 else 128 - event.returncode
+    _exit_with(code)
+    return [EmitEvent(event=Shutdown(reason=f"orchestrator exited with code {code}"))]
 
 
 def _graph(context, *args, **kwargs):
+    unknown = sorted(set(context.launch_configurations) - set(ARGUMENTS))
+    if unknown:  # `planer:=external` would otherwise attack our planner, silently
+        raise _refuse(f"unknown launch argument '{unknown[0]}' (arguments: {', '.join(ARGUMENTS)})")
     params_file = LaunchConfiguration("params").perform(context)
-    params = load_params(params_file)
-    bag = resolve_bag(params).resolve()
-    external = LaunchConfiguration("planner").perform(context) == "external"
+    if not params_file:  # declared with a default so that its absence is this one line and code 2, too
+        raise _refuse("launch argument 'params' is required: params:=PARAMS.yaml (as for `advperc attack`)")
+    try:
+        params = load_params(params_file)
+        bag = resolve_bag(params).resolve()
+    except ParamsError as exc:
+        raise _refuse(str(exc)) from None
+    planner = LaunchConfiguration("planner").perform(context)
+    if planner not in ("ours", "external"):
+        raise _refuse(f"launch argument 'planner' must be ours or external, got {planner!r}")
+    external = planner == "external"
     nodes = [
         Node(package=PACKAGE, executable=spec.name, name=spec.name, output="screen",
              parameters=[ros_parameters(spec, params, bag)])
@@ -38,18 +89,24 @@ def _graph(context, *args, **kwargs):
     output = LaunchConfiguration("output").perform(context)
     if output:
         overrides["output"] = output
+    resume = LaunchConfiguration("resume").perform(context)
+    if resume not in ("true", "false"):
+        raise _refuse(f"launch argument 'resume' must be true or false, got {resume!r}")
+    if resume == "true":
+        overrides["resume"] = True
     orchestrator = Node(package=PACKAGE, executable="orchestrator", name="orchestrator", output="screen",
                         parameters=[params_file, overrides])
-    stop_with_orchestrator = RegisterEventHandler(
-        OnProcessExit(target_action=orchestrator, on_exit=[EmitEvent(event=Shutdown(reason="orchestrator finished"))]))
+    stop_with_orchestrator = RegisterEventHandler(OnProcessExit(target_action=orchestrator, on_exit=_orchestrator_exited))
     return [*nodes, orchestrator, stop_with_orchestrator]
 
 
 def generate_launch_description() -> LaunchDescription:
     return LaunchDescription([
-        DeclareLaunchArgument("params", description="orchestrator params YAML (as for `advperc attack`)"),
-        DeclareLaunchArgument("planner", default_value="ours", choices=["ours", "external"],
+        DeclareLaunchArgument("params", default_value="", description="orchestrator params YAML (as for `advperc attack`)"),
+        DeclareLaunchArgument("planner", default_value="ours",
                               description="ours: start our planner node; external: leave it out and use yours"),
         DeclareLaunchArgument("output", default_value="", description="results folder (default results/<scenario>-seed<N>)"),
+        DeclareLaunchArgument("resume", default_value="false",
+                              description="true: finish the attack interrupted while writing to `output`"),
         OpaqueFunction(function=_graph),
     ])

@@ -7,6 +7,7 @@ import sys
 
 import yaml
 
+from advperc_ros.nodes.runtime import command_line_overrides
 from advperc_ros.orchestrator_node import main, params_source
 from advperc_ros.params import nest, parse_params
 
@@ -50,3 +51,27 @@ def test_node_runs_an_attack_from_a_params_file(tmp_path, repo, ros_domain):
     assert report["collision"] is True
     chosen = report["params"]  # dotted names, as the node takes them
     assert (chosen["search.random.steps"], chosen["search.random.proposals"], chosen["search.refine.iterations"]) == (4, 20, 0)
+
+
+def test_a_command_line_override_wins_over_the_params_file_wherever_it_stands(tmp_path, repo, ros_domain):
+    """The README's form, `-p output:=X --params-file P -p seed:=3`: rcl alone lets the file's seed win
+    once any `-p` stands before the file; the node applies what the user typed."""
+    document = yaml.safe_load((repo / "config" / "idm_lane_following.yaml").read_text())
+    document["orchestrator"]["ros__parameters"]["bag"] = str(repo / "bags" / "idm_lane_following")
+    document["orchestrator"]["ros__parameters"]["search"] = {"random": {"steps": 40}, "refine": {"iterations": 0}}
+    path = tmp_path / "params.yaml"
+    path.write_text(yaml.safe_dump(document))
+    output = tmp_path / "out"
+    assert main(["--ros-args", "-p", f"output:={output}", "--params-file", str(path), "-p", "seed:=3",
+                 "-p", "search.random.steps:=2", "-p", "search.method:=paper"]) == 0
+    chosen = json.loads((output / "report.json").read_text())["params"]
+    assert (chosen["seed"], chosen["search.random.steps"], chosen["search.method"]) == (3, 2, "paper")
+
+
+def test_command_line_overrides_are_typed_as_rcl_types_them_and_the_last_wins():
+    args = ["orchestrator", "--ros-args", "-p", "seed:=3", "--params-file", "x.yaml", "-p", "seed:=4", "-p",
+            "ego.width:=2.0", "-p", "planner:=idm", "-p", "tracker:gate:=9.0", "-p", "orchestrator:objective:=nds",
+            "-p", "bag:=yes", "-p", "stop_at_collision:=False"]
+    assert command_line_overrides(args, "orchestrator") == {
+        "seed": 4, "ego.width": 2.0, "planner": "idm", "objective": "nds", "bag": "yes", "stop_at_collision": False}
+    assert command_line_overrides(["--ros-args", "-p", "seed:=1"][:1], "orchestrator") == {}

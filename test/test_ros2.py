@@ -361,3 +361,74 @@ def test_the_player_logs_failed_and_finished_rollouts_through_rclpys_logger():
         player._run = type("Run", (), {"rollout": len(player._done), "frame": 3})()
         player._finish(status, "no plan" if status != Status.OK else "")
     assert len(player._done) == 3
+
+
+# ----- failures a script or CI job must see: `ros2 launch` and `ros2 run` exit codes -----------------------
+
+def _in_workspace(workspace: Path, command: str, domain: int) -> subprocess.Popen:
+    """`command` in a shell that sourced the workspace, as a user's script runs it; its own process group."""
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
+    return subprocess.Popen(["bash", "-c", f"source install/setup.bash && exec {command}"], cwd=workspace, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+
+
+def _ended(process: subprocess.Popen, timeout: float = TIMEOUT) -> tuple[int, str]:
+    try:
+        output, _ = process.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, 9)
+        output, _ = process.communicate()
+        raise AssertionError(f"still running after {timeout} s: {output[-3000:]}")
+    return process.returncode, output
+
+
+@pytest.mark.parametrize("arguments, line", [
+    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, output, resume)"),
+    ("output:=x", "{missing}: no such params file"),
+])
+def test_a_launch_refused_before_any_node_starts_exits_2_with_one_line(workspace, ros_domain, tmp_path, arguments, line):
+    params = tmp_path / "missing.yaml" if "missing" in line else REPO / "config" / "idm_lane_following.yaml"
+    launch = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} {arguments}", ros_domain)
+    code, output = _ended(launch, timeout=120)
+    errors = [text for text in output.splitlines() if "[ERROR]" in text]
+    assert code == 2 and len(errors) == 1 and errors[0].endswith(line.format(missing=params)), output[-3000:]
+    assert "process started" not in output, output[-3000:]
+
+
+def _wait_for_rollouts(checkpoint: Path, launch: subprocess.Popen, count: int) -> None:
+    deadline = time.monotonic() + TIMEOUT
+    while sum(1 for _ in (checkpoint / "rollouts.jsonl").open()) < count if (checkpoint / "rollouts.jsonl").is_file() \
+            else True:
+        assert launch.poll() is None, launch.communicate()[0][-3000:]
+        assert time.monotonic() < deadline, "no rollout checkpointed in time"
+        time.sleep(0.2)
+
+
+@pytest.mark.parametrize("way", ["launch", "run"])
+def test_ctrl_c_stops_the_attack_in_seconds_with_130_and_it_resumes_to_the_uninterrupted_report(
+        workspace, ros_domain, tmp_path, way):
+    """Ctrl-C (SIGINT to the foreground process group, as a terminal sends it) of `ros2 launch` and of
+    `ros2 run ... orchestrator`: one line, exit code 130 within seconds, the checkpoint kept; resuming
+    (`resume:=true`, `-p resume:=true`) writes the report an uninterrupted run writes."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
+    output = tmp_path / "attack"
+    if way == "launch":
+        command = f"ros2 launch advperc_ros attack.launch.py params:={params} output:={output}"
+    else:
+        command = f"ros2 run advperc_ros orchestrator --ros-args --params-file {params} -p output:={output}"
+    attack = _in_workspace(workspace, command, ros_domain)
+    _wait_for_rollouts(tmp_path / ".attack.checkpoint", attack, 2)
+    os.killpg(attack.pid, signal.SIGINT)
+    stopped = time.monotonic()
+    code, log = _ended(attack, timeout=60)
+    assert code == 130, log[-3000:]
+    assert time.monotonic() - stopped < 30, log[-3000:]
+    assert sum("interrupted: " in text for text in log.splitlines()) == 1, log[-3000:]
+    assert (tmp_path / ".attack.checkpoint" / "rollouts.jsonl").is_file() and not output.exists()
+    resume = (f"{command} resume:=true" if way == "launch" else f"{command} -p resume:=true")
+    code, log = _ended(_in_workspace(workspace, resume, ros_domain))
+    assert code == 0, log[-3000:]
+    cli = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params), "--output",
+                          str(tmp_path / "cli"), "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT)
+    assert cli.returncode == 0, cli.stderr
+    assert _report(output) == _report(tmp_path / "cli")

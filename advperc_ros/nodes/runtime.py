@@ -30,7 +30,7 @@ from typing import Any, Protocol
 import numpy as np
 import yaml
 
-from advperc_ros.exits import EXIT_INPUT, EXPECTED_TYPES, INPUT_ERRORS, expected_failure
+from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXPECTED_TYPES, INPUT_ERRORS, expected_failure
 from advperc_ros.params import SCHEMA, find_bag, load_params, node_values, params_from_values
 from advperc_ros.ros import cdr
 from advperc_ros.ros.lockstep import presence_message
@@ -139,32 +139,76 @@ def _refused_override(args: list[str] | None) -> str | None:
     return None
 
 
-def given_parameters(node: Any) -> dict[str, Any]:
+def _override_value(text: str) -> Any:
+    """A `-p name:=value` value as rcl types it: YAML, but only true/false (any case) are booleans
+    (PyYAML would also read yes/no/on/off as booleans, where rcl keeps the string)."""
+    value = yaml.safe_load(text)
+    if isinstance(value, bool) and text.strip().lower() not in ("true", "false"):
+        return text
+    return value
+
+
+def command_line_overrides(args: list[str] | None, node_name: str) -> dict[str, Any]:
+    """The `-p [node:]name:=value` rules of the ROS arguments that apply to `node_name`, the last
+    one winning, as the values a user typed."""
+    args = list(sys.argv if args is None else args)
+    ros = args[args.index("--ros-args") + 1:] if "--ros-args" in args else []
+    values: dict[str, Any] = {}
+    for flag, rule in zip(ros, ros[1:]):
+        if flag not in ("-p", "--param") or ":=" not in rule:
+            continue
+        target, value = rule.split(":=", 1)
+        node, _, name = target.rpartition(":")
+        if node in ("", node_name, f"/{node_name}"):
+            values[name] = _override_value(value)
+    return values
+
+
+def given_parameters(node: Any, args: list[str] | None) -> dict[str, Any]:
     """Every parameter given to an rclpy node (overrides and params files, dotted names), without
     the ones rclpy declares itself; the node must be created with
-    `automatically_declare_parameters_from_overrides=True`, so none is silently left out."""
-    return {name: p.value for name, p in node.get_parameters_by_prefix("").items() if name not in ROS_OWN}
+    `automatically_declare_parameters_from_overrides=True`, so none is silently left out.
+
+    A `-p` on the command line wins over a params file wherever it stands, as a user expects: rcl
+    lets a params file's entry for the node win over every `-p` once any `-p` stands before the file
+    (`-p output:=X --params-file P -p seed:=3` ran with the file's seed), silently."""
+    given = {name: p.value for name, p in node.get_parameters_by_prefix("").items() if name not in ROS_OWN}
+    return {**given, **{name: value for name, value in command_line_overrides(args, node.get_name()).items()
+                        if name not in ROS_OWN}}
 
 
-def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int]) -> int:
+def _interrupt(signum: int, frame: Any) -> None:
+    raise KeyboardInterrupt
+
+
+def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int], interruptible: bool = False) -> int:
     """The Jazzy main idiom for every node of this package: init, a node named `name` holding every
     parameter it was given, `body(node)` (which declares, validates, spins), shutdown. Each expected
     failure (ROS arguments rcl cannot parse, a bad parameter or bag: exit 2; the others of
-    `exits.EXPECTED`) is one line and its exit code; Ctrl-C or a ROS shutdown ends it quietly."""
+    `exits.EXPECTED`) is one line and its exit code; Ctrl-C or a ROS shutdown ends a graph node quietly.
+
+    `interruptible` (the orchestrator, whose body is a long computation, not a spin): rclpy's own
+    signal handler only shuts the context down, which a search never looks at, so Ctrl-C was
+    ignored until the search ended. Instead SIGINT and SIGTERM raise KeyboardInterrupt where the body
+    is, the body turns it into its own `Interrupted` line, and an interruption anywhere else is exit
+    code 130 too, never 0."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
     from rclpy.impl.implementation_singleton import rclpy_implementation
     from rclpy.node import Node
+    from rclpy.signals import SignalHandlerOptions
 
     refused = _refused_override(args if args is not None else sys.argv)
     if refused is not None:
         print(f"{name}: error: {refused}", file=sys.stderr)
         return EXIT_INPUT
     try:
-        rclpy.init(args=args)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if interruptible else None)
     except rclpy_implementation.RCLError as exc:
         print(f"{name}: error: {ros_arguments_error(str(exc))}", file=sys.stderr)
         return EXIT_INPUT
+    handlers = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)
+                if interruptible}
     node = None
     try:
         node = Node(name, automatically_declare_parameters_from_overrides=True)
@@ -177,8 +221,14 @@ def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int]) -> 
             node.get_logger().error(line)
         return code
     except (KeyboardInterrupt, ExternalShutdownException):
-        return 0
+        return EXIT_INTERRUPTED if interruptible else 0
+    except rclpy_implementation.RCLError:
+        if rclpy.ok():
+            raise
+        return 0  # the context shut down (Ctrl-C, `ros2 launch` ending) while a spin was waiting: a normal stop
     finally:
+        for signum, handler in handlers.items():
+            signal.signal(signum, handler)
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
@@ -201,7 +251,7 @@ def _run_rclpy(spec: NodeSpec, args: list[str] | None) -> int:
 
         from advperc_ros.ros.transport import RclpyTransport
 
-        given = given_parameters(node)
+        given = given_parameters(node, args)
         values, planner_params = node_values(given, spec.params, f"node '{spec.name}' parameters", spec.planner_params)
         _declare_defaults(node, spec, given)
         transport = RclpyTransport(node)

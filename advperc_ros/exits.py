@@ -8,6 +8,7 @@ from advperc_ros.exceptions import (
     BagError,
     GraphError,
     GroundTruthFails,
+    InconclusiveSearch,
     Interrupted,
     ParamsError,
     PEMError,
@@ -20,7 +21,7 @@ EXIT_OK = 0
 EXIT_NOTHING_TO_ATTACK = 1  # the stack fails with perfect perception, or check-typical found collisions
 EXIT_INPUT = 2  # bad input: params, bag, planner, output folder
 EXIT_REJECTED = 3  # a recording whose traffic hits the ego whatever it does
-EXIT_GRAPH = 4  # the node graph could not be started or made ready
+EXIT_GRAPH = 4  # the node graph could not be started or made ready, or most rollouts were inconclusive
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT), as shells report it; an attack's checkpoint is kept
 
 INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError, PEMError)
@@ -29,6 +30,7 @@ EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (
     ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),
     ((ScenarioRejected,), "", EXIT_REJECTED),
     ((GraphError,), "error: graph backend: ", EXIT_GRAPH),
+    ((InconclusiveSearch,), "error: ", EXIT_GRAPH),
     ((Interrupted,), "interrupted: ", EXIT_INTERRUPTED),
 )
 EXPECTED_TYPES = tuple(kind for kinds, _, _ in EXPECTED for kind in kinds)

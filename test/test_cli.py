@@ -11,6 +11,7 @@ import yaml
 from mcap_ros2.reader import read_ros2_messages
 
 from advperc_ros.cli import main
+from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.scenario_spec import load_scenario_spec
 from advperc_ros.results import load_errors
 from advperc_ros.ros import bag as bags
@@ -253,3 +254,30 @@ def test_check_typical_passes_on_a_bundled_scenario(repo, capsys):
     assert main(["check-typical", str(repo / "config" / "idm_overtake_follow.yaml"), "--samples", "5"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["passed"] and result["collisions"] == 0 and result["samples"] == 5
+
+
+class PlannerFailingAfterGroundTruth(IDMPlanner):
+    """The IDM planner, raising in every plan after the first rollout (the ground truth): a plug-in
+    that breaks once the search starts."""
+
+    rollouts = -1  # IDMPlanner's constructor resets too
+
+    def reset(self) -> None:
+        PlannerFailingAfterGroundTruth.rollouts += 1
+        super().reset()
+
+    def plan(self, t, ego, tracks):
+        if PlannerFailingAfterGroundTruth.rollouts >= 2:
+            raise ValueError("lost its map")
+        return super().plan(t, ego, tracks)
+
+
+def test_a_search_whose_rollouts_were_mostly_inconclusive_ends_with_4_not_no_collision(repo, tmp_path, capsys):
+    PlannerFailingAfterGroundTruth.rollouts = -1
+    params = write_params(tmp_path / "p.yaml", repo, planner="test_cli:PlannerFailingAfterGroundTruth")
+    capsys.readouterr()
+    assert main(["attack", str(params), "--output", str(tmp_path / "out"), "--quiet"]) == 4
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "rollouts were inconclusive, so the search cannot say that no collision" \
+        in err and "lost its map" in err, err
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["p.yaml"]  # no report, no checkpoint to block a rerun

@@ -15,7 +15,8 @@ from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.rollout import rollout
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.search.heuristic import heuristic_search, narrowing, run_lockstep, run_one
-from advperc_ros.core.search.problem import AttackProblem, BudgetSpent, GroundTruthFails
+from advperc_ros.core.search.diagnosis import inconclusive_search
+from advperc_ros.core.search.problem import AttackProblem, BudgetSpent, GroundTruthFails, LogRow, Phase
 from advperc_ros.core.search.random_search import RandomSearchConfig, propose, random_search
 from advperc_ros.core.tracker import Tracker
 from toy_scenarios import FOLLOW_SPEC
@@ -496,3 +497,19 @@ def test_a_lockstep_wave_is_cut_to_the_rollouts_left():
     with pytest.raises(BudgetSpent):
         run_lockstep(stack, stack.narrowings(3))
     assert stack.batches == [2, 1] and len(stack.log) == 3
+
+
+def _row(rollout: int, collided: bool = False, inconclusive: str = "") -> LogRow:
+    return LogRow(rollout, Phase.HEURISTIC_DROP, rollout, 0.5, 0.9, 0.5, 1.0, collided, inconclusive, None, collided,
+                  float("nan"))
+
+
+def test_a_search_mostly_inconclusive_cannot_say_no_collision():
+    """More than half the rollouts inconclusive and no collision: the null result is not shown, and the
+    message names the most frequent cause; half, or any real collision, and the result stands."""
+    superseded = [_row(k, inconclusive=f"frame {k}: superseded by rollout {k + 7}") for k in range(2, 6)]
+    text = inconclusive_search([_row(1), *superseded, _row(6, inconclusive="planner raised ValueError")])
+    assert text == ("5 of 6 rollouts were inconclusive, so the search cannot say that no collision exists; the most "
+                    "frequent cause (4 rollouts): frame 2: superseded by rollout 9")
+    assert inconclusive_search([_row(1), _row(2), *superseded[:2]]) is None  # half
+    assert inconclusive_search([_row(1), _row(2, collided=True), *superseded]) is None  # a collision found stands

@@ -7,6 +7,8 @@ its `closest_approach` fields.
 """
 
 import math
+import re
+from collections import Counter
 from collections.abc import Callable
 
 from advperc_ros.core.rollout import RolloutResult
@@ -95,3 +97,23 @@ def _approach_clause(approach: Approach) -> str:
             f"the approach phase) "
             f"brought its margin to a collision at its fault from {approach.start.rollout.margin:.2f} m to "
             f"{approach.closest.rollout.margin:.2f} m")
+
+
+INCONCLUSIVE_SHARE = 0.5  # above it, a search that found nothing has not shown that nothing is there
+
+
+def inconclusive_search(log: list[LogRow]) -> str | None:
+    """Why a search without a collision cannot say "no collision found": more than half its rollouts
+    were inconclusive (a node dead or silent, another graph on the same domain superseding ours, a
+    plug-in raising). The text names how many and the most frequent cause; None when the search's
+    null result stands (or it found a collision, which an inconclusive rollout cannot fake)."""
+    if any(row.collided and not row.inconclusive for row in log):
+        return None
+    failed = [row.inconclusive for row in log if row.inconclusive]
+    if len(failed) <= INCONCLUSIVE_SHARE * len(log):
+        return None
+    causes = Counter(re.sub(r"\d+", "N", reason) for reason in failed)
+    cause, count = causes.most_common(1)[0]
+    example = next(reason for reason in failed if re.sub(r"\d+", "N", reason) == cause)
+    return (f"{len(failed)} of {len(log)} rollouts were inconclusive, so the search cannot say that no collision "
+            f"exists; the most frequent cause ({count} rollouts): {example}")

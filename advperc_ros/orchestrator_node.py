@@ -9,9 +9,9 @@ attack`, and the attack runs through the same application layer, so both accept 
 same files and write the same report. A relative `bag` is looked up in the order of
 `params.find_bag`; the params file of that order is the `--params-file` that set `bag`. With
 `rollout_backend: graph` every rollout goes through the node graph (advperc_ros.backends.graph): the
-orchestrator starts the five nodes itself (`graph.spawn_nodes: true`, Cyclone DDS child
-processes) or, with `graph.spawn_nodes: false` (launch/attack.launch.py), drives the nodes
-already running through this rclpy node.
+orchestrator starts the five nodes itself as rclpy nodes (`graph.spawn_nodes: true`; `ros2 node
+list` shows all six while it searches) or, with `graph.spawn_nodes: false` (launch/attack.launch.py),
+drives the nodes already running, through this rclpy node either way.
 """
 
 import json
@@ -64,7 +64,7 @@ def main(args: list[str] | None = None) -> int:
         source = params_source(argv, flat.get("bag"))
         params = parse_params({NODE: {"ros__parameters": nest(flat)}}, str(source or f"node '{NODE}' parameters"), source)
         node.get_logger().info(f"attacking {params.bag} ({params.planner}, objective {params.objective})")
-        transport = None if params.graph.spawn_nodes else RclpyTransport(node)
+        transport = RclpyTransport(node)  # the graph's nodes are reached, or started as rclpy nodes, through it
         try:
             folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport,
                                               resume=resume)

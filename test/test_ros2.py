@@ -432,3 +432,62 @@ def test_ctrl_c_stops_the_attack_in_seconds_with_130_and_it_resumes_to_the_unint
                           str(tmp_path / "cli"), "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT)
     assert cli.returncode == 0, cli.stderr
     assert _report(output) == _report(tmp_path / "cli")
+
+
+def test_ros2_run_with_the_graph_backend_shows_the_whole_graph_and_gives_the_embedded_report(workspace, ros_domain,
+                                                                                             tmp_path):
+    """`ros2 run advperc_ros orchestrator ... -p rollout_backend:=graph` starts the five nodes as rclpy
+    nodes, named as under the launch file: `ros2 node list` shows all six while it searches."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
+                           bag=str(REPO / "bags" / "idm_lane_following"))
+    output = tmp_path / "graph"
+    run = _in_workspace(workspace, f"ros2 run advperc_ros orchestrator --ros-args --params-file {params} "
+                                   f"-p rollout_backend:=graph -p output:={output}", ros_domain)
+    try:
+        deadline = time.monotonic() + TIMEOUT
+        expected = {"/orchestrator", "/scenario_player", "/error_injector", "/tracker", "/planner", "/rule_monitor"}
+        listed: set[str] = set()
+        while not expected <= listed:
+            assert run.poll() is None and time.monotonic() < deadline, (sorted(listed), run.stdout.read()[-3000:])
+            nodes = subprocess.run(["ros2", "node", "list"], capture_output=True, text=True, timeout=60,
+                                   env=dict(os.environ, ROS_DOMAIN_ID=str(ros_domain)))
+            listed = set(nodes.stdout.split())
+    except BaseException:
+        if run.poll() is None:
+            os.killpg(run.pid, 9)
+        run.communicate()
+        raise
+    code, log = _ended(run)
+    assert code == 0, log[-3000:]
+    embedded = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params), "--output",
+                               str(tmp_path / "embedded"), "--quiet"], cwd=REPO, capture_output=True, text=True,
+                              timeout=TIMEOUT)
+    assert embedded.returncode == 0, embedded.stderr
+    assert _report(output) == _report(tmp_path / "embedded")
+
+
+def test_two_graphs_on_one_domain_never_write_a_no_collision_report(workspace, ros_domain, tmp_path):
+    """Two `ros2 run ... rollout_backend:=graph` attacks started together on one ROS domain: their nodes
+    would answer each other's rollouts. Each attack either writes the report it writes alone or ends with
+    exit code 4 and one line naming the other graph (or its superseded rollouts); at least one sees the other."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
+                           bag=str(REPO / "bags" / "idm_lane_following"))
+    runs = [_in_workspace(workspace, f"ros2 run advperc_ros orchestrator --ros-args --params-file {params} "
+                                     f"-p rollout_backend:=graph -p output:={tmp_path / f'graph{k}'}", ros_domain)
+            for k in range(2)]
+    ended = [_ended(run) for run in runs]
+    embedded = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params), "--output",
+                               str(tmp_path / "embedded"), "--quiet"], cwd=REPO, capture_output=True, text=True,
+                              timeout=TIMEOUT)
+    assert embedded.returncode == 0, embedded.stderr
+    refused = 0
+    for k, (code, log) in enumerate(ended):
+        if code == 0:
+            assert _report(tmp_path / f"graph{k}") == _report(tmp_path / "embedded"), log[-3000:]
+        else:
+            errors = [line for line in log.splitlines() if "[ERROR]" in line and "[orchestrator]" in line]
+            assert code == 4 and len(errors) == 1, log[-3000:]
+            assert "another graph is running" in errors[0] or "rollouts were inconclusive" in errors[0], errors[0]
+            assert not (tmp_path / f"graph{k}").exists()
+            refused += "another graph is running" in errors[0]
+    assert refused >= 1, [log[-1500:] for _, log in ended]

@@ -28,6 +28,7 @@ class LockstepClient:
     def __init__(self, transport: Transport, agent_ids: np.ndarray, stamps_ns: np.ndarray, stop_at_collision: bool) -> None:
         self.transport = transport
         self.present: dict[str, int] = {}  # node name -> pid, from /attack/nodes
+        self.announced: dict[str, set[int]] = {}  # node name -> every pid announced under it (two graphs: two)
         self.received: dict[str, dict[int, Any]] = {}  # topic -> stamp -> decoded value
         self._agent_ids = agent_ids
         self._stamps_ns = stamps_ns
@@ -54,6 +55,7 @@ class LockstepClient:
     def _on_presence(self, msg: Any) -> None:
         name, pid = parse_presence(msg)
         self.present[name] = pid
+        self.announced.setdefault(name, set()).add(pid)
 
     def _subscribe(self, topic: str) -> None:
         """Keep what `topic` delivers (raw) by stamp, decoded as the result needs it. Per-frame

@@ -1,10 +1,14 @@
-"""The graph's node processes: started as children over Cyclone DDS, watched, stopped.
+"""The graph's node processes: started as children, watched, stopped.
 
-Each child gets the params the orchestrator validated (as JSON, `--params-json`) and
-`--exit-with-parent`, so none outlives this process; its output goes to a log file whose tail is
-quoted when it dies.
+Without ROS each child is a bare Cyclone DDS node given the params the orchestrator validated (as
+JSON, `--params-json`) and `--exit-with-parent`. Under an rclpy orchestrator (`ros2 run advperc_ros
+orchestrator`) each is the rclpy node `ros2 run advperc_ros <node>` starts, named as under the launch
+file and given the same parameters the launch file gives it, so `ros2 node list` and `ros2 param`
+see the whole graph; the kernel ends it when this process dies (PR_SET_PDEATHSIG). Either way none
+outlives this process, and its output goes to a log file whose tail is quoted when it dies.
 """
 
+import ctypes
 import os
 import shutil
 import signal
@@ -13,6 +17,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
+
+import yaml
 
 from advperc_ros.nodes.graph_nodes import SPECS
 
@@ -40,15 +47,37 @@ def remove_stale_workdirs() -> None:
             shutil.rmtree(folder, ignore_errors=True)
 
 
-class NodeProcesses:
-    """The five graph nodes as child processes (none until `start`), with their logs."""
+PR_SET_PDEATHSIG = 1  # prctl(2): the signal a child gets when its parent dies
 
-    def __init__(self, params_json: str, domain_id: int, localhost_only: bool, partition: str) -> None:
+
+def _die_with_parent() -> None:
+    """In the child before exec: SIGTERM when the starting process dies (an rclpy node has no
+    --exit-with-parent flag of ours)."""
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+class NodeProcesses:
+    """The five graph nodes as child processes (none until `start`), with their logs. `ros_parameters`
+    (node name -> its ROS parameters) makes them rclpy nodes, on the starting rclpy node's domain
+    (ROS_DOMAIN_ID, inherited); without it they are bare Cyclone nodes on `domain_id`."""
+
+    def __init__(self, params_json: str, domain_id: int, localhost_only: bool, partition: str,
+                 ros_parameters: dict[str, dict[str, Any]] | None = None) -> None:
         remove_stale_workdirs()
         self._workdir = tempfile.TemporaryDirectory(prefix=f"{WORKDIR_PREFIX}{os.getpid()}-")
-        self._flags = ["--params-json", params_json, "--domain-id", str(domain_id), "--partition", partition,
-                       "--localhost-only", "true" if localhost_only else "false", "--exit-with-parent"]
+        self._commands = {name: [sys.executable, "-m", f"advperc_ros.nodes.{name}", *self._arguments(
+            name, params_json, domain_id, localhost_only, partition, ros_parameters)] for name in NODES}
+        self._ros = ros_parameters is not None
         self.running: dict[str, subprocess.Popen] = {}
+
+    def _arguments(self, name: str, params_json: str, domain_id: int, localhost_only: bool, partition: str,
+                   ros_parameters: dict[str, dict[str, Any]] | None) -> list[str]:
+        if ros_parameters is None:
+            return ["--params-json", params_json, "--domain-id", str(domain_id), "--partition", partition,
+                    "--localhost-only", "true" if localhost_only else "false", "--exit-with-parent"]
+        path = Path(self._workdir.name) / f"{name}.yaml"
+        path.write_text(yaml.safe_dump({name: {"ros__parameters": ros_parameters[name]}}))
+        return ["--ros-args", "-r", f"__node:={name}", "--params-file", str(path)]
 
     def start(self) -> None:
         root = str(Path(__file__).resolve().parents[3])
@@ -56,8 +85,8 @@ class NodeProcesses:
         for name in NODES:
             with (Path(self._workdir.name) / f"{name}.log").open("ab") as output:
                 self.running[name] = subprocess.Popen(
-                    [sys.executable, "-m", f"advperc_ros.nodes.{name}", *self._flags],
-                    stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, env=env)
+                    self._commands[name], stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, env=env,
+                    preexec_fn=_die_with_parent if self._ros else None)
 
     def dead(self) -> str | None:
         """What went wrong if a child has exited, else None."""

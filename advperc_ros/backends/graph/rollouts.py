@@ -45,6 +45,7 @@ from advperc_ros.backends.graph.assembly import assemble, frames_in, kept_frames
 from advperc_ros.backends.graph.client import SPIN, LockstepClient
 from advperc_ros.exceptions import GraphError, RolloutFault
 from advperc_ros.backends.graph.processes import NodeProcesses
+from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 from advperc_ros.configs import CoreConfigs, core_configs
 from advperc_ros.params import AttackParams
 from advperc_ros.ros.lockstep import Status
@@ -66,8 +67,6 @@ class GraphRollouts:
 
     def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path,
                  transport: Transport | None = None, configs: CoreConfigs | None = None) -> None:
-        if transport is not None and params.graph.spawn_nodes:
-            raise ValueError("a transport can only be given with graph.spawn_nodes false")
         self.scenario = scenario
         self.params = params
         self._given_transport = transport
@@ -76,9 +75,15 @@ class GraphRollouts:
         self._slots = {int(agent): j for j, agent in enumerate(self._agent_ids)}
         self._stamps = [int(s) for s in scenario.stamps_ns]
         params_json = json.dumps({**params.values(), "bag": str(Path(bag_path).resolve())})
-        # a graph we start talks in a DDS partition of its own: any number of them share a domain
-        self._partition = f"advperc-{os.getpid()}-{secrets.token_hex(4)}" if params.graph.spawn_nodes else ""
-        self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only, self._partition)
+        # nodes we start under an rclpy orchestrator are rclpy nodes too, visible to the ROS tools
+        ros_nodes = ({spec.name: ros_parameters(spec, params, Path(bag_path)) for spec in SPECS}
+                     if transport is not None and params.graph.spawn_nodes else None)
+        # a bare graph we start talks in a DDS partition of its own: any number of them share a domain
+        # (rclpy nodes cannot: another graph on their domain is refused at start, see `_refuse_others`)
+        self._partition = (f"advperc-{os.getpid()}-{secrets.token_hex(4)}"
+                           if params.graph.spawn_nodes and ros_nodes is None else "")
+        self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only, self._partition,
+                                       ros_nodes)
         self._config = (configs if configs is not None else core_configs(params)).rollout
         self._client: LockstepClient | None = None
         self._recording = False
@@ -94,18 +99,21 @@ class GraphRollouts:
         deadline = time.monotonic() + STARTUP_TIMEOUT
         if self.params.graph.spawn_nodes:
             self.processes.start()
-        self._client = LockstepClient(self._transport(), self._agent_ids, self.scenario.stamps_ns,
-                                      self.params.stop_at_collision)
-        if self._recording:
-            self._client.record_too()
+        if self._client is None:  # a given transport keeps its client (and its rollout ids) across restarts
+            self._client = LockstepClient(self._transport(), self._agent_ids, self.scenario.stamps_ns,
+                                          self.params.stop_at_collision)
+            if self._recording:
+                self._client.record_too()
         while self._missing():
             dead = self.processes.dead()
             if dead is not None:
                 raise GraphError(dead)
+            self._refuse_others()
             if time.monotonic() > deadline:
                 raise GraphError(f"not up within {STARTUP_TIMEOUT:g} s: {', '.join(self._missing())}")
             self._client.transport.spin_once(SPIN)
         self._warm_up(deadline)
+        self._refuse_others()  # also a graph that came up beside ours while it started
 
     def _transport(self) -> Any:
         """The given transport, or a Cyclone participant of our own (closed with the graph)."""
@@ -126,6 +134,20 @@ class GraphRollouts:
         if self._client.errors.matched_count() < 1:
             missing.append(f"a subscriber of {ERRORS} (the error_injector)")
         return missing
+
+    def _refuse_others(self) -> None:
+        """Refuse to run beside another graph on this graph's domain and partition, seen as one of
+        our node names announced with a process id that is not ours (we started the nodes), or with
+        two ids: the two graphs' messages would mix, and most rollouts end superseded."""
+        ours = {process.pid for process in self.processes.running.values()}
+        found = []
+        for name, pids in sorted(self._client.announced.items()):
+            strangers = sorted(pids - ours) if self.params.graph.spawn_nodes else sorted(pids)[1:]
+            found += [f"{name} pid {pid}" for pid in strangers]
+        if found:
+            domain = "ROS_DOMAIN_ID" if self._given_transport is not None else "dds.domain_id"
+            raise GraphError(f"another graph is running on this graph's DDS domain ({', '.join(found)}): its messages "
+                             f"would mix with this attack's; stop it or give this attack another {domain}")
 
     @property
     def attacked_planner(self) -> AttackedPlanner:
@@ -161,7 +183,11 @@ class GraphRollouts:
         it); nodes we did not start are left as they are."""
         if self.params.graph.spawn_nodes:
             self.processes.stop(kill=True)
-            self._client.transport.close()
+            if self._given_transport is None:
+                self._client.transport.close()
+                self._client = None
+            else:  # the dead nodes' announcements are gone with them
+                self._client.announced.clear()
             self._start()
 
     def close(self) -> None:

@@ -111,7 +111,9 @@ class ApproachParams:
 @dataclass(frozen=True)
 class RandomParams:
     steps: int = _param(40, "random search steps N_steps (paper: 40)", low=0, high=1_000_000)
-    proposals: int = _param(100, "proposals per step N_proposal (paper: 100)", low=1, high=1_000_000)
+    # each proposal is an error tensor held at once (frames x agents x 25 bytes): 10,000 of a 44-car recording
+    # take about 0.9 GB, where a million took tens of GB and ended in a MemoryError after the work had started
+    proposals: int = _param(100, "proposals per step N_proposal (paper: 100)", low=1, high=10_000)
     max_offset: float = _param(5.0, "largest position offset of a flipped segment (m)", positive=True)
     yaw_std: float = _param(0.1, "yaw noise of flipped detections (rad)", low=0.0)
 
@@ -124,7 +126,8 @@ class RefineParams:
 
 @dataclass(frozen=True)
 class GuidedParams:
-    candidates: int = _param(400, "guided method: candidates scored exactly per round", low=1, high=1_000_000)
+    candidates: int = _param(400, "guided method: candidates scored exactly per round (held at once, as the "
+                             "random search's proposals)", low=1, high=10_000)
     batch: int = _param(2, "guided method: rollouts per round (they may run at once on `workers`)", low=1, high=1024)
 
 
@@ -153,7 +156,7 @@ class DdsParams:
 @dataclass(frozen=True)
 class GraphParams:
     timeout: float = _param(10.0, "seconds a frame's plan (graph backend: and rule value) may take before the "
-                            "rollout is inconclusive; embedded, one plan call", positive=True)
+                            "rollout is inconclusive; embedded, one plan call", positive=True, high=3600.0)
     spawn_nodes: bool = _param(True, "graph backend: start the five graph nodes as child processes (Cyclone DDS); "
                                "false uses nodes already running, e.g. from launch/attack.launch.py")
 
@@ -351,14 +354,50 @@ def parse_params(document: Any, where: str, source: Path | None = None) -> Attac
     return params_from_values(_flatten(node["ros__parameters"]), source, where)
 
 
+YAML_MAX_BYTES = 16 * 1024 * 1024  # a params, campaign or scenario file is kilobytes; /dev/zero is endless
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the last silently,
+    so a second `seed:` further down overrode the first without a word)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: set = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=True)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(None, None, f"key {key!r} given twice", key_node.start_mark)
+            seen.add(key)
+        return super().construct_mapping(node, deep)
+
+
+def _refuse_cycles(value: Any, path: Path, kind: str, inside: frozenset[int] = frozenset()) -> None:
+    """A YAML anchor an alias refers to from within itself makes a structure that contains itself,
+    which every later walk of it recursed into without end."""
+    if isinstance(value, (dict, list)):
+        if id(value) in inside:
+            raise ParamsError(f"{path}: cannot read {kind}: an anchor refers to itself (a recursive alias)")
+        for item in value.values() if isinstance(value, dict) else value:
+            _refuse_cycles(item, path, kind, inside | {id(value)})
+
+
 def read_yaml(path: Path, kind: str) -> Any:
-    """A YAML document, or one line naming the file: missing, unreadable, not UTF-8 or not YAML."""
+    """A YAML document, or one line naming the file: missing, not a regular file (a FIFO would block, a
+    device never end), too large, unreadable, not UTF-8, not YAML, a key twice or a recursive alias."""
     try:
-        return yaml.safe_load(path.read_text())
+        if not path.is_file() and path.exists():
+            raise ParamsError(f"{path}: cannot read {kind}: not a regular file")
+        with path.open("rb") as handle:
+            data = handle.read(YAML_MAX_BYTES + 1)
+        if len(data) > YAML_MAX_BYTES:
+            raise ParamsError(f"{path}: cannot read {kind}: larger than {YAML_MAX_BYTES // 2**20} MiB")
+        document = yaml.load(data.decode("utf-8"), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader)
     except FileNotFoundError:
         raise ParamsError(f"{path}: no such {kind}") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
         raise ParamsError(f"{path}: cannot read {kind}: {exc}".replace("\n", " ")) from exc
+    _refuse_cycles(document, path, kind)
+    return document
 
 
 def load_params(path: str | Path) -> AttackParams:

@@ -17,6 +17,8 @@ from advperc_ros.core.planners.parameters import check_ranges, config_from_param
 from advperc_ros.core.scenario import EgoState
 
 
+MAX_HORIZON = 60.0  # s of plan: a scenario is seconds long, and a plan is sampled every frame of it
+
 @dataclass(frozen=True)
 class IDMConfig:
     """The IDM planner's parameters (a params file's `planner_params`), checked against their ranges."""
@@ -27,14 +29,15 @@ class IDMConfig:
     max_accel: float = 1.0  # m/s^2
     max_decel: float = 3.0  # m/s^2
     exponent: float = 4.0
-    horizon: float = 8.0  # s
+    horizon: float = 8.0  # s, at most MAX_HORIZON
     corridor_margin: float = 0.3  # m beyond the ego's half width
     replan_period: float = 0.0  # s; 0 replans on every tracks message
 
     def __post_init__(self) -> None:
         # target_speed 0 is a planner that only brakes; the gap term divides by sqrt(max_accel * max_decel)
         check_ranges(self, positive=("max_accel", "max_decel", "exponent", "horizon"),
-                     non_negative=("target_speed", "min_gap", "headway", "corridor_margin", "replan_period"))
+                     non_negative=("target_speed", "min_gap", "headway", "corridor_margin", "replan_period"),
+                     at_most={"horizon": MAX_HORIZON})
 
 
 def idm_acceleration(v: float, v_lead: float | None, gap: float, cfg: IDMConfig) -> float:

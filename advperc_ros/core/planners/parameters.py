@@ -34,8 +34,14 @@ def config_from_params(config_type: type[Config], params: dict[str, Any]) -> Con
     return config_type(**values)
 
 
-def check_ranges(config: object, positive: tuple[str, ...] = (), non_negative: tuple[str, ...] = ()) -> None:
-    """Refuse the first of these fields that is not a finite number > 0 (positive) or >= 0."""
+def check_ranges(config: object, positive: tuple[str, ...] = (), non_negative: tuple[str, ...] = (),
+                 at_most: dict[str, float] | None = None) -> None:
+    """Refuse the first of these fields that is not a finite number > 0 (positive) or >= 0, or is above
+    its `at_most` bound (a horizon of 1e9 s asked for 74 GiB of plan and was blamed on the planner)."""
+    for name, bound in (at_most or {}).items():
+        value = getattr(config, name)
+        if value > bound:
+            raise ValueError(f"parameter '{name}' must be at most {bound:g}, got {value!r}")
     for name in positive:
         value = getattr(config, name)
         if not (math.isfinite(value) and value > 0):

@@ -12,6 +12,11 @@ from advperc_ros.core.planners.obp.road import DrivableBand
 from advperc_ros.core.planners.parameters import check_ranges
 
 
+# the NLP grows with these: past them one solve takes minutes and memory the machine does not have
+MAX_HORIZON = 30.0  # s
+MAX_OBSTACLES = 64
+MAX_ITERATIONS = 10_000
+
 @dataclass(frozen=True)
 class OBPConfig:
     """The ObP planner's parameters (a params file's `planner_params`), checked against their ranges."""
@@ -36,7 +41,8 @@ class OBPConfig:
         check_ranges(self, positive=("target_speed", "max_accel", "max_decel", "max_steer", "max_steer_rate",
                                      "max_jerk", "horizon", "step", "wheelbase", "max_obstacles", "max_iterations",
                                      "max_cpu_time"),
-                     non_negative=("safety_margin", "replan_period"))
+                     non_negative=("safety_margin", "replan_period"),
+                     at_most={"horizon": MAX_HORIZON, "max_obstacles": MAX_OBSTACLES, "max_iterations": MAX_ITERATIONS})
         if self.max_steer >= math.pi / 2:
             raise ValueError(f"parameter 'max_steer' must be below pi/2 (a front wheel angle), got {self.max_steer!r}")
 

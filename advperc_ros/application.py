@@ -27,7 +27,7 @@ from advperc_ros.core.search.registry import search_method
 from advperc_ros.exceptions import InconclusiveSearch
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
-from advperc_ros.params import AttackParams, resolve_bag
+from advperc_ros.params import AttackParams, ParamsError, resolve_bag
 from advperc_ros.paths import check_output
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
@@ -104,11 +104,22 @@ class RolloutProgress:
         self.bar.close()
 
 
+def check_budget(params: AttackParams, scenario: Scenario) -> None:
+    """Refuse a `search.budget` below the ground truth and one drop of each agent: such a search cannot
+    try every agent once, and the guided method's first batch (all of them) did not fit it at all."""
+    needed = 1 + scenario.agents.shape[1]
+    if 0 < params.search.budget < needed:
+        raise ParamsError(f"{params.source or 'params'}: parameter 'search.budget' is {params.search.budget}, below the "
+                          f"{needed} rollouts that try each of the scenario's {needed - 1} agents once (and the ground "
+                          "truth): give at least that, or 0 for the default")
+
+
 def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
                rollouts: Rollouts | None = None, configs: CoreConfigs | None = None) -> AttackOutcome:
     """The whole search over `rollouts` (default: embedded), then the best attack recorded.
     `configs`: the params' core configs, when the caller built them."""
     started = time.perf_counter()
+    check_budget(params, scenario)
     configs = configs if configs is not None else core_configs(params)
     backend = rollouts if rollouts is not None else Stack(scenario, params, configs)
     config = configs.search

@@ -179,6 +179,7 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "`graph.timeout` 1e10 (beyond any alarm)", attack(**{"graph.timeout": 1e10}), "'graph.timeout' must be at most 3600"),
         Case("advperc attack P.yaml", "IDM horizon 1e9 s (memory)", attack(planner_params={"horizon": 1e9}), "'horizon' must be at most 60", None),
         Case("advperc attack P.yaml", "ObP horizon 1e9 s", attack(planner="obp", planner_params={"horizon": 1e9}), "'horizon' must be at most 30", None),
+        Case("advperc attack P.yaml", "`search.budget` 3, below one drop per agent (it crashed after the work)", attack(**{"search.budget": 3}), "'search.budget' is 3, below the 6 rollouts"),
         Case("advperc attack P.yaml", "`dds.domain_id` 300", attack(**{"dds.domain_id": 300}), "'dds.domain_id' must be at most 232"),
         Case("advperc attack P.yaml", "`dds.domain_id` negative", attack(**{"dds.domain_id": -1}), "'dds.domain_id' must be at least 0"),
         Case("advperc attack P.yaml", "`dds.localhost_only` a word", attack(**{"dds.localhost_only": "true"}), "'dds.localhost_only' must be of type bool"),

@@ -15,14 +15,14 @@ from advperc_ros.backends.base import EXTERNAL, Rollouts
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.backends.registry import open_rollouts
 from advperc_ros.backends.resumed import Checkpoint, ResumedRollouts
-from advperc_ros.core.scenario import Scenario
 from advperc_ros.configs import CoreConfigs, core_configs
+from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.config import SearchConfig, budget
+from advperc_ros.core.search.diagnosis import inconclusive_search
 from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.refine import dropped_runs
-from advperc_ros.core.search.diagnosis import inconclusive_search
 from advperc_ros.core.search.registry import search_method
 from advperc_ros.exceptions import InconclusiveSearch
 from advperc_ros.exits import Interrupted

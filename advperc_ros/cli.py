@@ -18,8 +18,7 @@ from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
-from advperc_ros.exits import (EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES,
-                               expected_failure)
+from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.params import ParamsError, load_params
 from advperc_ros.ros.bag import BagError
 
@@ -158,7 +157,8 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     plots.robustness(results / "robustness.png", points, params.objective)
     staging.rename(results / "robustness.csv")
     for p in points:
-        print(f"strength {p.strength:5.2f}: {p.adversarial_fraction:5.2f} still collide, mean {params.objective} {p.mean_metric:.4f}")
+        print(f"strength {p.strength:5.2f}: {p.adversarial_fraction:5.2f} still collide, "
+              f"mean {params.objective} {p.mean_metric:.4f}")
     return 0
 
 
@@ -288,7 +288,8 @@ def build_parser() -> argparse.ArgumentParser:
     attack.add_argument("--method", choices=SEARCH_METHODS, help="override the params file's search.method (paper: the "
                         "paper's Algorithms 1 and 2, for reproducing it)")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
-    attack.add_argument("--resume", metavar="OUTPUT", type=_path, help="finish the interrupted attack whose results folder was to be "
+    attack.add_argument("--resume", metavar="OUTPUT", type=_path,
+                        help="finish the interrupted attack whose results folder was to be "
                         "OUTPUT (same params): rollouts already run are not run again, and the report is the one an "
                         "uninterrupted run writes")
     attack.add_argument("--backend", choices=("embedded", "graph"),
@@ -333,9 +334,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     replay_cmd = sub.add_parser("replay", help="re-run a found attack's errors against another planner or configuration")
     replay_cmd.add_argument("results", help="results folder of an attack that collided (report.json + attack_errors.npz)")
-    replay_cmd.add_argument("--params", type=_path, help="params YAML of the planner or configuration to replay against (same bag); "
+    replay_cmd.add_argument("--params", type=_path,
+                            help="params YAML of the planner or configuration to replay against (same bag); "
                             "default: the attack's own")
-    replay_cmd.add_argument("--output", type=_path, help="replay folder to write (replay.json, replay.md, bev.png); default: none")
+    replay_cmd.add_argument("--output", type=_path,
+                            help="replay folder to write (replay.json, replay.md, bev.png); default: none")
     replay_cmd.add_argument("--backend", choices=("embedded", "graph"), help="override rollout_backend")
     replay_cmd.set_defaults(func=cmd_replay)
 

@@ -49,7 +49,8 @@ class Param:
         if expected is float and isinstance(value, int) and not isinstance(value, bool):
             raise ParamsError(f"parameter '{name}' must be a float (write {value}.0), got integer {value}")
         if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
-            raise ParamsError(f"parameter '{name}' must be of type {expected.__name__}, got {type(value).__name__} {value!r}")
+            raise ParamsError(f"parameter '{name}' must be of type {expected.__name__}, "
+                              f"got {type(value).__name__} {value!r}")
         if expected is float and not math.isfinite(value):
             raise ParamsError(f"parameter '{name}' must be a finite number, got {value}")
         if self.choices and value not in self.choices:
@@ -391,7 +392,7 @@ def read_yaml(path: Path, kind: str) -> Any:
             data = handle.read(YAML_MAX_BYTES + 1)
         if len(data) > YAML_MAX_BYTES:
             raise ParamsError(f"{path}: cannot read {kind}: larger than {YAML_MAX_BYTES // 2**20} MiB")
-        document = yaml.load(data.decode("utf-8"), Loader=_StrictLoader)  # noqa: S506 (a SafeLoader)
+        document = yaml.load(data.decode("utf-8"), Loader=_StrictLoader)
     except FileNotFoundError:
         raise ParamsError(f"{path}: no such {kind}") from None
     except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:

@@ -19,10 +19,10 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import (
     AttackProblem,
     Evaluation,
-    GroundTruthFails,
     Phase,
 )
 from advperc_ros.core.staging import staged_folder
+from advperc_ros.exceptions import GroundTruthFails
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import (
     AttackParams,

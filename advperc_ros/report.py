@@ -84,7 +84,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,
                                        outcome.approach, partial(rounded, "min_signed_distance")))
     if outcome.heuristic_best is not None:
-        report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric), **report_scores(outcome.heuristic_best)}
+        report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric),
+                               **report_scores(outcome.heuristic_best)}
     # no single drop collided: the agents the joint drops' failure mode hides together ([]: none found)
     report["joint_agents"] = list(outcome.joint.agents) if outcome.joint is not None else None
     report.update(
@@ -130,7 +131,8 @@ def _table(report: dict) -> list[str]:
             f"{_fmt(row['nds'], 4)} | {_fmt(row['nds_t'], 4)} | {_fmt(row['pem_ll'])} | {rollouts} |"
         )
     joint = report["joint_agents"]
-    return lines + [
+    return [
+        *lines,
         "",
         f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
         f"min signed distance {report['min_signed_distance']:.3f} m",

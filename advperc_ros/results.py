@@ -88,7 +88,7 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
     layers[topics.ODOMETRY] = {"visible": True, "type": "arrow", "arrowScale": [4.0, 0.8, 0.8], "color": _hex(EGO_COLOR),
                                "showCovariance": False}
     layers[topics.PLAN] = {"visible": True, "type": "line", "lineWidth": 0.4,
-                           "gradient": [_hex(PLAN_COLOR), _hex(PLAN_COLOR[:3] + (0.3,))]}
+                           "gradient": [_hex(PLAN_COLOR), _hex((*PLAN_COLOR[:3], 0.3))]}
     layers[topics.ROUTE] = {"visible": True, "type": "line", "lineWidth": 0.15, "gradient": ["#80808080", "#80808080"]}
     three_d, plot, summary = "3D!attack", "Plot!collision_rule", "RawMessages!summary"
     return {

@@ -16,7 +16,8 @@ from advperc_ros.core.rollout import rollout
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.search.heuristic import heuristic_search, narrowing, run_lockstep, run_one
 from advperc_ros.core.search.diagnosis import inconclusive_search
-from advperc_ros.core.search.problem import AttackProblem, BudgetSpent, GroundTruthFails, LogRow, Phase
+from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
+from advperc_ros.exceptions import BudgetSpent, GroundTruthFails
 from advperc_ros.core.search.random_search import RandomSearchConfig, propose, random_search
 from advperc_ros.core.tracker import Tracker
 from toy_scenarios import FOLLOW_SPEC

@@ -6,12 +6,12 @@ from pathlib import Path
 from typing import Any
 
 from advperc_ros.backends.base import AttackedPlanner
+from advperc_ros.configs import CoreConfigs, core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import Tracker
-from advperc_ros.configs import CoreConfigs, core_configs
 from advperc_ros.params import AttackParams, params_from_values
 
 

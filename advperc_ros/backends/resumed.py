@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros.backends.base import AttackedPlanner, Rollouts
-from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.params import AttackParams, ParamsError
 

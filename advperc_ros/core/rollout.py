@@ -31,7 +31,6 @@ from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import Tracker
 from advperc_ros.exceptions import PlanTimeout
 
-
 STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes following the plan
 
 

@@ -128,7 +128,8 @@ class Tracker:
 
     def reset(self) -> None:
         """Forget every track; a new rollout starts from here."""
-        self.tracks = Tracks(np.zeros(0, np.int64), np.zeros((2, 4, 0)), np.zeros((2, 2, 4, 0)), np.zeros(0), np.zeros((3, 0)))
+        self.tracks = Tracks(np.zeros(0, np.int64), np.zeros((2, 4, 0)), np.zeros((2, 2, 4, 0)), np.zeros(0),
+                             np.zeros((3, 0)))
         self._t = -np.inf
         self._next_id = 1
 
@@ -175,7 +176,8 @@ class Tracker:
         second), so the numbers are the 8x8 form's to the bit.
         """
         every = len(rows) == len(self.tracks)  # then rows is 0..N-1: work on the arrays themselves
-        x, p = (self.tracks.state, self.tracks.covariance) if every else (np.take(self.tracks.state, rows, axis=-1), np.take(self.tracks.covariance, rows, axis=-1))
+        x, p = ((self.tracks.state, self.tracks.covariance) if every
+                else (np.take(self.tracks.state, rows, axis=-1), np.take(self.tracks.covariance, rows, axis=-1)))
         gain = p[:, 0] * (1.0 / (p[0, 0] + self._r))  # (2, 4, M): the gain of each component and its rate
         x += gain * (z - x[0])
         _renormalise_heading(x[0, 2:])
@@ -193,7 +195,8 @@ class Tracker:
         n = len(which)
         yaw = det["yaw"][which]
         zero = np.zeros(n)
-        state = np.array([[det["x"][which], det["y"][which], np.cos(yaw), np.sin(yaw)], [det["vx"][which], det["vy"][which], zero, zero]])
+        state = np.array([[det["x"][which], det["y"][which], np.cos(yaw), np.sin(yaw)],
+                          [det["vx"][which], det["vy"][which], zero, zero]])
         ids = np.arange(self._next_id, self._next_id + n, dtype=np.int64)
         self._next_id += n
         size = np.array([det["length"][which], det["width"][which], det["height"][which]])

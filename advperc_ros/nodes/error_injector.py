@@ -4,7 +4,8 @@ It holds the error tensor of the current rollout (latched /attack/errors, acknow
 /attack/ready so the player starts frame 0 only once the tensor is here) and turns each
 /ground_truth/objects frame into /perception/objects with the same stamp: offsets added, dropped
 agents removed, confidences from the fixed scheme of `core.perception_errors` (so the values are those of
-`core.perception_errors.inject`, float for float: `core.perception_errors.inject_frame`). Stateless between frames: nothing to reset.
+`core.perception_errors.inject`, float for float: `core.perception_errors.inject_frame`). Stateless between
+frames: nothing to reset.
 """
 
 import sys

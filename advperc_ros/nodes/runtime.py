@@ -16,6 +16,7 @@ The Cyclone path is taken when rclpy is missing or the arguments are our own fla
 
 import argparse
 import functools
+import itertools
 import json
 import logging
 import os
@@ -127,9 +128,9 @@ def _refused_override(args: list[str] | None) -> str | None:
     """What rcl would refuse among the `-p name:=value` overrides (a value that is not YAML, or
     a mapping), said before rcl says it in two lines of its own."""
     args = list(args or [])
-    for flag, rule in zip(args, args[1:]):
+    for flag, rule in itertools.pairwise(args):
         if flag in ("-p", "--param"):
-            name, _, value = rule.partition(":=")
+            value = rule.partition(":=")[2]
             try:
                 parsed = yaml.safe_load(value)
             except yaml.YAMLError:
@@ -154,7 +155,7 @@ def command_line_overrides(args: list[str] | None, node_name: str) -> dict[str, 
     args = list(sys.argv if args is None else args)
     ros = args[args.index("--ros-args") + 1:] if "--ros-args" in args else []
     values: dict[str, Any] = {}
-    for flag, rule in zip(ros, ros[1:]):
+    for flag, rule in itertools.pairwise(ros):
         if flag not in ("-p", "--param") or ":=" not in rule:
             continue
         target, value = rule.split(":=", 1)

@@ -23,16 +23,27 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from advperc_ros.core.rollout import after_plan, violates
 from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.core.rollout import after_plan, violates
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import read_scenario, read_topics
-from advperc_ros.ros.lockstep import (RolloutDone, Status, done_message, parse_ready, parse_rule_diagnostics,
-                                      plan_from_cdr)
-from advperc_ros.ros.topics import (CLOCK, CONTROL_TYPE, DONE, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, PLAN, READY,
-                                    ROUTE, RULE_DIAGNOSTICS, TOPIC_TYPES)
+from advperc_ros.ros.lockstep import RolloutDone, Status, done_message, parse_ready, parse_rule_diagnostics, plan_from_cdr
+from advperc_ros.ros.topics import (
+    CLOCK,
+    CONTROL_TYPE,
+    DONE,
+    GROUND_TRUTH,
+    LANES,
+    LATCHED,
+    ODOMETRY,
+    PLAN,
+    READY,
+    ROUTE,
+    RULE_DIAGNOSTICS,
+    TOPIC_TYPES,
+)
 from advperc_ros.ros.transport import Transport
 
 

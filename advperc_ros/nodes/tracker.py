@@ -29,7 +29,8 @@ class TrackerNode:
     def on_detections(self, data: bytes) -> None:
         stamp, detections = cdr.decode_objects(data, PERCEPTION)
         if stamp is None:
-            self._log.error(f"{PERCEPTION}: a MarkerArray without markers has no stamp (the first must be DELETEALL); dropped")
+            self._log.error(f"{PERCEPTION}: a MarkerArray without markers has no stamp "
+                            "(the first must be DELETEALL); dropped")
             return
         self._clock.observe(stamp)
         first, t = self._clock.answer(stamp)

@@ -103,7 +103,8 @@ class RclpyTransport:
             self._delivered += 1
             callback(data if raw else TYPESTORE.deserialize_cdr(data, msgtype))
 
-        return self._node.create_subscription(_message_class(msgtype), topic, deliver, _rclpy_qos(latched, reader=True), raw=True)
+        return self._node.create_subscription(_message_class(msgtype), topic, deliver, _rclpy_qos(latched, reader=True),
+                                              raw=True)
 
     def publishers_of(self, topic: str) -> tuple[str, ...]:
         return tuple(sorted({f"{info.node_namespace.rstrip('/')}/{info.node_name}"

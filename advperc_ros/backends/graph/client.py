@@ -7,13 +7,20 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.backends.graph.assembly import PER_FRAME, RECORDED, complete
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.exceptions import RolloutFault
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.lockstep import (RolloutDone, RolloutErrors, errors_message, parse_done, parse_presence,
-                                      parse_rule_diagnostics, plan_from_cdr)
+from advperc_ros.ros.lockstep import (
+    RolloutDone,
+    RolloutErrors,
+    errors_message,
+    parse_done,
+    parse_presence,
+    parse_rule_diagnostics,
+    plan_from_cdr,
+)
 from advperc_ros.ros.topics import CONTROL_TYPE, DONE, ERRORS, ODOMETRY, PRESENCE, RULE_DIAGNOSTICS, TOPIC_TYPES, TRACKING
 from advperc_ros.ros.transport import Transport
 
@@ -109,4 +116,5 @@ class LockstepClient:
             if done is not None and complete(self.received, self._stamps, done, record, self._stop_at_collision):
                 return done
             if time.monotonic() - idle_since > stall:
-                raise RolloutFault(f"no message from the graph for {stall:g} s (player, injector or rule monitor dead or silent)")
+                raise RolloutFault(f"no message from the graph for {stall:g} s "
+                                   "(player, injector or rule monitor dead or silent)")

@@ -38,15 +38,15 @@ from typing import Any
 import numpy as np
 
 from advperc_ros.backends.base import EXTERNAL, AttackedPlanner
+from advperc_ros.backends.graph.assembly import assemble, frames_in, kept_frames
+from advperc_ros.backends.graph.client import SPIN, LockstepClient
+from advperc_ros.backends.graph.processes import NodeProcesses
+from advperc_ros.configs import CoreConfigs, core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.backends.graph.assembly import assemble, frames_in, kept_frames
-from advperc_ros.backends.graph.client import SPIN, LockstepClient
 from advperc_ros.exceptions import GraphError, RolloutFault
-from advperc_ros.backends.graph.processes import NodeProcesses
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
-from advperc_ros.configs import CoreConfigs, core_configs
 from advperc_ros.params import AttackParams
 from advperc_ros.ros.lockstep import Status
 from advperc_ros.ros.topics import ERRORS, PLAN
@@ -217,7 +217,8 @@ class GraphRollouts:
             done = client.collect(rollout, self.params.graph.timeout + GRACE, record, self.processes.dead)
         except RolloutFault as fault:
             log.error(f"rollout {rollout} inconclusive: {fault}; "
-                      + ("restarting the graph nodes" if self.params.graph.spawn_nodes else "going on with the running nodes"))
+                      + ("restarting the graph nodes" if self.params.graph.spawn_nodes
+                         else "going on with the running nodes"))
             result = self._judged(client.received, frames_in(client.received, self._stamps),
                               f"graph failure in rollout {rollout}: {fault}", None)
             if record:  # the attack bag is still written, without tracks and plans
@@ -229,7 +230,8 @@ class GraphRollouts:
         recorded = kept_frames(client.received, self._stamps, done, self.params.stop_at_collision) if record else None
         return self._judged(client.received, done.frames, done.reason or None, recorded)
 
-    def _judged(self, received: dict, frames: int, inconclusive: str | None, recorded: tuple[int, int] | None) -> RolloutResult:
+    def _judged(self, received: dict, frames: int, inconclusive: str | None,
+                recorded: tuple[int, int] | None) -> RolloutResult:
         """The result of what the graph published, judged as the embedded rollout judges its own."""
         result = assemble(received, self._stamps, self._slots, frames, inconclusive, recorded)
         return judge(result, self.scenario.agents, self._config)

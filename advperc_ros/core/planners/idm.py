@@ -16,8 +16,8 @@ from advperc_ros.core.planners.base import PlanningContext, Trajectory
 from advperc_ros.core.planners.parameters import check_ranges, config_from_params
 from advperc_ros.core.scenario import EgoState
 
-
 MAX_HORIZON = 60.0  # s of plan: a scenario is seconds long, and a plan is sampled every frame of it
+
 
 @dataclass(frozen=True)
 class IDMConfig:

@@ -22,8 +22,8 @@ search then trades the remaining wrongness back for metric, as after a drop.
 """
 
 import math
-from functools import cmp_to_key
 from dataclasses import dataclass
+from functools import cmp_to_key
 
 import numpy as np
 

@@ -35,7 +35,8 @@ class SearchConfig:
     seed: int = 0  # of the search's random draws
     method: str = "guided"  # guided: heuristic, guided search; paper: heuristic, random search, refine
     guided: GuidedConfig = GuidedConfig()
-    budget: int = 0  # rollouts at most; 0: `bound`, what the search can use at most (a method may spend less: `SearchMethod.tail_budget`)
+    # rollouts at most; 0: `bound`, what the search can use at most (a method may spend less: `SearchMethod.tail_budget`)
+    budget: int = 0
 
 
 def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: bool = False) -> int:

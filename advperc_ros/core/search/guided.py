@@ -23,10 +23,12 @@ model's choice. A round's rollouts are independent, so a backend may run them at
 size is a param, so the attack does not depend on how many workers ran it.
 """
 
+from typing import ClassVar
+
 import numpy as np
 
-from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig, after_failure_bound
 from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
@@ -213,7 +215,7 @@ def pick_batch(gain: np.ndarray, chance: np.ndarray, size: int, within: np.ndarr
             allowed &= within
         value = np.full(gain.size, -np.inf)
         for i in np.flatnonzero(allowed):
-            batch = sorted(chosen + [int(i)], key=lambda k: -gain[k])
+            batch = sorted([*chosen, int(i)], key=lambda k: -gain[k])
             miss, total = 1.0, 0.0
             for k in batch:  # the best gain realised is the largest among those that collide
                 total += miss * chance[k] * gain[k]
@@ -338,7 +340,7 @@ class GuidedMethod:
 
     name = "guided"
     batched_heuristic = True
-    phases = {Phase.GUIDED: "guided search", Phase.REFINE: "refine"}
+    phases: ClassVar[dict[Phase, str]] = {Phase.GUIDED: "guided search", Phase.REFINE: "refine"}
 
     def __init__(self, config: SearchConfig) -> None:
         self.config = config

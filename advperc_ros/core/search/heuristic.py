@@ -11,7 +11,8 @@ from typing import TypeVar
 
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, GroundTruthFails, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.exceptions import GroundTruthFails
 
 Segments = dict[int, tuple[int, int]]  # slot -> (first, last) dropped frame, inclusive
 T = TypeVar("T")

@@ -1,6 +1,8 @@
 """The paper's method: after the heuristic's failure mode, random search (Algorithm 2) and the
 refine phase beyond it, which re-detects the start of each dropped run of the best attack."""
 
+from typing import ClassVar
+
 import numpy as np
 
 from advperc_ros.core.search.config import SearchConfig
@@ -16,7 +18,7 @@ class PaperMethod:
 
     name = "paper"
     batched_heuristic = False
-    phases = {Phase.RANDOM: "random search", Phase.REFINE: "refine"}
+    phases: ClassVar[dict[Phase, str]] = {Phase.RANDOM: "random search", Phase.REFINE: "refine"}
 
     def __init__(self, config: SearchConfig) -> None:
         self.config = config

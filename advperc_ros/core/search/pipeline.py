@@ -12,8 +12,9 @@ from advperc_ros.core.search.approach import Approach
 from advperc_ros.core.search.config import SearchConfig, budget
 from advperc_ros.core.search.heuristic import heuristic_search
 from advperc_ros.core.search.joint import Joint, joint_drops
-from advperc_ros.core.search.problem import AttackProblem, BudgetSpent, Evaluation
+from advperc_ros.core.search.problem import AttackProblem, Evaluation
 from advperc_ros.core.search.registry import search_method
+from advperc_ros.exceptions import BudgetSpent
 
 
 @dataclass(frozen=True)

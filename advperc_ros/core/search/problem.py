@@ -6,12 +6,12 @@ from enum import Enum
 
 import numpy as np
 
-from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.metrics.scores import PerceptionScores, score
 from advperc_ros.core.pem import features
+from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.exceptions import BudgetSpent, GroundTruthFails
+from advperc_ros.exceptions import BudgetSpent
 
 OBJECTIVES = ("nds", "nds_t", "pem_ll")
 

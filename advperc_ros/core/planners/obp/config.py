@@ -11,7 +11,6 @@ from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.planners.obp.road import DrivableBand
 from advperc_ros.core.planners.parameters import check_ranges
 
-
 # the NLP grows with these: past them one solve takes minutes and memory the machine does not have
 MAX_HORIZON = 30.0  # s
 MAX_OBSTACLES = 64

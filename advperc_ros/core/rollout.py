@@ -162,7 +162,7 @@ def recorded_frames(frames: int, stopped_at_violation: bool, inconclusive: bool)
 
 
 @contextmanager
-def plan_alarm(seconds: float | None) -> Iterator[Callable[[bool], None]]:
+def plan_alarm(seconds: float | None) -> Iterator[Callable[[bool], object]]:
     """`arm(True)` before a plan call, `arm(False)` after: a call still running `seconds` later gets
     PlanTimeout raised inside it, so a hung plug-in makes its rollout inconclusive instead of
     stalling the search. SIGALRM, so only in a process's main thread (elsewhere, and without
@@ -241,7 +241,7 @@ def rollout(
                 following = after_plan(plan, k, times)
                 if following.inconclusive is not None:
                     inconclusive, last = following.inconclusive, k
-                elif not following.done:
+                elif following.ego is not None:  # not done
                     ego = following.ego
             stage_times["planner"] += clock() - started
             if record:

@@ -66,7 +66,7 @@ class ScenarioPlayer:
         topics, _ = read_topics(bag, [GROUND_TRUTH, ODOMETRY, LANES, ROUTE], raw=True)
         by_stamp = {cdr.decode_objects(data, GROUND_TRUTH)[0]: data for _, data in topics[GROUND_TRUTH]}
         self._ground_truth = [by_stamp[int(stamp)] for stamp in self.scenario.stamps_ns]
-        start = msgs.TYPESTORE.deserialize_cdr(topics[ODOMETRY][0][1], TOPIC_TYPES[ODOMETRY])
+        start: Any = msgs.TYPESTORE.deserialize_cdr(topics[ODOMETRY][0][1], TOPIC_TYPES[ODOMETRY])  # an Odometry
         restamped = dataclasses.replace(start, header=msgs.header(int(self.scenario.stamps_ns[0])))
         self._start = cdr.payload(restamped, TOPIC_TYPES[ODOMETRY])
         self._run: _Run | None = None
@@ -83,14 +83,21 @@ class ScenarioPlayer:
     def _stamp(self, frame: int) -> int:
         return int(self.scenario.stamps_ns[frame])
 
+    def _running(self) -> "_Run":
+        """The rollout in progress (a frame is published, stepped or finished only within one)."""
+        if self._run is None:
+            raise RuntimeError("no rollout in progress")
+        return self._run
+
     def _publish_frame(self, frame: int, odometry: bytes) -> None:
         stamp = self._stamp(frame)
         self._pub[CLOCK].publish(cdr.encode_clock(stamp))
         self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
         self._pub[ODOMETRY].publish(odometry)
-        self._run.frame = frame
-        self._run.rule = self._run.plan = None
-        self._run.deadline = time.monotonic() + self._timeout
+        run = self._running()
+        run.frame = frame
+        run.rule = run.plan = None
+        run.deadline = time.monotonic() + self._timeout
 
     def on_ready(self, msg: Any) -> None:
         rollout = parse_ready(msg)
@@ -116,7 +123,7 @@ class ScenarioPlayer:
             self._step()
 
     def _step(self) -> None:
-        run = self._run
+        run = self._running()
         if run.rule is None or run.plan is None:
             return
         k = run.frame
@@ -126,7 +133,7 @@ class ScenarioPlayer:
         following = after_plan(run.plan, k, self.scenario.times)
         if following.inconclusive is not None:
             self._finish(Status.INCONCLUSIVE, following.inconclusive)
-        elif following.done:
+        elif following.ego is None:  # done
             self._finish(Status.OK)
         else:
             self._publish_frame(k + 1, msgs.ego_to_cdr(following.ego, self._stamp(k + 1)))
@@ -141,7 +148,7 @@ class ScenarioPlayer:
                                    f"{self._timeout:g} s (a node is dead or silent)", timeout=True)
 
     def _finish(self, status: Status, reason: str = "", timeout: bool = False) -> None:
-        run = self._run
+        run = self._running()
         done = RolloutDone(run.rollout, run.frame + 1, status, reason, timeout)
         line = f"rollout {run.rollout}: {done.frames} frames, {status}" + (f": {reason}" if reason else "")
         # one call site per severity: rclpy's logger raises when a call site changes its severity

@@ -73,7 +73,8 @@ class LockstepClient:
 
         def keep(data: bytes) -> None:
             stamp, value = self._decode(topic, data)
-            received[stamp] = value
+            if stamp is not None:  # a message without a stamp belongs to no frame
+                received[stamp] = value
 
         self.transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=True, wake=False)
 

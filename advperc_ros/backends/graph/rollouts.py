@@ -86,6 +86,7 @@ class GraphRollouts:
                                        ros_nodes)
         self._config = (configs if configs is not None else core_configs(params)).rollout
         self._client: LockstepClient | None = None
+        self._own_transport: Any = None  # a DdsTransport we made (not the given one), closed with the graph
         self._recording = False
         try:
             self._start()
@@ -103,7 +104,7 @@ class GraphRollouts:
             self._client = LockstepClient(self._transport(), self._agent_ids, self.scenario.stamps_ns,
                                           self.params.stop_at_collision)
             if self._recording:
-                self._client.record_too()
+                self.client.record_too()
         while self._missing():
             dead = self.processes.dead()
             if dead is not None:
@@ -111,27 +112,41 @@ class GraphRollouts:
             self._refuse_others()
             if time.monotonic() > deadline:
                 raise GraphError(f"not up within {STARTUP_TIMEOUT:g} s: {', '.join(self._missing())}")
-            self._client.transport.spin_once(SPIN)
+            self.client.transport.spin_once(SPIN)
         self._warm_up(deadline)
         self._refuse_others()  # also a graph that came up beside ours while it started
 
-    def _transport(self) -> Any:
-        """The given transport, or a Cyclone participant of our own (closed with the graph)."""
+    @property
+    def client(self) -> LockstepClient:
+        """The lockstep client of the running graph (there is none before `_start` or after `close`)."""
+        if self._client is None:
+            raise GraphError("the graph is closed")
+        return self._client
+
+    def _transport(self) -> Transport:
+        """The given transport, or a Cyclone participant of our own (`_own_transport`, closed with the graph)."""
         if self._given_transport is not None:
             return self._given_transport
         from advperc_ros.ros.dds import DdsError, DdsTransport
 
         try:
-            return DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only, self._partition)
+            self._own_transport = DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only,
+                                               self._partition)
         except DdsError as exc:
             raise GraphError(str(exc)) from exc
+        return self._own_transport
+
+    def _close_own_transport(self) -> None:
+        if self._own_transport is not None:
+            self._own_transport.close()
+            self._own_transport = None
 
     def _missing(self) -> list[str]:
         """What the graph still lacks: a node we started that has not announced itself with its
         pid on /attack/nodes, or (writer-side discovery) an injector matching /attack/errors."""
-        present = self._client.present
+        present = self.client.present
         missing = [name for name, process in self.processes.running.items() if present.get(name) != process.pid]
-        if self._client.errors.matched_count() < 1:
+        if self.client.errors.matched_count() < 1:
             missing.append(f"a subscriber of {ERRORS} (the error_injector)")
         return missing
 
@@ -141,7 +156,7 @@ class GraphRollouts:
         two ids: the two graphs' messages would mix, and most rollouts end superseded."""
         ours = {process.pid for process in self.processes.running.values()}
         found = []
-        for name, pids in sorted(self._client.announced.items()):
+        for name, pids in sorted(self.client.announced.items()):
             strangers = sorted(pids - ours) if self.params.graph.spawn_nodes else sorted(pids)[1:]
             found += [f"{name} pid {pid}" for pid in strangers]
         if found:
@@ -154,9 +169,9 @@ class GraphRollouts:
         """Our planner node (started by us, or announced on /attack/nodes: the launch file
         configures it from the same params), else an external node, named where the middleware
         tells who publishes the plans."""
-        if self.params.graph.spawn_nodes or PLANNER_NODE in self._client.present:
+        if self.params.graph.spawn_nodes or PLANNER_NODE in self.client.present:
             return AttackedPlanner(self.params.planner)
-        return AttackedPlanner(EXTERNAL, ", ".join(self._client.transport.publishers_of(PLAN)))
+        return AttackedPlanner(EXTERNAL, ", ".join(self.client.transport.publishers_of(PLAN)))
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
@@ -167,9 +182,9 @@ class GraphRollouts:
         none = PerceptionErrors.none(*self.scenario.agents.shape)
         stall = WARMUP_STALL
         while True:
-            rollout = self._client.send(none)
+            rollout = self.client.send(none)
             try:
-                done = self._client.collect(rollout, stall, self._recording, self.processes.dead)
+                done = self.client.collect(rollout, stall, self._recording, self.processes.dead)
                 if done.status != Status.INCONCLUSIVE or time.monotonic() > deadline:
                     return
                 log.info(f"warm-up rollout {rollout} inconclusive ({done.reason}); sending another")
@@ -184,17 +199,16 @@ class GraphRollouts:
         if self.params.graph.spawn_nodes:
             self.processes.stop(kill=True)
             if self._given_transport is None:
-                self._client.transport.close()
+                self._close_own_transport()
                 self._client = None
             else:  # the dead nodes' announcements are gone with them
-                self._client.announced.clear()
+                self.client.announced.clear()
             self._start()
 
     def close(self) -> None:
         """Stop the children (SIGTERM, then SIGKILL) and the transport; idempotent."""
         self.processes.close()
-        if self._client is not None and self._given_transport is None:
-            self._client.transport.close()
+        self._close_own_transport()
         self._client = None
 
     def __enter__(self) -> "GraphRollouts":
@@ -209,9 +223,9 @@ class GraphRollouts:
     def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult:
         if record and not self._recording:
             self._recording = True
-            self._client.record_too()
+            self.client.record_too()
             self._warm_up(time.monotonic() + STARTUP_TIMEOUT)  # proves the new subscriptions
-        client = self._client
+        client = self.client
         rollout = client.send(errors)
         try:
             done = client.collect(rollout, self.params.graph.timeout + GRACE, record, self.processes.dead)

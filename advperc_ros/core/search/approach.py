@@ -127,8 +127,10 @@ def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Gene
     `patience` rollouts in a row that bring the ego no nearer, after `steps` rollouts, or at the
     problem's budget."""
     truth = seen[0]
-    start = current = min((e for e in seen if not e.rollout.inconclusive), key=cmp_to_key(
-        lambda a, b: -1 if nearer(a, b) else int(nearer(b, a))))
+    def order(a: Evaluation, b: Evaluation) -> int:
+        return -1 if nearer(a, b) else int(nearer(b, a))
+
+    start = current = min((e for e in seen if not e.rollout.inconclusive), key=cmp_to_key(order))
     valid = problem.scenario.agents.valid
     agents_xy = np.stack([problem.scenario.agents.x, problem.scenario.agents.y], axis=2)
     first = len(problem.log)

@@ -275,7 +275,7 @@ def guided_search(
     failed: list[bool] = []  # and whether it still collided
     tried: set[bytes] = set()
     siblings: list[PerceptionErrors] = []  # the last round's collisions that did not become the best
-    grandparent = None  # the parent of the last round
+    grandparent: PerceptionErrors | None = None  # the parent of the last round
     yaw = problem.scenario.agents.yaw
     refined = refine_iterations == 0
     radius = np.inf  # the largest gain the batch's second candidate may try (`next_radius`)
@@ -283,13 +283,13 @@ def guided_search(
     while len(problem.log) < budget:
         if not refined and budget - len(problem.log) <= 2 * refine_iterations <= len(moves):
             refined = True
-            refine_drops(problem, problem.best, refine_iterations)
+            refine_drops(problem, problem.found, refine_iterations)
             continue
-        parent = problem.best
+        parent = problem.found
         frames = parent.rollout.num_frames
-        pool = {}
-        for sibling in siblings:
-            c = merge(parent.errors, sibling, grandparent)
+        pool: dict[bytes, tuple[int, PerceptionErrors]] = {}
+        for sibling in siblings:  # siblings come with their grandparent
+            c = merge(parent.errors, sibling, grandparent) if grandparent is not None else None
             if c is not None and _key(c) not in tried:
                 pool.setdefault(_key(c), (MOVES.index("merge"), c))
         for _ in range(cfg.candidates):  # distinct candidates never rolled out, in the order drawn
@@ -302,7 +302,7 @@ def guided_search(
             if refined:
                 break
             refined = True
-            refine_drops(problem, problem.best, refine_iterations)
+            refine_drops(problem, problem.found, refine_iterations)
             continue
         gain = np.array([g for g, _, _ in scored])
         relative = gain / gain.max()
@@ -331,7 +331,7 @@ def guided_search(
                 gains.append(float(relative[i]))
                 shows.append(tuple(seen[i]))
                 failed.append(trial.adversarial)
-    return problem.best
+    return problem.found
 
 
 class GuidedMethod:
@@ -353,7 +353,7 @@ class GuidedMethod:
         return self.config.budget or used + after_failure_bound(self.config)
 
     def run(self, problem: AttackProblem, heuristic: Evaluation, rng: np.random.Generator) -> None:
-        guided_search(problem, rng, self.config.guided, problem.budget, self.config.refine_iterations)
+        guided_search(problem, rng, self.config.guided, problem.rollouts_allowed, self.config.refine_iterations)
 
     def still_owed(self, phase: Phase | None, progress: Progress) -> int:
         """Before its rounds, `after_failure_bound`; once they began, the rest of its budget, which it spends."""

@@ -29,7 +29,7 @@ class PaperMethod:
     def run(self, problem: AttackProblem, heuristic: Evaluation, rng: np.random.Generator) -> None:
         random_search(problem, heuristic, rng, self.config.random)
         if self.config.refine_iterations > 0:
-            refine_drops(problem, problem.best, self.config.refine_iterations)
+            refine_drops(problem, problem.found, self.config.refine_iterations)
 
     def still_owed(self, phase: Phase | None, progress: Progress) -> int:
         """The random steps left (one rollout each at most), then refine's bisections of the best

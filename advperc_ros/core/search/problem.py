@@ -88,6 +88,20 @@ class AttackProblem:
     _reference: RolloutResult | None = field(default=None, repr=False)
     _reference_phi: np.ndarray | None = field(default=None, repr=False)
 
+    @property
+    def found(self) -> Evaluation:
+        """`best`, where a phase runs only once an attack was found (the search methods' own phases)."""
+        if self.best is None:
+            raise RuntimeError("no attack has been found: this phase runs only after one")
+        return self.best
+
+    @property
+    def rollouts_allowed(self) -> int:
+        """`budget`, which `run_search` sets before any phase runs."""
+        if self.budget is None:
+            raise RuntimeError("the search has no budget yet: run_search sets it")
+        return self.budget
+
     def __post_init__(self) -> None:
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective '{self.objective}' (known: {', '.join(OBJECTIVES)})")

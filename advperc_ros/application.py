@@ -121,18 +121,27 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     started = time.perf_counter()
     check_budget(params, scenario)
     configs = configs if configs is not None else core_configs(params)
-    backend = rollouts if rollouts is not None else Stack(scenario, params, configs)
+    own: Stack | None = None
+    backend: Rollouts
+    if rollouts is None:
+        backend = own = Stack(scenario, params, configs)
+    else:
+        backend = rollouts
     config = configs.search
     problem: AttackProblem | None = None
-    counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], lambda: problem.best, progress)
+
+    def best() -> Evaluation | None:
+        return problem.best if problem is not None else None
+
+    counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], best, progress)
     problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter,
                             run_rollouts=getattr(backend, "rollout_many", None))
     try:
         result = run_search(problem, config)
     finally:
         counter.close()
-        if rollouts is None:  # this function's own stack: its worker pool ends here
-            backend.close()
+        if own is not None:  # this function's own stack: its worker pool ends here
+            own.close()
     unsure = inconclusive_search(problem.log)
     if unsure is not None:
         raise InconclusiveSearch(unsure)

@@ -10,6 +10,7 @@ import json
 import shutil
 import sys
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
@@ -234,6 +235,8 @@ def cmd_check_bag(args: argparse.Namespace) -> int:
     if check.problems:
         return EXIT_INPUT
     scenario = check.scenario
+    if scenario is None:  # no problem found means the scenario was read
+        raise BagError(f"{args.bag}: could not be read")
     topics = ", ".join(f"{name} ({count})" for name, (_, count) in sorted(check.topics.items()))
     print(f"{args.bag}: ok: '{scenario.name}', {scenario.num_frames} frames every {scenario.dt:.3f} s "
           f"({scenario.times[-1]:.3f} s), {scenario.agents.shape[1]} agents, {len(scenario.lanes)} lanes; topics: {topics}")
@@ -243,7 +246,7 @@ def cmd_check_bag(args: argparse.Namespace) -> int:
 class OneLineParser(argparse.ArgumentParser):
     """argparse's refusals as every other bad input: one line, exit code 2 (`advperc -h` for usage)."""
 
-    def error(self, message: str) -> None:
+    def error(self, message: str) -> NoReturn:
         self.exit(EXIT_INPUT, f"advperc: error: {self.prog}: {message}\n")
 
 

@@ -26,3 +26,17 @@ class AttackOutcome:
     joint: Joint | None = None
     # when no drop collided: the approach phase, with the closest margin it reached
     approach: Approach | None = None
+
+    @property
+    def attack(self) -> Evaluation:
+        """`best`, where only an attack found is written (its errors, its bag, its pictures)."""
+        if self.best is None:
+            raise ValueError(f"{self.scenario.name}: no attack was found")
+        return self.best
+
+    @property
+    def attack_rollout(self) -> RolloutResult:
+        """`recorded`, the attack rolled out again with tracks and plans: an outcome with an attack has one."""
+        if self.recorded is None:
+            raise ValueError(f"{self.scenario.name}: no attack rollout recorded")
+        return self.recorded

@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
-from typing import Any
+from typing import Any, cast
 
 import yaml
 
@@ -51,15 +51,18 @@ class Param:
         if not isinstance(value, expected) or (expected is int and isinstance(value, bool)):
             raise ParamsError(f"parameter '{name}' must be of type {expected.__name__}, "
                               f"got {type(value).__name__} {value!r}")
-        if expected is float and not math.isfinite(value):
-            raise ParamsError(f"parameter '{name}' must be a finite number, got {value}")
         if self.choices and value not in self.choices:
             raise ParamsError(f"parameter '{name}' must be one of {', '.join(self.choices)}, got {value!r}")
-        if self.positive and not value > 0:
+        if expected not in (int, float):
+            return value
+        number = cast(float, value)  # an int or a float, checked above
+        if not math.isfinite(number):
+            raise ParamsError(f"parameter '{name}' must be a finite number, got {value}")
+        if self.positive and not number > 0:
             raise ParamsError(f"parameter '{name}' must be positive, got {value}")
-        if self.low is not None and value < self.low:
+        if self.low is not None and number < self.low:
             raise ParamsError(f"parameter '{name}' must be at least {self.low:g}, got {value}")
-        if self.high is not None and value > self.high:
+        if self.high is not None and number > self.high:
             raise ParamsError(f"parameter '{name}' must be at most {self.high:g}, got {value}")
         return value
 
@@ -232,11 +235,11 @@ def _schema(cls: type, prefix: str = "") -> dict[str, Param]:
     """The dotted names and `Param`s of a params dataclass tree."""
     out: dict[str, Param] = {}
     for f in dataclasses.fields(cls):
-        if dataclasses.is_dataclass(f.type):
+        if isinstance(f.type, type) and dataclasses.is_dataclass(f.type):
             out.update(_schema(f.type, f"{prefix}{f.name}."))
         elif "param" in f.metadata:
             description, bounds = f.metadata["param"]
-            out[f"{prefix}{f.name}"] = Param(f.type, f.default, description, **bounds)
+            out[f"{prefix}{f.name}"] = Param(cast(type, f.type), f.default, description, **bounds)
     return out
 
 
@@ -290,7 +293,7 @@ def _sections(cls: type, flat: Mapping[str, Any], prefix: str = "") -> dict[str,
         if name in SCHEMA:
             if name in flat:
                 kwargs[f.name] = flat[name]
-        elif dataclasses.is_dataclass(f.type):
+        elif isinstance(f.type, type) and dataclasses.is_dataclass(f.type):
             kwargs[f.name] = f.type(**_sections(f.type, flat, f"{name}."))
     return kwargs
 

@@ -132,9 +132,7 @@ def _save(fig: Figure, path: Path, dpi: int) -> None:
 
 def _recorded(outcome: AttackOutcome) -> RolloutResult:
     """The recorded attack rollout the bird's-eye view and the animation draw (an outcome with a best attack has one)."""
-    if outcome.recorded is None:
-        raise ValueError(f"{outcome.scenario.name}: no attack rollout recorded to draw")
-    return outcome.recorded
+    return outcome.attack_rollout
 
 
 def _corners(boxes: dict[str, np.ndarray]) -> np.ndarray:

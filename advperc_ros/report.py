@@ -72,7 +72,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     if outcome.planner_node is not None:
         report["planner_node"] = outcome.planner_node
     if best is not None:
-        rollout = outcome.recorded
+        rollout = outcome.attack_rollout
         frame, slot = rollout.closest_approach()
         report.update(
             min_signed_distance=rounded("min_signed_distance", rollout.min_signed_distance),

@@ -50,8 +50,9 @@ def write_search_log(path: Path, log: list[LogRow]) -> None:
 def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
     """Per frame: ground truth, perceived objects, tracks, ego odometry, plan and rule value."""
     scenario = outcome.scenario
-    rollout = outcome.recorded
-    perceived = inject(scenario.agents, outcome.best.errors)
+    rollout = outcome.attack_rollout
+    tracks, plans = rollout.tracks or [], rollout.plans or []
+    perceived = inject(scenario.agents, outcome.attack.errors)
     with bags.open_bag_for_writing(path) as bag:
         bags.write_scenario_static(bag, scenario)
         for k in range(rollout.num_frames):
@@ -66,10 +67,10 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
                 level=2 if distance < 0 else 0,
             ))
             bag.write(topics.PERCEPTION, ns, cdr.encode_objects(perceived.frame(k), ns, "perception"))
-            if k < len(rollout.tracks):
-                bag.write(topics.TRACKING, ns, cdr.encode_objects(rollout.tracks[k], ns, "tracking"))
-            if k < len(rollout.plans):
-                bag.write(topics.PLAN, ns, msgs.trajectory_cdr(rollout.plans[k], ns))
+            if k < len(tracks):
+                bag.write(topics.TRACKING, ns, cdr.encode_objects(tracks[k], ns, "tracking"))
+            if k < len(plans):
+                bag.write(topics.PLAN, ns, msgs.trajectory_cdr(plans[k], ns))
         bag.write(topics.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
 
 
@@ -127,7 +128,7 @@ def write_foxglove_layout(path: Path, layout: dict) -> None:
 
 
 def write_errors(path: Path, outcome: AttackOutcome) -> None:
-    errors = outcome.best.errors
+    errors = outcome.attack.errors
     agents = outcome.scenario.agents
     slot_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]
     np.savez_compressed(
@@ -188,8 +189,8 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
         if outcome.best is not None:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
-            frame, _ = outcome.recorded.closest_approach()
-            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.recorded.ego[frame, :2])))
+            frame, _ = outcome.attack_rollout.closest_approach()
+            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.attack_rollout.ego[frame, :2])))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
             plots.attack_animation(staging / ANIMATION, outcome)
     return report

@@ -67,4 +67,6 @@ def _start_worker(scenario: Scenario, values: dict, source) -> None:
 
 
 def _worker_rollout(errors: PerceptionErrors) -> RolloutResult:
+    if _worker_stack is None:
+        raise RuntimeError("a pool worker's stack is built by its initializer, _start_worker")
     return _worker_stack.rollout(errors)

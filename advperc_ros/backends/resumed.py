@@ -17,6 +17,7 @@ results folder is complete; a fresh attack refuses to start over a checkpoint it
 
 import hashlib
 import json
+import math
 import os
 import shutil
 from pathlib import Path
@@ -46,7 +47,7 @@ def _digest(errors: PerceptionErrors) -> str:
 
 def _record(errors: PerceptionErrors, result: RolloutResult) -> str:
     return json.dumps({"errors": _digest(errors), "ego": result.ego.tolist(),
-                       "distances": np.where(np.isinf(result.distances), None, result.distances).tolist(),
+                       "distances": [[None if math.isinf(d) else d for d in row] for row in result.distances.tolist()],
                        "inconclusive": result.inconclusive, "planner_failures": result.planner_failures})
 
 
@@ -133,7 +134,7 @@ class ResumedRollouts:
     def rollout_many(self, batch: list[PerceptionErrors]) -> list[RolloutResult]:
         """A batch's rollouts in order: those checkpointed from the checkpoint, the rest on the
         backend (at once where it can), each appended as the batch completes."""
-        stored = []
+        stored: list[RolloutResult] = []
         while len(stored) < len(batch) and self._next < len(self._checkpoint.done):
             record, errors = self._checkpoint.done[self._next], batch[len(stored)]
             if record["errors"] != _digest(errors):

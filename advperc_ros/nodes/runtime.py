@@ -308,7 +308,7 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
     parent = os.getppid()
     try:
         with transport:
-            logic = spec.build(transport, values, params.planner_params, logger)
+            logic = spec.build(transport, values, dict(params.planner_params), logger)
             announce(transport, spec.name)
             poll = getattr(logic, "poll", None)
             logger.info(f"running on DDS domain {domain_id}" + (" (localhost only)" if localhost_only else ""))

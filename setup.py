@@ -44,6 +44,8 @@ setup(
         "reactive": ["commonroad-reactive-planner==2025.1"],
         # the documentation site (docs/conf.py): Sphinx with MyST Markdown, as rosdoc2 on Jazzy builds it
         "docs": ["sphinx>=7.2", "myst-parser>=2.0"],
+        # the CI gates on the package's code: pinned, so that a new release's rules cannot fail an unchanged tree
+        "lint": ["ruff==0.17.6", "mypy==2.4.1", "types-PyYAML"],
         "test": ["pytest>=7", "pytest-xdist>=3.5", "hypothesis>=6", "shapely>=2.0", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],
     },
     zip_safe=True,

@@ -79,14 +79,19 @@ def _orchestrator_lines(output: str) -> str:
                      or any(line.startswith(f"[{name}]") for name in died))[-6000:]
 
 
-def _finish(process: subprocess.Popen, timeout: float = TIMEOUT) -> str:
+def _ended(process: subprocess.Popen, timeout: float = TIMEOUT) -> tuple[int, str]:
     try:
         output, _ = process.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
         os.killpg(process.pid, 9)
         output, _ = process.communicate()
-        raise AssertionError(f"timed out: {output[-2000:]}")
-    assert process.returncode == 0, output[-3000:]
+        raise AssertionError(f"still running after {timeout} s: {output[-3000:]}")
+    return process.returncode, output
+
+
+def _finish(process: subprocess.Popen, timeout: float = TIMEOUT) -> str:
+    code, output = _ended(process, timeout)
+    assert code == 0, output[-3000:]
     return output
 
 
@@ -370,16 +375,6 @@ def _in_workspace(workspace: Path, command: str, domain: int) -> subprocess.Pope
     env = dict(os.environ, ROS_DOMAIN_ID=str(domain))
     return subprocess.Popen(["bash", "-c", f"source install/setup.bash && exec {command}"], cwd=workspace, env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
-
-
-def _ended(process: subprocess.Popen, timeout: float = TIMEOUT) -> tuple[int, str]:
-    try:
-        output, _ = process.communicate(timeout=timeout)
-    except subprocess.TimeoutExpired:
-        os.killpg(process.pid, 9)
-        output, _ = process.communicate()
-        raise AssertionError(f"still running after {timeout} s: {output[-3000:]}")
-    return process.returncode, output
 
 
 @pytest.mark.parametrize("arguments, line", [

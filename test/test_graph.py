@@ -412,7 +412,8 @@ def test_launch_file_builds_the_graph():
     spec.loader.exec_module(module)
     context = LaunchContext()
     for planner, nodes in (("ours", 6), ("external", 5)):
-        context.launch_configurations.update(params=str(REPO / "config" / "idm_lane_following.yaml"), planner=planner, output="")
+        context.launch_configurations.update(params=str(REPO / "config" / "idm_lane_following.yaml"), planner=planner,
+                                             output="", resume="false")
         actions = module._graph(context)
         assert len([a for a in actions if type(a).__name__ == "Node"]) == nodes
 

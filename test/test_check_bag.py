@@ -45,10 +45,10 @@ def marker_lanes(lanes: list[tuple[list[tuple[float, float]], float]]) -> object
 
 def write_bag(path: Path, frames: list[dict] | None = None, stamps: list[int] | None = None,
               odometry: tuple | None = (5.0, -1.75, 0.0, 8.0), route: list | None = ((0.0, -1.75), (100.0, -1.75)),
-              lanes: list | None = (LANE,), wrong_type: str | None = None) -> Path:
+              lanes: list | None = (LANE,), wrong_type: str | None = None, clock: bool = False) -> Path:
     """A ground-truth bag as a team might record it: frames of objects at `stamps` (default every
-    0.1 s), the ego's start, route and lanes (None leaves a topic out); `wrong_type` records that
-    topic as a std_msgs/String instead. Written with rosbags directly, so anything can go in."""
+    0.1 s), the ego's start, route and lanes (None leaves a topic out), /clock with `clock`; `wrong_type`
+    records that topic as a std_msgs/String instead. Written with rosbags directly, so anything can go in."""
     frames = [boxes([1, 2]) for _ in range(4)] if frames is None else frames
     stamps = [k * DT for k in range(len(frames))] if stamps is None else stamps
     messages = []
@@ -61,6 +61,8 @@ def write_bag(path: Path, frames: list[dict] | None = None, stamps: list[int] | 
         messages.append((topics.ODOMETRY, 0, cdr.encode_odometry(*odometry, 0)))
     messages += [(topics.GROUND_TRUTH, k, cdr.encode_objects(frame, stamp, "ground_truth"))
                  for k, (frame, stamp) in enumerate(zip(frames, stamps))]
+    if clock:  # /clock at every frame, as a recording of a sim-time stack has it
+        messages += [(topics.CLOCK, k, cdr.encode_clock(stamp)) for k, stamp in enumerate(stamps)]
     writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
     writer.open()
     connections = {}

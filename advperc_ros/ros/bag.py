@@ -299,7 +299,8 @@ class GroundTruthCheck(NamedTuple):
 def check_ground_truth(path: Path) -> GroundTruthCheck:
     """A ground-truth bag against the contract: /ground_truth/objects (at least two frames,
     uniformly stamped, in stamp order, ids unique per frame, finite values, positive sizes),
-    /ego/odometry (the ego's start) and /ego/route, each of its type; /map/lanes if present. Every
+    /ego/odometry (the ego's start) and /ego/route, each of its type; /map/lanes if present; every
+    other topic of the contract it holds (/clock, ...) of the contract's type. Every
     topic is checked, so all their problems are found at once; the Scenario they make is then
     validated. A bag that cannot be read at all raises a BagError."""
     path = Path(path)
@@ -314,6 +315,10 @@ def check_ground_truth(path: Path) -> GroundTruthCheck:
             parts[topic] = _decode(contents, path, topic, decode)
         except BagError as exc:
             problems.append(str(exc))
+    for topic, (msgtype, _) in sorted(contents.topics.items()):  # every contract topic the bag has, of its type:
+        expected = TOPIC_TYPES.get(topic)  # a wrong /clock failed the report's digest, after the whole search
+        if expected is not None and msgtype != expected and topic not in contents.wrong:
+            problems.append(f"{path}: topic '{topic}' has type {msgtype!r}, expected '{expected}'")
     try:
         name = _custom_data(path).get(SCENARIO_KEY, path.name)
     except BagError as exc:

@@ -206,6 +206,7 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "bag: an id twice in a frame", attack_bag(frames=[boxes([1, 2]), boxes([1, 1]), boxes([1, 2])]), "twice", "bag"),
         Case("advperc attack P.yaml", "bag: stamps out of order", attack_bag(stamps=[0, 200_000_000, 100_000_000, 300_000_000]), "order", "bag"),
         Case("advperc attack P.yaml", "bag: NaN position", attack_bag(frames=[boxes([1]), boxes([1], x=float("nan")), boxes([1])]), "'x'", "bag"),
+        Case("advperc attack P.yaml", "bag: position 1e300 (finite; its square is not)", attack_bag(frames=[boxes([1]), boxes([1], x=1e300), boxes([1])]), "'x'", "bag"),
         Case("advperc attack P.yaml", "bag: zero box width", attack_bag(frames=[boxes([1]), boxes([1], width=0.0), boxes([1])]), "'width'", "bag"),
         Case("advperc attack P.yaml", "bag without /ego/odometry", attack_bag(odometry=None), "/ego/odometry", "bag"),
         Case("advperc attack P.yaml", "bag without /ego/route", attack_bag(route=None), "/ego/route", "bag"),

@@ -8,6 +8,10 @@ from dataclasses import dataclass, fields, replace
 
 import numpy as np
 
+# any position (m), size (m), speed (m/s) or angle of a scene is far below this; beyond it the geometry's
+# squares and products overflow or lose every digit that matters
+MAGNITUDE_BOUND = 1e6
+
 BOX_FIELDS = ("x", "y", "yaw", "vx", "vy", "length", "width", "height", "score")
 
 
@@ -74,10 +78,11 @@ class BoxSequence:
         return [{name: values[start:end] for name, values in boxes.items()} for start, end in zip([0, *ends], ends)]
 
     def first_invalid_field(self) -> tuple[str, int, int] | None:
-        """(field, frame, slot) of the first non-finite or non-positive-size valid entry, if any."""
+        """(field, frame, slot) of the first valid entry that is not finite, beyond `MAGNITUDE_BOUND`
+        (1e300 is finite, and squared in a distance it is not), or a size not positive, if any."""
         for name in BOX_FIELDS[:-1]:
             values = getattr(self, name)
-            bad = self.valid & ~np.isfinite(values)
+            bad = self.valid & ~(np.abs(values) <= MAGNITUDE_BOUND)
             if name in ("length", "width", "height"):
                 bad |= self.valid & (values <= 0.0)
             if bad.any():

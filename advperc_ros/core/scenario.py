@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.boxes import MAGNITUDE_BOUND, BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.exceptions import ScenarioError
 
@@ -84,15 +84,17 @@ class Scenario:
             agent = int(self.agents.ids[k, j])
             value = getattr(self.agents, name)[k, j]
             problems.append(f"{source}: field '{name}' of agent {agent} at frame {k} is not a valid number ({value}; "
-                            "every field finite, sizes positive)")
+                            f"every field finite and within {MAGNITUDE_BOUND:g}, sizes positive)")
         ego = np.array([self.ego_start.x, self.ego_start.y, self.ego_start.yaw, self.ego_start.v])
-        if not np.all(np.isfinite(ego)):
-            problems.append(f"{source}: field 'ego.start' is not finite")
-        if not np.all(np.isfinite(self.route.points)):
-            problems.append(f"{source}: field 'route' is not finite")
+        if not np.all(np.abs(ego) <= MAGNITUDE_BOUND):
+            problems.append(f"{source}: field 'ego.start' is not finite (or beyond {MAGNITUDE_BOUND:g})")
+        if not np.all(np.abs(self.route.points) <= MAGNITUDE_BOUND):
+            problems.append(f"{source}: field 'route' is not finite (or beyond {MAGNITUDE_BOUND:g} m)")
         for lane in self.lanes:
-            if not np.all(np.isfinite(lane.centerline.points)):
-                problems.append(f"{source}: field 'centerline' of lane {lane.id!r} is not finite")
-            if not (np.isfinite(lane.width) and lane.width > 0.0):
-                problems.append(f"{source}: field 'width' of lane {lane.id!r} must be positive, not {lane.width}")
+            if not np.all(np.abs(lane.centerline.points) <= MAGNITUDE_BOUND):
+                problems.append(f"{source}: field 'centerline' of lane {lane.id!r} is not finite "
+                                f"(or beyond {MAGNITUDE_BOUND:g} m)")
+            if not (0.0 < lane.width <= MAGNITUDE_BOUND):
+                problems.append(f"{source}: field 'width' of lane {lane.id!r} must be positive (and at most "
+                                f"{MAGNITUDE_BOUND:g} m), not {lane.width}")
         return problems

@@ -17,7 +17,7 @@ from rosbags.interfaces import Connection
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.rosbag2.metadata import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 
-from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.boxes import MAGNITUDE_BOUND, BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane, Scenario
 from advperc_ros.core.staging import staged_folder
@@ -262,7 +262,8 @@ def read_objects(path: Path, topic: str) -> tuple[np.ndarray, BoxSequence]:
     if bad is not None:
         name, k, j = bad
         raise BagError(f"{path}: topic '{topic}', frame {k}: field '{name}' of object {int(boxes.ids[k, j])} "
-                       f"is not a valid number ({getattr(boxes, name)[k, j]}; every field finite, sizes positive)")
+                       f"is not a valid number ({getattr(boxes, name)[k, j]}; every field finite and within "
+                       f"{MAGNITUDE_BOUND:g}, sizes positive)")
     return stamps, boxes
 
 

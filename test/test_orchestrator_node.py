@@ -75,3 +75,25 @@ def test_command_line_overrides_are_typed_as_rcl_types_them_and_the_last_wins():
     assert command_line_overrides(args, "orchestrator") == {
         "seed": 4, "ego.width": 2.0, "planner": "idm", "objective": "nds", "bag": "yes", "stop_at_collision": False}
     assert command_line_overrides(["--ros-args", "-p", "seed:=1"][:1], "orchestrator") == {}
+
+
+def test_a_second_interrupt_cannot_break_into_the_clean_stop_the_first_began():
+    """Ctrl-C under `ros2 launch` reaches the orchestrator twice (from the terminal's process group and
+    from launch): the first stops the search, the second must not raise inside the stop's own logging
+    (it did, and the node died with a traceback instead of its one `interrupted:` line)."""
+    import signal
+
+    import pytest
+
+    from advperc_ros.nodes.runtime import _interrupt
+
+    saved = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+        os.kill(os.getpid(), signal.SIGINT)  # the one launch forwards
+        os.kill(os.getpid(), signal.SIGTERM)  # launch's escalation
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        for signum, handler in saved.items():
+            signal.signal(signum, handler)

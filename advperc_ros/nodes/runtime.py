@@ -179,6 +179,11 @@ def given_parameters(node: Any, args: list[str] | None) -> dict[str, Any]:
 
 
 def _interrupt(signum: int, frame: Any) -> None:
+    """The first SIGINT or SIGTERM stops the body where it is; any later one is ignored, so that it
+    cannot break into the clean stop (the checkpoint kept, the one line logged) the first began: a
+    terminal's Ctrl-C under `ros2 launch` reaches the node twice, from the terminal and from launch."""
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, signal.SIG_IGN)
     raise KeyboardInterrupt
 
 

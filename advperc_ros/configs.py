@@ -20,6 +20,7 @@ from advperc_ros.core.search.config import GuidedConfig, SearchConfig
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.tracker import TrackerConfig
 from advperc_ros.params import AttackParams
+from advperc_ros.ros.interfaces.registry import load_profile
 
 # core config field -> the dotted parameter that sets it
 ROLLOUT = {"ego_length": "ego.length", "ego_width": "ego.width", "stop_at_collision": "stop_at_collision",
@@ -44,8 +45,10 @@ def _fields(table: Mapping[str, str], values: Mapping[str, Any]) -> dict[str, An
 
 
 def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
-    """How a rollout is run and judged (ego footprint, rule, plan timeout), from dotted values."""
-    return RolloutConfig(**_fields(ROLLOUT, values))
+    """How a rollout is run and judged (ego footprint, rule, plan timeout, whether detections carry
+    their velocity: the interface profile's detection type says), from dotted values."""
+    carries = load_profile(values["graph.interface"]).detections.carries_velocity
+    return RolloutConfig(**_fields(ROLLOUT, values), detection_velocity=carries)
 
 
 def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:

@@ -42,6 +42,10 @@ class MessageError(AdvpercError, ValueError):
     """A message that does not follow the topic contract; the text names the field."""
 
 
+class UnknownProfile(AdvpercError, ValueError):
+    """An interface name that names no bundled interface profile."""
+
+
 # ----- nothing to attack, or no way to attack it -----
 
 class GroundTruthFails(AdvpercError, RuntimeError):

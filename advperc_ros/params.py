@@ -24,6 +24,8 @@ import yaml
 
 from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
+from advperc_ros.ros.interfaces.registry import BUNDLED as INTERFACES
+from advperc_ros.ros.interfaces.registry import DEFAULT as DEFAULT_INTERFACE
 
 NODE = "orchestrator"
 PACKAGE = "advperc_ros"
@@ -163,6 +165,8 @@ class GraphParams:
                             "rollout is inconclusive; embedded, one plan call", positive=True, high=3600.0)
     spawn_nodes: bool = _param(True, "graph backend: start the five graph nodes as child processes (Cyclone DDS); "
                                "false uses nodes already running, e.g. from launch/attack.launch.py")
+    interface: str = _param(DEFAULT_INTERFACE, "graph backend: the message types and topic names the graph speaks to a "
+                            "stack's own nodes (docs/plugging-in.md, Interface profiles)", choices=tuple(INTERFACES))
 
 
 @dataclass(frozen=True)

@@ -134,6 +134,8 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "`bag` names nothing", attack(bag="bags/no_such_bag"), "'bag' names 'bags/no_such_bag'"),
         Case("advperc attack P.yaml", "`bag` a number", attack(bag=3), "'bag' must be of type str"),
         Case("advperc attack P.yaml", "`planner` unknown", attack(planner="fast"), "unknown planner 'fast'", None),
+        Case("advperc attack P.yaml", "`graph.interface` no profile", attack(**{"graph.interface": "ros1"}),
+             "'graph.interface' must be one of advperc, autoware"),
         Case("advperc attack P.yaml", "`planner` module missing", attack(planner="no_such_mod:P"), "planner 'no_such_mod:P' cannot be imported", None),
         Case("advperc attack P.yaml", "`planner` class missing", attack(planner="json:NoSuchPlanner"), "planner 'json:NoSuchPlanner' cannot be imported", None),
         Case("advperc attack P.yaml", "`planner` a class of something else", attack(planner="json:JSONDecoder"), "rejected its parameters", None),

@@ -37,7 +37,7 @@ def boxes(ids: list[int], **values: float) -> dict[str, np.ndarray]:
 def marker_lanes(lanes: list[tuple[list[tuple[float, float]], float]]) -> object:
     """Lanes as /map/lanes markers, points and widths as given (no Polyline: it refuses some)."""
     Marker = msgs.T["visualization_msgs/msg/Marker"]
-    markers = [msgs._marker(0, msgs.LANES_NS, i, Marker.LINE_STRIP, Marker.ADD, msgs._pose(0, 0, 0), (width, 0, 0),
+    markers = [msgs._marker(0, msgs.LANES_NS, i, Marker.LINE_STRIP, Marker.ADD, msgs.pose(0, 0, 0), (width, 0, 0),
                             msgs._color("lanes"), [msgs._point(x, y) for x, y in points], f"lane{i}")
                for i, (points, width) in enumerate(lanes)]
     return msgs.T["visualization_msgs/msg/MarkerArray"](markers=markers)

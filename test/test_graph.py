@@ -244,6 +244,29 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
     assert all(p.poll() is not None for p in processes)  # shut down on exit
 
 
+@pytest.mark.parametrize("interface", ["autoware", "vision_msgs"])
+def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path, scenario, interface):
+    """Behind Autoware's types (DetectedObjects, PredictedObjects, Trajectory, Odometry on
+    /localization/kinematic_state) our tracker and planner give the embedded attack rollout within
+    the graph's 1e-9, tracks and plans included; behind vision_msgs (detections without velocity) the
+    embedded rollout with the same interface, whose detections carry no velocity either."""
+    params = load_params(params_for(tmp_path, **{"graph.interface": interface}))
+    stack = Stack(scenario, params)
+    attack = lead_drop(scenario)
+    with GraphRollouts(scenario, params, BAG) as graph:
+        result = graph.rollout(attack, record=True)
+    embedded = stack.rollout(attack, record=True)
+    assert_same_rollout(result, embedded)
+    assert result.collided
+    for got, want in zip(result.tracks, embedded.tracks):
+        np.testing.assert_allclose(got["vx"], want["vx"], rtol=0, atol=TOLERANCE)
+    for got, want in zip(result.plans, embedded.plans):
+        np.testing.assert_allclose(got.t, want.t, rtol=0, atol=TOLERANCE)
+    if interface == "vision_msgs":  # the interface changed what the tracker saw: not the MarkerArray rollout
+        markers = Stack(scenario, params.with_values(**{"graph.interface": "advperc"})).rollout(attack, record=True)
+        assert any(not np.allclose(a["vx"], b["vx"]) for a, b in zip(markers.tracks, embedded.tracks) if len(a["vx"]) == len(b["vx"]))
+
+
 # ----- (b) a search in graph mode writes the embedded report -----------------------------------------
 
 def test_graph_search_writes_the_embedded_report(tmp_path, capsys):

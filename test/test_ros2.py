@@ -378,7 +378,9 @@ def _in_workspace(workspace: Path, command: str, domain: int) -> subprocess.Pope
 
 
 @pytest.mark.parametrize("arguments, line", [
-    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, output, resume)"),
+    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, output, resume, interface)"),
+    ("interface:=ros1", "launch argument 'interface' must be one of advperc, autoware, autoware_tracked, vision_msgs, "
+                        "got 'ros1'"),
     ("output:=x", "{missing}: no such params file"),
 ])
 def test_a_launch_refused_before_any_node_starts_exits_2_with_one_line(workspace, ros_domain, tmp_path, arguments, line):

@@ -46,6 +46,9 @@ class RolloutConfig:
     stop_at_collision: bool = True
     at_fault_only: bool = False  # the verdict counts only collisions that are the ego's fault
     plan_timeout: float | None = None  # s one plan call may take before the rollout is inconclusive
+    # detections hand the tracker their velocity; False as from a detector whose message type has none
+    # (vision_msgs/Detection3DArray), so that every backend tracks what the graph's tracker would receive
+    detection_velocity: bool = True
 
 
 @dataclass
@@ -200,6 +203,9 @@ def rollout(
     started = clock()
     agents = scenario.agents
     detections = inject(agents, errors).every_frame()
+    if not config.detection_velocity:
+        for frame in detections:
+            frame["vx"], frame["vy"] = np.zeros_like(frame["vx"]), np.zeros_like(frame["vy"])
     stage_times["injector"] += clock() - started
     times = scenario.times
     num_frames = scenario.num_frames

@@ -15,19 +15,21 @@ import numpy as np
 
 from advperc_ros.core.perception_errors import inject_frame
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
-from advperc_ros.ros import cdr
+from advperc_ros.ros.interfaces.base import ObjectsLayer
+from advperc_ros.ros.interfaces.registry import load_profile
 from advperc_ros.ros.lockstep import RolloutErrors, parse_errors, ready_message
-from advperc_ros.ros.topics import CONTROL_TYPE, ERRORS, GROUND_TRUTH, PERCEPTION, READY, TOPIC_TYPES
+from advperc_ros.ros.topics import CONTROL_TYPE, ERRORS, GROUND_TRUTH, READY, TOPIC_TYPES
 from advperc_ros.ros.transport import Transport
 
 
 class ErrorInjector:
-    def __init__(self, transport: Transport, logger: Logger) -> None:
+    def __init__(self, transport: Transport, detections: ObjectsLayer, logger: Logger) -> None:
         self._log = logger
+        self._detections = detections
         self._rollout: RolloutErrors | None = None
         self._slots: dict[int, int] = {}
         self._frames: dict[int, int] = {}
-        self._perception = transport.publisher(PERCEPTION, TOPIC_TYPES[PERCEPTION])
+        self._perception = transport.publisher(detections.topic, detections.msgtype)
         self._ready = transport.publisher(READY, CONTROL_TYPE)
         transport.subscriber(ERRORS, CONTROL_TYPE, latched=True, callback=self.on_errors)
         transport.subscriber(GROUND_TRUTH, TOPIC_TYPES[GROUND_TRUTH], callback=self.on_ground_truth, raw=True)
@@ -51,10 +53,14 @@ class ErrorInjector:
             return
         slots = np.array([self._slots[int(i)] for i in truth["ids"]], dtype=np.int64)
         perceived = inject_frame(truth, self._frames[stamp], slots, self._rollout.errors)
-        self._perception.publish(cdr.encode_objects(perceived, stamp, "perception"))
+        self._perception.publish(self._detections.encode(perceived, stamp, "perception"))
 
 
-SPEC = NodeSpec("error_injector", (), lambda transport, values, planner_params, logger: ErrorInjector(transport, logger))
+def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> ErrorInjector:
+    return ErrorInjector(transport, load_profile(values["graph.interface"]).detections, logger)
+
+
+SPEC = NodeSpec("error_injector", ("graph.interface",), _build)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -13,55 +13,59 @@ import sys
 from typing import Any
 
 from advperc_ros.configs import planning_context
-from advperc_ros.core.planners.base import Planner
+from advperc_ros.core.planners.base import EMPTY_PLAN, Planner
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
-from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import read_scenario
+from advperc_ros.ros.cdr import ODOMETRY as ODOMETRY_TYPE
+from advperc_ros.ros.interfaces.base import Profile
+from advperc_ros.ros.interfaces.registry import load_profile
 from advperc_ros.ros.lockstep import StampPairs
-from advperc_ros.ros.topics import ODOMETRY, PLAN, TOPIC_TYPES, TRACKING
 from advperc_ros.ros.transport import Transport
 
 
 class PlannerNode:
-    def __init__(self, transport: Transport, planner: Planner, logger: Logger) -> None:
+    def __init__(self, transport: Transport, planner: Planner, profile: Profile, logger: Logger) -> None:
         self._planner = planner
         self._log = logger
         self._pairs = StampPairs(self._answer)
-        self._plan = transport.publisher(PLAN, TOPIC_TYPES[PLAN])
-        transport.subscriber(TRACKING, TOPIC_TYPES[TRACKING], callback=self.on_tracks, raw=True)
-        transport.subscriber(ODOMETRY, TOPIC_TYPES[ODOMETRY], callback=self.on_odometry, raw=True)
+        self._tracks = profile.tracks
+        self._ego_topic = profile.ego_topic
+        self._encode_plan = profile.plan.encode
+        self._plan = transport.publisher(profile.plan.topic, profile.plan.msgtype)
+        transport.subscriber(profile.tracks.topic, profile.tracks.msgtype, callback=self.on_tracks, raw=True)
+        transport.subscriber(profile.ego_topic, ODOMETRY_TYPE, callback=self.on_odometry, raw=True)
 
     def on_tracks(self, data: bytes) -> None:
-        stamp, tracks = cdr.decode_objects(data, TRACKING)
+        stamp, tracks = self._tracks.decode(data, self._tracks.topic)
         if stamp is None:
-            self._log.error(f"{TRACKING}: a MarkerArray without markers has no stamp; dropped")
+            self._log.error(f"{self._tracks.topic}: a MarkerArray without markers has no stamp; dropped")
             return
         self._pairs.put(0, stamp, tracks)
 
     def on_odometry(self, data: bytes) -> None:
-        self._pairs.put(1, *msgs.ego_from_cdr(data, ODOMETRY))
+        self._pairs.put(1, *msgs.ego_from_cdr(data, self._ego_topic))
 
     def _answer(self, stamp: int, tracks: dict, ego: Any) -> None:
         first, t = self._pairs.clock.answer(stamp)
         if first:
             self._planner.reset()
         try:
-            path = msgs.trajectory_cdr(self._planner.plan(t, ego, tracks), stamp)
+            path = self._encode_plan(self._planner.plan(t, ego, tracks), stamp)
         except Exception as exc:  # a plug-in that crashes must still answer: with an empty plan
             self._log.error(f"planner raised {type(exc).__name__} at t={t:.3f} s: {exc}; answering with an empty plan")
-            path = cdr.encode_path([], [], [], [], stamp)
+            path = self._encode_plan(EMPTY_PLAN, stamp)
         self._plan.publish(path)
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> PlannerNode:
     scenario = read_scenario(values["bag"])
     planner = load_planner(values["planner"], planning_context(values, scenario), planner_params)
-    return PlannerNode(transport, planner, logger)
+    return PlannerNode(transport, planner, load_profile(values["graph.interface"]), logger)
 
 
-SPEC = NodeSpec("planner", ("bag", "planner", "ego.length", "ego.width"), _build, planner_params=True)
+SPEC = NodeSpec("planner", ("bag", "planner", "ego.length", "ego.width", "graph.interface"), _build, planner_params=True)
 
 
 def main(args: list[str] | None = None) -> int:

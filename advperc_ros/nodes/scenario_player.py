@@ -29,7 +29,9 @@ from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import read_scenario, read_topics
-from advperc_ros.ros.lockstep import RolloutDone, Status, done_message, parse_ready, parse_rule_diagnostics, plan_from_cdr
+from advperc_ros.ros.interfaces.base import Profile
+from advperc_ros.ros.interfaces.registry import load_profile
+from advperc_ros.ros.lockstep import RolloutDone, Status, done_message, parse_ready, parse_rule_diagnostics
 from advperc_ros.ros.topics import (
     CLOCK,
     CONTROL_TYPE,
@@ -38,7 +40,6 @@ from advperc_ros.ros.topics import (
     LANES,
     LATCHED,
     ODOMETRY,
-    PLAN,
     READY,
     ROUTE,
     RULE_DIAGNOSTICS,
@@ -52,13 +53,16 @@ class _Run:
     rollout: int
     frame: int
     deadline: float
+    ego_xy: tuple[float, float] = (0.0, 0.0)  # where the ego is at this frame (a plan without times is timed from it)
     rule: float | None = None
     plan: Trajectory | None = None
 
 
 class ScenarioPlayer:
-    def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, logger: Logger) -> None:
+    def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, profile: Profile,
+                 logger: Logger) -> None:
         self.scenario = read_scenario(bag)
+        self._plan_layer = profile.plan
         self._stop_at_collision = stop_at_collision
         self._timeout = timeout
         self._log = logger
@@ -72,12 +76,15 @@ class ScenarioPlayer:
         self._run: _Run | None = None
         self._pub = {topic: transport.publisher(topic, TOPIC_TYPES[topic], latched=topic in LATCHED)
                      for topic in (CLOCK, GROUND_TRUTH, ODOMETRY, LANES, ROUTE)}
+        # the rule monitor reads /ego/odometry; a stack reads its own topic, where the same message goes too
+        self._ego = [self._pub[ODOMETRY]] + ([transport.publisher(profile.ego_topic, TOPIC_TYPES[ODOMETRY])]
+                                             if profile.ego_topic != ODOMETRY else [])
         self._done = transport.publisher(DONE, CONTROL_TYPE)
         for topic in (LANES, ROUTE):
             if topics[topic]:
                 self._pub[topic].publish(topics[topic][0][1])
         transport.subscriber(READY, CONTROL_TYPE, callback=self.on_ready)
-        transport.subscriber(PLAN, TOPIC_TYPES[PLAN], callback=self.on_plan, raw=True)
+        transport.subscriber(profile.plan.topic, profile.plan.msgtype, callback=self.on_plan, raw=True)
         transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule, raw=True)
 
     def _stamp(self, frame: int) -> int:
@@ -93,9 +100,12 @@ class ScenarioPlayer:
         stamp = self._stamp(frame)
         self._pub[CLOCK].publish(cdr.encode_clock(stamp))
         self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
-        self._pub[ODOMETRY].publish(odometry)
+        for publisher in self._ego:
+            publisher.publish(odometry)
         run = self._running()
         run.frame = frame
+        ego = msgs.ego_from_cdr(odometry, ODOMETRY)[1]
+        run.ego_xy = (ego.x, ego.y)
         run.rule = run.plan = None
         run.deadline = time.monotonic() + self._timeout
 
@@ -109,7 +119,7 @@ class ScenarioPlayer:
     def on_plan(self, data: bytes) -> None:
         if self._run is None:
             return
-        stamp, plan = plan_from_cdr(data, self._stamp(0), PLAN)
+        stamp, plan = self._plan_layer.decode(data, self._stamp(0), self._run.ego_xy, self._plan_layer.topic)
         if stamp == self._stamp(self._run.frame):
             self._run.plan = plan
             self._step()
@@ -161,10 +171,11 @@ class ScenarioPlayer:
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> ScenarioPlayer:
-    return ScenarioPlayer(transport, values["bag"], values["stop_at_collision"], values["graph.timeout"], logger)
+    return ScenarioPlayer(transport, values["bag"], values["stop_at_collision"], values["graph.timeout"],
+                          load_profile(values["graph.interface"]), logger)
 
 
-SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout"), _build)
+SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout", "graph.interface"), _build)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -12,39 +12,42 @@ from typing import Any
 from advperc_ros.configs import tracker_config
 from advperc_ros.core.tracker import Tracker
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
-from advperc_ros.ros import cdr
+from advperc_ros.ros.interfaces.base import ObjectsLayer
+from advperc_ros.ros.interfaces.registry import load_profile
 from advperc_ros.ros.lockstep import RolloutClock
-from advperc_ros.ros.topics import PERCEPTION, TOPIC_TYPES, TRACKING
 from advperc_ros.ros.transport import Transport
 
 
 class TrackerNode:
-    def __init__(self, transport: Transport, tracker: Tracker, logger: Logger) -> None:
+    def __init__(self, transport: Transport, tracker: Tracker, detections: ObjectsLayer, tracks: ObjectsLayer,
+                 logger: Logger) -> None:
         self._tracker = tracker
         self._log = logger
         self._clock = RolloutClock()
-        self._tracks = transport.publisher(TRACKING, TOPIC_TYPES[TRACKING])
-        transport.subscriber(PERCEPTION, TOPIC_TYPES[PERCEPTION], callback=self.on_detections, raw=True)
+        self._detections = detections
+        self._encode_tracks = tracks.encode
+        self._tracks = transport.publisher(tracks.topic, tracks.msgtype)
+        transport.subscriber(detections.topic, detections.msgtype, callback=self.on_detections, raw=True)
 
     def on_detections(self, data: bytes) -> None:
-        stamp, detections = cdr.decode_objects(data, PERCEPTION)
+        stamp, detections = self._detections.decode(data, self._detections.topic)
         if stamp is None:
-            self._log.error(f"{PERCEPTION}: a MarkerArray without markers has no stamp "
+            self._log.error(f"{self._detections.topic}: a MarkerArray without markers has no stamp "
                             "(the first must be DELETEALL); dropped")
             return
         self._clock.observe(stamp)
         first, t = self._clock.answer(stamp)
         if first:
             self._tracker.reset()
-        self._tracks.publish(cdr.encode_objects(self._tracker.step(t, detections), stamp, "tracking"))
+        self._tracks.publish(self._encode_tracks(self._tracker.step(t, detections), stamp, "tracking"))
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> TrackerNode:
-    config = tracker_config(values)
-    return TrackerNode(transport, Tracker(config), logger)
+    profile = load_profile(values["graph.interface"])
+    return TrackerNode(transport, Tracker(tracker_config(values)), profile.detections, profile.tracks, logger)
 
 
-SPEC = NodeSpec("tracker", ("tracker.gate", "tracker.max_age"), _build)
+SPEC = NodeSpec("tracker", ("tracker.gate", "tracker.max_age", "graph.interface"), _build)
 
 
 def main(args: list[str] | None = None) -> int:

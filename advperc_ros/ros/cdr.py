@@ -33,8 +33,10 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from advperc_ros.exceptions import MessageError
+from advperc_ros.ros import stack_types
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
+stack_types.register(TYPESTORE)  # Autoware's and vision_msgs' types beside the core ones
 # a message's CDR as it comes: bytes from rclpy and Cyclone, a memoryview from rosbags' serialize_cdr
 Cdr = bytes | memoryview
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"
@@ -246,6 +248,25 @@ def payload(msg: object, msgtype: str) -> bytes:
 
 
 # -- decoding ----------------------------------------------------------------------------------
+
+
+def header_stamp(data: Cdr, where: str) -> int:
+    """The stamp (ns) of any message that begins with a std_msgs/Header (Path, Trajectory, the
+    object arrays), without decoding the rest."""
+    if len(data) < 12 or data[0] != 0 or data[1] not in (0, 1):
+        raise MessageError(f"{where}: not a plain CDR payload with a header (encapsulation {bytes(data[:4]).hex()})")
+    sec, nanosec = struct.unpack_from("<iI" if data[1] else ">iI", data, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def deserialize(data: Cdr, msgtype: str, where: str) -> Any:
+    """A message of any registered type as a rosbags object (either byte order), for the types
+    read too rarely or too variously to earn a codec of their own; a payload that is not one is a
+    MessageError prefixed by `where`."""
+    try:
+        return TYPESTORE.deserialize_cdr(data, msgtype)
+    except (SerdeError, ValueError, IndexError, struct.error) as exc:
+        raise MessageError(f"{where}: not a {msgtype} ({exc})") from None
 
 
 def _body(data: Cdr, msgtype: str, where: str) -> bytes:

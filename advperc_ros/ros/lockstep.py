@@ -200,7 +200,7 @@ def _distance(key: str, text: str) -> float:
     return value
 
 
-def plan_from_cdr(data: bytes, first_stamp_ns: int, where: str) -> tuple[int, Trajectory]:
+def plan_from_cdr(data: cdr.Cdr, first_stamp_ns: int, where: str) -> tuple[int, Trajectory]:
     """A nav_msgs/Path's CDR as (its stamp, the plan the embedded rollout follows: pose times in
     seconds since the scenario's first stamp, computed as `Scenario.times` computes frame times)."""
     stamp, poses, stamps = cdr.decode_path(data, where)

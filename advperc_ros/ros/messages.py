@@ -43,7 +43,8 @@ def _quaternion(yaw: float):
     return T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=float(z), w=float(w))
 
 
-def _pose(x: float, y: float, yaw: float, z: float = 0.0):
+def pose(x: float, y: float, yaw: float, z: float = 0.0):
+    """A geometry_msgs/Pose at (x, y, z) heading `yaw`."""
     return T["geometry_msgs/msg/Pose"](position=_point(x, y, z), orientation=_quaternion(yaw))
 
 
@@ -119,7 +120,7 @@ def lanes_to_markers(lanes: tuple[Lane, ...], ns_time: int):
     for i, lane in enumerate(lanes):
         points = [_point(x, y) for x, y in lane.centerline.points]
         marker = _marker(
-            ns_time, LANES_NS, i, Marker.LINE_STRIP, Marker.ADD, _pose(0, 0, 0), (lane.width, 0, 0), _color("lanes"), points,
+            ns_time, LANES_NS, i, Marker.LINE_STRIP, Marker.ADD, pose(0, 0, 0), (lane.width, 0, 0), _color("lanes"), points,
             lane.id,
         )
         markers.append(marker)

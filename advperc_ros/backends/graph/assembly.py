@@ -1,10 +1,12 @@
 """The RolloutResult of a graph rollout, from what the graph published: the same object the
 embedded rollout returns, its recorded frames chosen by the same rule (`core.rollout.recorded_frames`)."""
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import RolloutResult, recorded_frames, violates
 from advperc_ros.ros.lockstep import RolloutDone, Status
 from advperc_ros.ros.topics import ODOMETRY, PLAN, RULE_DIAGNOSTICS, TRACKING
@@ -42,9 +44,9 @@ def complete(received: dict[str, dict[int, Any]], stamps: list[int], done: Rollo
 
 
 def assemble(received: dict[str, dict[int, Any]], stamps: list[int], slots: dict[int, int], frames: int,
-             inconclusive: str | None, recorded: tuple[int, int] | None) -> RolloutResult:
+             inconclusive: str | None, recorded: tuple[int, int] | None, plan: Callable[[int], Trajectory]) -> RolloutResult:
     """The result of `frames` frames: ego states and per-agent signed distances (slot order); with
-    `recorded` = (tracked, planned) frames, the tracks and plans too."""
+    `recorded` = (tracked, planned) frames, the tracks and plans too (`plan(stamp)`: the plan of that frame)."""
     ego = np.zeros((frames, 4))
     distances = np.full((frames, len(slots)), np.inf)
     for k, stamp in enumerate(stamps[:frames]):
@@ -57,5 +59,5 @@ def assemble(received: dict[str, dict[int, Any]], stamps: list[int], slots: dict
     if recorded is not None:
         tracked, planned = recorded
         result.tracks = [received[TRACKING][s] for s in stamps[:tracked]]
-        result.plans = [received[PLAN][s] for s in stamps[:planned]]
+        result.plans = [plan(s) for s in stamps[:planned]]
     return result

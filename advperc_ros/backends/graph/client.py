@@ -9,9 +9,11 @@ import numpy as np
 
 from advperc_ros.backends.graph.assembly import PER_FRAME, RECORDED, complete
 from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.exceptions import RolloutFault
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.interfaces.base import ObjectsLayer, PlanLayer, Profile
 from advperc_ros.ros.lockstep import (
     RolloutDone,
     RolloutErrors,
@@ -19,9 +21,18 @@ from advperc_ros.ros.lockstep import (
     parse_done,
     parse_presence,
     parse_rule_diagnostics,
-    plan_from_cdr,
 )
-from advperc_ros.ros.topics import CONTROL_TYPE, DONE, ERRORS, ODOMETRY, PRESENCE, RULE_DIAGNOSTICS, TOPIC_TYPES, TRACKING
+from advperc_ros.ros.topics import (
+    CONTROL_TYPE,
+    DONE,
+    ERRORS,
+    ODOMETRY,
+    PLAN,
+    PRESENCE,
+    RULE_DIAGNOSTICS,
+    TOPIC_TYPES,
+    TRACKING,
+)
 from advperc_ros.ros.transport import Transport
 
 SPIN = 0.05  # s per transport spin while waiting; per-frame topics are taken at least this often
@@ -32,8 +43,11 @@ class LockstepClient:
     """Over one transport: the /attack/errors writer, readers of /attack/done, /attack/nodes and the
     per-frame topics a result needs (tracks and plans too once `record_too` was called)."""
 
-    def __init__(self, transport: Transport, agent_ids: np.ndarray, stamps_ns: np.ndarray, stop_at_collision: bool) -> None:
+    def __init__(self, transport: Transport, agent_ids: np.ndarray, stamps_ns: np.ndarray, stop_at_collision: bool,
+                 profile: Profile) -> None:
         self.transport = transport
+        # tracks and plans are read where the profile puts them, in its types; the rest is the graph's own
+        self._layers: dict[str, ObjectsLayer | PlanLayer] = {TRACKING: profile.tracks, PLAN: profile.plan}
         self.present: dict[str, int] = {}  # node name -> pid, from /attack/nodes
         self.announced: dict[str, set[int]] = {}  # node name -> every pid announced under it (two graphs: two)
         self.received: dict[str, dict[int, Any]] = {}  # topic -> stamp -> decoded value
@@ -76,18 +90,29 @@ class LockstepClient:
             if stamp is not None:  # a message without a stamp belongs to no frame
                 received[stamp] = value
 
-        self.transport.subscriber(topic, TOPIC_TYPES[topic], callback=keep, raw=True, wake=False)
+        layer = self._layers.get(topic)
+        wire, msgtype = (layer.topic, layer.msgtype) if layer is not None else (topic, TOPIC_TYPES[topic])
+        self.transport.subscriber(wire, msgtype, callback=keep, raw=True, wake=False)
 
     def _decode(self, topic: str, data: bytes) -> tuple[int | None, Any]:
-        """(stamp, value) of a payload: EgoState, (minimum, distance per agent id), tracks, or plan."""
+        """(stamp, value) of a payload: EgoState, (minimum, distance per agent id), tracks, or a plan's
+        payload as it came (`plan` decodes it once the ego's position at its frame is in)."""
         if topic == ODOMETRY:
             return msgs.ego_from_cdr(data, ODOMETRY)
         if topic == RULE_DIAGNOSTICS:
             stamp, minimum, per_agent = parse_rule_diagnostics(data)
             return stamp, (minimum, per_agent)
-        if topic == TRACKING:
-            return cdr.decode_objects(data, TRACKING)
-        return plan_from_cdr(data, self._stamps[0], topic)
+        layer = self._layers[topic]
+        if isinstance(layer, ObjectsLayer):
+            return layer.decode(data, layer.topic)
+        return cdr.header_stamp(data, layer.topic), data
+
+    def plan(self, stamp: int) -> Trajectory:
+        """The plan received for the frame stamped `stamp`, timed as the player timed it."""
+        layer = self._layers[PLAN]
+        assert isinstance(layer, PlanLayer)
+        ego = self.received[ODOMETRY][stamp]
+        return layer.decode(self.received[PLAN][stamp], self._stamps[0], (ego.x, ego.y), layer.topic)[1]
 
     def send(self, errors: PerceptionErrors) -> int:
         """Publish a rollout's errors under a fresh rollout id; forget the previous rollout's messages."""

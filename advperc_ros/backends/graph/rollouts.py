@@ -48,8 +48,9 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import GraphError, RolloutFault
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 from advperc_ros.params import AttackParams
+from advperc_ros.ros.interfaces.registry import load_profile
 from advperc_ros.ros.lockstep import Status
-from advperc_ros.ros.topics import ERRORS, PLAN
+from advperc_ros.ros.topics import ERRORS
 from advperc_ros.ros.transport import Transport
 
 PLANNER_NODE = "planner"
@@ -69,6 +70,7 @@ class GraphRollouts:
                  transport: Transport | None = None, configs: CoreConfigs | None = None) -> None:
         self.scenario = scenario
         self.params = params
+        self.profile = load_profile(params.graph.interface)
         self._given_transport = transport
         agents = scenario.agents
         self._agent_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]
@@ -102,7 +104,7 @@ class GraphRollouts:
             self.processes.start()
         if self._client is None:  # a given transport keeps its client (and its rollout ids) across restarts
             self._client = LockstepClient(self._transport(), self._agent_ids, self.scenario.stamps_ns,
-                                          self.params.stop_at_collision)
+                                          self.params.stop_at_collision, self.profile)
             if self._recording:
                 self.client.record_too()
         while self._missing():
@@ -171,7 +173,7 @@ class GraphRollouts:
         tells who publishes the plans."""
         if self.params.graph.spawn_nodes or PLANNER_NODE in self.client.present:
             return AttackedPlanner(self.params.planner)
-        return AttackedPlanner(EXTERNAL, ", ".join(self.client.transport.publishers_of(PLAN)))
+        return AttackedPlanner(EXTERNAL, ", ".join(self.client.transport.publishers_of(self.profile.plan.topic)))
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
@@ -247,5 +249,5 @@ class GraphRollouts:
     def _judged(self, received: dict, frames: int, inconclusive: str | None,
                 recorded: tuple[int, int] | None) -> RolloutResult:
         """The result of what the graph published, judged as the embedded rollout judges its own."""
-        result = assemble(received, self._stamps, self._slots, frames, inconclusive, recorded)
+        result = assemble(received, self._stamps, self._slots, frames, inconclusive, recorded, self.client.plan)
         return judge(result, self.scenario.agents, self._config)

@@ -27,6 +27,10 @@ class Trajectory:
     yaw: np.ndarray
 
 
+EMPTY_PLAN = Trajectory(t=np.zeros(0), x=np.zeros(0), y=np.zeros(0), yaw=np.zeros(0))
+"""What a planner node answers when its planner failed: the rollout is then inconclusive."""
+
+
 @dataclass(frozen=True)
 class PlanningContext:
     """The static knowledge a planner is built with: road, route, frame period, ego footprint."""

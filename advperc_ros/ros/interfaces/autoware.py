@@ -1,0 +1,278 @@
+"""Autoware's interface: `DetectedObjects` from the detector, `PredictedObjects` to the planner,
+`autoware_planning_msgs/Trajectory` back, the ego's `Odometry` on `/localization/kinematic_state`.
+
+Conversions, and where they cannot be exact:
+
+- ids: Autoware names an object by a 16-byte UUID. An id of ours is its first 8 bytes (int64,
+  little endian), the rest zero; any UUID reads back as the int64 of its first 8 bytes, so a
+  tracker's own UUIDs keep telling objects apart. `DetectedObject` has no id: detections read
+  back numbered 0..n-1, as a detector's boxes are.
+- velocity: Autoware's twist is in the object's own frame (x along its heading); ours is in `map`.
+  It is rotated on the way out and back (a round trip is exact to within 1e-15 m/s).
+- confidence: `existence_probability` is a float32, so a score comes back rounded to float32;
+  no node of the graph computes anything from it.
+- shape: a bounding box (`dimensions` = length, width, height); a cylinder reads back as a square
+  of its diameter, a polygon as the extent of its footprint along the object's axes.
+- prediction: each predicted object carries one constant-velocity path (`PREDICTION_HORIZON` s in
+  steps of `PREDICTION_STEP` s), the tracker's own motion model, since Autoware's map-based
+  prediction needs a Lanelet2 map; classification is CAR with probability 1 (every object of the
+  bundled scenarios is a vehicle); covariances are zero (the boxes carry none).
+- plan: `time_from_start` carries each point's time, to the nanosecond (exact). Autoware's own
+  planners sample by distance and often leave it 0; such a trajectory is timed from its speeds:
+  the point nearest the ego is the plan's time, each later segment takes its length over the mean
+  of its two speeds, and the plan ends where the speed falls to zero (`STOPPED_SPEED`).
+"""
+
+import math
+
+import numpy as np
+
+from advperc_ros.core.boxes import BOX_FIELDS
+from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.exceptions import MessageError
+from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.cdr import TYPESTORE, Cdr, deserialize, quaternion_yaw
+from advperc_ros.ros.interfaces.base import Objects, ObjectsLayer, PlanLayer, Profile, objects_from_rows
+
+T = TYPESTORE.types
+DETECTED = "autoware_perception_msgs/msg/DetectedObjects"
+TRACKED = "autoware_perception_msgs/msg/TrackedObjects"
+PREDICTED = "autoware_perception_msgs/msg/PredictedObjects"
+TRAJECTORY = "autoware_planning_msgs/msg/Trajectory"
+
+DETECTIONS_TOPIC = "/perception/object_recognition/detection/objects"
+OBJECTS_TOPIC = "/perception/object_recognition/objects"
+TRACKED_TOPIC = "/perception/object_recognition/tracking/objects"
+TRAJECTORY_TOPIC = "/planning/scenario_planning/trajectory"
+KINEMATIC_STATE_TOPIC = "/localization/kinematic_state"
+
+PREDICTION_HORIZON = 8.0  # s
+PREDICTION_STEP = 0.5  # s
+STOPPED_SPEED = 1e-3  # m/s: a trajectory timed from its speeds ends where they fall below this
+_CAR = 1  # ObjectClassification.CAR
+_BOUNDING_BOX, _CYLINDER, _POLYGON = 0, 1, 2  # Shape.type
+_AVAILABLE = 2  # orientation_availability
+_ZEROS_36 = np.zeros(36)
+
+
+def _uuid(object_id: int):
+    return T["unique_identifier_msgs/msg/UUID"](
+        uuid=np.frombuffer(int(object_id).to_bytes(8, "little", signed=True) + bytes(8), np.uint8).copy())
+
+
+def _vector3(x: float = 0.0, y: float = 0.0, z: float = 0.0):
+    return T["geometry_msgs/msg/Vector3"](x=float(x), y=float(y), z=float(z))
+
+
+def _with_covariance(kind: str, value):
+    field = "pose" if kind == "Pose" else "twist" if kind == "Twist" else "accel"
+    return T[f"geometry_msgs/msg/{kind}WithCovariance"](**{field: value, "covariance": _ZEROS_36.copy()})
+
+
+def _twist(vx: float, vy: float, yaw: float):
+    """The object-frame twist of a `map`-frame velocity."""
+    cos, sin = math.cos(yaw), math.sin(yaw)
+    return T["geometry_msgs/msg/Twist"](linear=_vector3(cos * vx + sin * vy, -sin * vx + cos * vy), angular=_vector3())
+
+
+def _shape(length: float, width: float, height: float):
+    return T["autoware_perception_msgs/msg/Shape"](type=_BOUNDING_BOX, footprint=T["geometry_msgs/msg/Polygon"](points=[]),
+                                                   dimensions=_vector3(length, width, height))
+
+
+def _classification():
+    return [T["autoware_perception_msgs/msg/ObjectClassification"](label=_CAR, probability=1.0)]
+
+
+def _rows(objects: Objects):
+    return zip(objects["ids"].tolist(), *(objects[name].tolist() for name in BOX_FIELDS))
+
+
+def _duration(ns: int):
+    return T["builtin_interfaces/msg/Duration"](sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000))
+
+
+def _predicted_path(x: float, y: float, yaw: float, vx: float, vy: float):
+    steps = np.arange(int(round(PREDICTION_HORIZON / PREDICTION_STEP)) + 1) * PREDICTION_STEP
+    return T["autoware_perception_msgs/msg/PredictedPath"](
+        path=[msgs.pose(x + vx * s, y + vy * s, yaw) for s in steps.tolist()],
+        time_step=_duration(int(round(PREDICTION_STEP * 1e9))), confidence=1.0)
+
+
+def encode_detected(objects: Objects, stamp_ns: int, kind: str = "perception") -> bytes:
+    """A frame of boxes as a DetectedObjects' CDR (`kind` unused: the type has no colour)."""
+    items = []
+    for _, x, y, yaw, vx, vy, length, width, height, score in _rows(objects):
+        kinematics = T["autoware_perception_msgs/msg/DetectedObjectKinematics"](
+            pose_with_covariance=_with_covariance("Pose", msgs.pose(x, y, yaw)), has_position_covariance=False,
+            orientation_availability=_AVAILABLE, twist_with_covariance=_with_covariance("Twist", _twist(vx, vy, yaw)),
+            has_twist=True, has_twist_covariance=False)
+        items.append(T["autoware_perception_msgs/msg/DetectedObject"](
+            existence_probability=_probability(score), classification=_classification(), kinematics=kinematics,
+            shape=_shape(length, width, height)))
+    msg = T[DETECTED](header=msgs.header(stamp_ns), objects=items)
+    return bytes(TYPESTORE.serialize_cdr(msg, DETECTED))
+
+
+def encode_tracked(objects: Objects, stamp_ns: int, kind: str = "tracking") -> bytes:
+    """A frame of boxes as a TrackedObjects' CDR."""
+    items = []
+    for object_id, x, y, yaw, vx, vy, length, width, height, score in _rows(objects):
+        kinematics = T["autoware_perception_msgs/msg/TrackedObjectKinematics"](
+            pose_with_covariance=_with_covariance("Pose", msgs.pose(x, y, yaw)),
+            twist_with_covariance=_with_covariance("Twist", _twist(vx, vy, yaw)),
+            acceleration_with_covariance=_with_covariance("Accel", T["geometry_msgs/msg/Accel"](
+                linear=_vector3(), angular=_vector3())),
+            orientation_availability=_AVAILABLE, is_stationary=False)
+        items.append(T["autoware_perception_msgs/msg/TrackedObject"](
+            object_id=_uuid(object_id), existence_probability=_probability(score), classification=_classification(),
+            kinematics=kinematics, shape=_shape(length, width, height)))
+    msg = T[TRACKED](header=msgs.header(stamp_ns), objects=items)
+    return bytes(TYPESTORE.serialize_cdr(msg, TRACKED))
+
+
+def encode_predicted(objects: Objects, stamp_ns: int, kind: str = "tracking") -> bytes:
+    """A frame of boxes as a PredictedObjects' CDR, each with its constant-velocity path."""
+    items = []
+    for object_id, x, y, yaw, vx, vy, length, width, height, score in _rows(objects):
+        kinematics = T["autoware_perception_msgs/msg/PredictedObjectKinematics"](
+            initial_pose_with_covariance=_with_covariance("Pose", msgs.pose(x, y, yaw)),
+            initial_twist_with_covariance=_with_covariance("Twist", _twist(vx, vy, yaw)),
+            initial_acceleration_with_covariance=_with_covariance("Accel", T["geometry_msgs/msg/Accel"](
+                linear=_vector3(), angular=_vector3())),
+            predicted_paths=[_predicted_path(x, y, yaw, vx, vy)])
+        items.append(T["autoware_perception_msgs/msg/PredictedObject"](
+            object_id=_uuid(object_id), existence_probability=_probability(score), classification=_classification(),
+            kinematics=kinematics, shape=_shape(length, width, height)))
+    msg = T[PREDICTED](header=msgs.header(stamp_ns), objects=items)
+    return bytes(TYPESTORE.serialize_cdr(msg, PREDICTED))
+
+
+def _probability(score: float) -> float:
+    """A detection confidence as `existence_probability`; ground truth and tracks (nan) as 1."""
+    return 1.0 if math.isnan(score) else float(score)
+
+
+def _dimensions(shape, where: str) -> tuple[float, float, float]:
+    size = shape.dimensions
+    if shape.type == _BOUNDING_BOX:
+        return size.x, size.y, size.z
+    if shape.type == _CYLINDER:
+        return size.x, size.x, size.z
+    if shape.type == _POLYGON:
+        points = np.array([[p.x, p.y] for p in shape.footprint.points], dtype=float).reshape(-1, 2)
+        if not len(points):
+            raise MessageError(f"{where}: field 'shape.footprint' of a POLYGON shape has no points")
+        extent = points.max(axis=0) - points.min(axis=0)
+        return float(extent[0]), float(extent[1]), size.z
+    raise MessageError(f"{where}: field 'shape.type' is {shape.type}, not BOUNDING_BOX, CYLINDER or POLYGON")
+
+
+def _box(pose, twist, shape, score: float, where: str) -> tuple[float, ...]:
+    q = pose.orientation
+    yaw = quaternion_yaw(q.x, q.y, q.z, q.w)
+    cos, sin = math.cos(yaw), math.sin(yaw)
+    tx, ty = twist.linear.x, twist.linear.y
+    return (pose.position.x, pose.position.y, yaw, cos * tx - sin * ty, sin * tx + cos * ty,
+            *_dimensions(shape, where), float(score))
+
+
+def _object_id(uuid) -> int:
+    return int.from_bytes(bytes(np.asarray(uuid.uuid, dtype=np.uint8)[:8]), "little", signed=True)
+
+
+def decode_detected(data: Cdr, where: str) -> tuple[int | None, Objects]:
+    msg = deserialize(data, DETECTED, where)
+    rows = []
+    for i, item in enumerate(msg.objects):
+        k = item.kinematics
+        twist = k.twist_with_covariance.twist if k.has_twist else T["geometry_msgs/msg/Twist"](
+            linear=_vector3(), angular=_vector3())
+        rows.append(_box(k.pose_with_covariance.pose, twist, item.shape, item.existence_probability, f"{where}, object {i}"))
+    return msgs.stamp_ns(msg.header.stamp), objects_from_rows(list(range(len(rows))), rows, where)
+
+
+def decode_tracked(data: Cdr, where: str) -> tuple[int | None, Objects]:
+    msg = deserialize(data, TRACKED, where)
+    rows = [_box(item.kinematics.pose_with_covariance.pose, item.kinematics.twist_with_covariance.twist, item.shape,
+                 item.existence_probability, f"{where}, object {i}") for i, item in enumerate(msg.objects)]
+    ids = [_object_id(item.object_id) for item in msg.objects]
+    return msgs.stamp_ns(msg.header.stamp), objects_from_rows(ids, rows, where)
+
+
+def decode_predicted(data: Cdr, where: str) -> tuple[int | None, Objects]:
+    msg = deserialize(data, PREDICTED, where)
+    rows = [_box(item.kinematics.initial_pose_with_covariance.pose, item.kinematics.initial_twist_with_covariance.twist,
+                 item.shape, item.existence_probability, f"{where}, object {i}") for i, item in enumerate(msg.objects)]
+    ids = [_object_id(item.object_id) for item in msg.objects]
+    return msgs.stamp_ns(msg.header.stamp), objects_from_rows(ids, rows, where)
+
+
+def encode_trajectory(plan: Trajectory, stamp_ns: int) -> bytes:
+    """A plan computed at `stamp_ns` as a Trajectory's CDR: each point's `time_from_start` is its
+    time since the plan's first, in whole nanoseconds as `messages.trajectory_cdr` stamps a Path's
+    poses; `longitudinal_velocity_mps` is the speed along the poses towards the next point."""
+    offsets = np.rint(np.asarray(plan.t) * 1e9).astype(np.int64)
+    xs, ys = np.asarray(plan.x, dtype=float), np.asarray(plan.y, dtype=float)
+    steps = np.hypot(np.diff(xs), np.diff(ys)) / np.maximum(np.diff(offsets) * 1e-9, 1e-9)
+    speeds = np.append(steps, steps[-1:]) if len(steps) else np.zeros(len(xs))
+    points = [T["autoware_planning_msgs/msg/TrajectoryPoint"](
+        time_from_start=_duration(int(offset - offsets[0])), pose=msgs.pose(x, y, yaw), longitudinal_velocity_mps=float(v),
+        lateral_velocity_mps=0.0, acceleration_mps2=0.0, heading_rate_rps=0.0, front_wheel_angle_rad=0.0,
+        rear_wheel_angle_rad=0.0)
+        for offset, x, y, yaw, v in zip(offsets.tolist(), xs.tolist(), ys.tolist(), np.asarray(plan.yaw).tolist(),
+                                        speeds.tolist())]
+    msg = T[TRAJECTORY](header=msgs.header(stamp_ns), points=points)
+    return bytes(TYPESTORE.serialize_cdr(msg, TRAJECTORY))
+
+
+def decode_trajectory(data: Cdr, first_stamp_ns: int, ego_xy: tuple[float, float], where: str) -> tuple[int, Trajectory]:
+    """A Trajectory's CDR as (its stamp, the plan timed as the module docstring says)."""
+    msg = deserialize(data, TRAJECTORY, where)
+    stamp = msgs.stamp_ns(msg.header.stamp)
+    points = msg.points
+    xs = np.array([p.pose.position.x for p in points], dtype=float)
+    ys = np.array([p.pose.position.y for p in points], dtype=float)
+    yaws = np.array([quaternion_yaw(p.pose.orientation.x, p.pose.orientation.y, p.pose.orientation.z,
+                                    p.pose.orientation.w) for p in points], dtype=float)
+    offsets = np.array([p.time_from_start.sec * 1_000_000_000 + p.time_from_start.nanosec for p in points], dtype=np.int64)
+    if len(points) > 1 and np.any(offsets != offsets[0]):
+        t = (np.int64(stamp) + offsets - offsets[0] - np.int64(first_stamp_ns)) * 1e-9
+        return stamp, Trajectory(t=t, x=xs, y=ys, yaw=yaws)
+    speeds = np.array([p.longitudinal_velocity_mps for p in points], dtype=float)
+    return stamp, _timed_by_speed(xs, ys, yaws, speeds, (stamp - first_stamp_ns) * 1e-9, ego_xy)
+
+
+def _timed_by_speed(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, speeds: np.ndarray, now: float,
+                    ego_xy: tuple[float, float]) -> Trajectory:
+    if not len(xs):
+        return Trajectory(t=np.zeros(0), x=xs, y=ys, yaw=yaws)
+    start = int(np.argmin(np.hypot(xs - ego_xy[0], ys - ego_xy[1])))
+    xs, ys, yaws, speeds = xs[start:], ys[start:], yaws[start:], speeds[start:]
+    mean = (speeds[:-1] + speeds[1:]) / 2
+    moving = np.flatnonzero(mean < STOPPED_SPEED)
+    end = int(moving[0]) + 1 if len(moving) else len(xs)  # the last point reached before a stop
+    durations = np.hypot(np.diff(xs[:end]), np.diff(ys[:end])) / mean[:end - 1]
+    t = now + np.concatenate(([0.0], np.cumsum(durations)))
+    return Trajectory(t=t, x=xs[:end], y=ys[:end], yaw=yaws[:end])
+
+
+PROFILE = Profile(
+    name="autoware",
+    description="Autoware's types and topic names: DetectedObjects in, PredictedObjects to the planner, "
+                "Trajectory back, Odometry on /localization/kinematic_state",
+    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTED, encode_detected, decode_detected),
+    tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted),
+    plan=PlanLayer(TRAJECTORY_TOPIC, TRAJECTORY, encode_trajectory, decode_trajectory),
+    ego_topic=KINEMATIC_STATE_TOPIC,
+)
+
+TRACKED_PROFILE = Profile(
+    name="autoware_tracked",
+    description="as autoware, but the tracked objects go out as TrackedObjects on "
+                "/perception/object_recognition/tracking/objects, for a team that brings its own prediction node",
+    detections=PROFILE.detections,
+    tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked),
+    plan=PROFILE.plan,
+    ego_topic=KINEMATIC_STATE_TOPIC,
+)

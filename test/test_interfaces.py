@@ -1,0 +1,200 @@
+"""Interface profiles: each stack's types convert to and from the graph's boxes and plans as
+advperc_ros/ros/interfaces says (exactly where the types allow), refuse bad messages in one line,
+and, with ROS 2 sourced, are byte for byte and hash for hash the upstream packages' own types."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import need_ros
+
+from advperc_ros.core.boxes import BOX_FIELDS
+from advperc_ros.core.planners.base import EMPTY_PLAN, Trajectory
+from advperc_ros.exceptions import MessageError, UnknownProfile
+from advperc_ros.params import SCHEMA
+from advperc_ros.ros import cdr
+from advperc_ros.ros import messages as msgs
+from advperc_ros.ros.interfaces import autoware
+from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
+from advperc_ros.ros.stack_types import DEFINITIONS
+
+T = cdr.TYPESTORE.types
+STAMP = 1_700_000_123_456_789_012
+
+
+def boxes(n: int = 5, seed: int = 0) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    objects = {name: rng.uniform(-50, 50, n) for name in ("x", "y", "vx", "vy")}
+    objects.update(yaw=rng.uniform(-math.pi, math.pi, n), length=rng.uniform(3, 6, n), width=rng.uniform(1.5, 2.5, n),
+                   height=rng.uniform(1.2, 2.0, n), score=rng.uniform(0.1, 1.0, n))
+    objects["ids"] = np.sort(rng.choice(np.arange(-1000, 1000), n, replace=False)).astype(np.int64)
+    return objects
+
+
+def plan(seed: int = 0) -> Trajectory:
+    rng = np.random.default_rng(seed)
+    t = 12.3 + np.arange(40) * 0.1 + rng.uniform(0, 1e-3, 40)
+    return Trajectory(t=t, x=np.cumsum(rng.uniform(0, 2, 40)), y=rng.uniform(-1, 1, 40), yaw=rng.uniform(-0.2, 0.2, 40))
+
+
+@pytest.mark.parametrize("name", sorted(BUNDLED))
+@pytest.mark.parametrize("layer", ["detections", "tracks"])
+def test_boxes_round_trip_as_each_profile_says(name, layer):
+    """Positions, headings and sizes exactly (to 1e-12 of a quaternion's round trip); velocity where the
+    type has one; ids where it carries them."""
+    objects = boxes()
+    channel = getattr(load_profile(name), layer)
+    stamp, back = channel.decode(channel.encode(objects, STAMP, "perception"), channel.topic)
+    assert stamp == STAMP
+    has_ids = channel.msgtype != autoware.DETECTED
+    order = np.arange(len(objects["ids"])) if has_ids else np.argsort(objects["ids"])  # DetectedObjects: message order
+    if has_ids:
+        assert np.array_equal(back["ids"], objects["ids"])
+    else:
+        assert np.array_equal(back["ids"], np.arange(len(objects["ids"])))
+    for field in ("x", "y", "yaw", "length", "width", "height"):
+        np.testing.assert_allclose(back[field], objects[field][order], rtol=0, atol=1e-12, err_msg=field)
+    for field in ("vx", "vy"):
+        expected = objects[field][order] if channel.carries_velocity else np.zeros(len(order))
+        np.testing.assert_allclose(back[field], expected, rtol=0, atol=1e-12, err_msg=field)
+
+
+def test_autoware_twist_is_in_the_object_frame_and_ids_are_uuids():
+    """An object heading north (yaw pi/2) moving north at 10 m/s has twist.linear.x = 10 (forward), not
+    its map-frame vx; its UUID's first 8 bytes are its id."""
+    objects = {name: np.array([0.0]) for name in BOX_FIELDS}
+    objects.update(ids=np.array([-3], dtype=np.int64), yaw=np.array([math.pi / 2]), vy=np.array([10.0]),
+                   length=np.array([4.0]), width=np.array([2.0]), height=np.array([1.5]), score=np.array([math.nan]))
+    msg = cdr.TYPESTORE.deserialize_cdr(autoware.encode_predicted(objects, STAMP), autoware.PREDICTED)
+    twist = msg.objects[0].kinematics.initial_twist_with_covariance.twist.linear
+    assert twist.x == pytest.approx(10.0, abs=1e-12) and twist.y == pytest.approx(0.0, abs=1e-12)
+    uuid = bytes(msg.objects[0].object_id.uuid)
+    assert int.from_bytes(uuid[:8], "little", signed=True) == -3 and uuid[8:] == bytes(8)
+    path = msg.objects[0].kinematics.predicted_paths[0]
+    assert path.path[-1].position.y == pytest.approx(10.0 * autoware.PREDICTION_HORIZON)  # constant velocity
+    assert msg.objects[0].classification[0].label == 1  # CAR
+
+
+@pytest.mark.parametrize("name", sorted(BUNDLED))
+def test_plans_round_trip_to_the_nanosecond(name):
+    """Every profile's plan type times its points as a stamped Path does: the same times, bit for bit."""
+    layer = load_profile(name).plan
+    original = plan()
+    first = STAMP - 12_300_000_000
+    stamp, back = layer.decode(layer.encode(original, STAMP), first, (0.0, 0.0), layer.topic)
+    reference = msgs.trajectory_cdr(original, STAMP)
+    _, path = load_profile("advperc").plan.decode(reference, first, (0.0, 0.0), "path")
+    assert stamp == STAMP
+    assert np.array_equal(back.t, path.t)
+    for field in ("x", "y", "yaw"):
+        assert np.array_equal(getattr(back, field), getattr(path, field)), field
+    _, empty = layer.decode(layer.encode(EMPTY_PLAN, STAMP), first, (0.0, 0.0), layer.topic)
+    assert len(empty.t) == 0
+
+
+def _trajectory(xs, speeds) -> bytes:
+    points = [T["autoware_planning_msgs/msg/TrajectoryPoint"](
+        time_from_start=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0), pose=msgs.pose(x, 0.0, 0.0),
+        longitudinal_velocity_mps=float(v), lateral_velocity_mps=0.0, acceleration_mps2=0.0, heading_rate_rps=0.0,
+        front_wheel_angle_rad=0.0, rear_wheel_angle_rad=0.0) for x, v in zip(xs, speeds)]
+    msg = T[autoware.TRAJECTORY](header=msgs.header(STAMP), points=points)
+    return bytes(cdr.TYPESTORE.serialize_cdr(msg, autoware.TRAJECTORY))
+
+
+def test_an_autoware_trajectory_without_times_is_timed_from_the_ego_and_its_speeds():
+    """Sampled by distance (1 m), starting 3 m behind the ego, at 10 m/s: from the ego's nearest point
+    on, point i is reached (i m) / (10 m/s) after the plan's time; the points behind are dropped."""
+    xs = np.arange(-3.0, 30.0)
+    first = STAMP - 5_000_000_000
+    _, timed = autoware.decode_trajectory(_trajectory(xs, np.full(len(xs), 10.0)), first, (0.2, 1.0), "t")
+    assert timed.x[0] == 0.0 and len(timed.x) == 30
+    np.testing.assert_allclose(timed.t, 5.0 + timed.x / 10.0, rtol=0, atol=1e-12)
+
+
+def test_a_trajectory_timed_from_speeds_ends_where_the_speed_reaches_zero():
+    """Speeds 4 m/s falling to 0 at x = 5: segments take length over mean speed; the stop is the end."""
+    xs = np.arange(0.0, 10.0)
+    speeds = np.clip(4.0 - 0.8 * xs, 0.0, None)  # 0 from x = 5 on
+    _, timed = autoware.decode_trajectory(_trajectory(xs, speeds), STAMP, (0.0, 0.0), "t")
+    sent = speeds.astype(np.float32).astype(float)  # longitudinal_velocity_mps is a float32
+    means = (sent[:-1] + sent[1:]) / 2
+    assert len(timed.t) == 6  # points 0..5: the segment 4 -> 5 (mean 0.4) is driven, 5 -> 6 (mean 0) is not
+    np.testing.assert_allclose(timed.t, np.concatenate(([0.0], np.cumsum(1.0 / means[:5]))), rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", sorted(BUNDLED))
+def test_a_payload_of_another_type_is_one_line_naming_the_topic(name):
+    profile = load_profile(name)
+    wrong = cdr.encode_clock(STAMP)
+    for layer in (profile.detections, profile.tracks):
+        with pytest.raises(MessageError, match=f"^{layer.topic}: "):
+            layer.decode(wrong, layer.topic)
+    with pytest.raises(MessageError, match=f"^{profile.plan.topic}: "):
+        profile.plan.decode(wrong, 0, (0.0, 0.0), profile.plan.topic)
+
+
+def test_autoware_shapes_read_back_as_boxes_and_a_bad_one_is_refused():
+    objects = boxes(1)
+    msg = cdr.TYPESTORE.deserialize_cdr(autoware.encode_tracked(objects, STAMP), autoware.TRACKED)
+    shape = msg.objects[0].shape
+    square = [T["geometry_msgs/msg/Point32"](x=x, y=y, z=0.0) for x, y in ((-2, -1), (2, -1), (2, 1), (-2, 1))]
+    for kind, footprint, size in ((1, [], (3.0, 3.0)), (2, square, (4.0, 2.0))):
+        changed = msg.objects[0].__class__(**{**msg.objects[0].__dict__, "shape": shape.__class__(
+            type=kind, footprint=T["geometry_msgs/msg/Polygon"](points=footprint),
+            dimensions=T["geometry_msgs/msg/Vector3"](x=3.0, y=7.0, z=1.5))})
+        data = cdr.TYPESTORE.serialize_cdr(msg.__class__(header=msg.header, objects=[changed]), autoware.TRACKED)
+        _, back = autoware.decode_tracked(data, "tracks")
+        assert (back["length"][0], back["width"][0]) == size
+    for kind, footprint, says in ((2, [], "field 'shape.footprint'"), (7, [], "field 'shape.type' is 7")):
+        changed = msg.objects[0].__class__(**{**msg.objects[0].__dict__, "shape": shape.__class__(
+            type=kind, footprint=T["geometry_msgs/msg/Polygon"](points=footprint), dimensions=shape.dimensions)})
+        data = cdr.TYPESTORE.serialize_cdr(msg.__class__(header=msg.header, objects=[changed]), autoware.TRACKED)
+        with pytest.raises(MessageError, match=f"^tracks, object 0: {says}"):
+            autoware.decode_tracked(data, "tracks")
+
+
+def test_two_objects_with_one_uuid_are_refused():
+    objects = boxes(2)
+    objects["ids"][:] = 7
+    with pytest.raises(MessageError, match="field 'id': object 7 appears twice"):
+        autoware.decode_predicted(autoware.encode_predicted(objects, STAMP), "objects")
+
+
+def test_the_schema_offers_exactly_the_registered_profiles():
+    assert SCHEMA["graph.interface"].choices == tuple(BUNDLED)
+    with pytest.raises(UnknownProfile, match="unknown interface 'ros1' \\(interfaces: advperc, autoware"):
+        load_profile("ros1")
+
+
+def _share(package: str) -> Path:
+    from ament_index_python.packages import get_package_share_directory
+
+    return Path(get_package_share_directory(package))
+
+
+@pytest.mark.parametrize("msgtype", sorted(DEFINITIONS))
+def test_stack_types_are_the_upstream_packages_own(msgtype):
+    """With ROS 2 sourced (and the kit's message overlay): the RIHS01 hash rosbags computes from our
+    definition is the one rosidl generated for the upstream package, and rclpy's serialisation of a
+    message read from our bytes gives our bytes back."""
+    need_ros()
+    package, _, name = msgtype.split("/")
+    try:
+        module = need_ros(f"{package}.msg")
+    except pytest.skip.Exception:
+        raise
+    description = json.loads((_share(package) / "msg" / f"{name}.json").read_text())
+    assert cdr.TYPESTORE.hash_rihs01(msgtype) == description["type_hashes"][0]["hash_string"]
+    from rclpy.serialization import deserialize_message, serialize_message
+
+    examples = {autoware.PREDICTED: autoware.encode_predicted(boxes(), STAMP),
+                autoware.TRACKED: autoware.encode_tracked(boxes(), STAMP),
+                autoware.DETECTED: autoware.encode_detected(boxes(), STAMP),
+                autoware.TRAJECTORY: autoware.encode_trajectory(plan(), STAMP),
+                "vision_msgs/msg/Detection3DArray": load_profile("vision_msgs").detections.encode(boxes(), STAMP, "")}
+    if msgtype in examples:
+        data = examples[msgtype]
+        assert serialize_message(deserialize_message(data, getattr(module, name))) == data

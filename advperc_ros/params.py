@@ -165,6 +165,10 @@ class GraphParams:
                             "rollout is inconclusive; embedded, one plan call", positive=True, high=3600.0)
     spawn_nodes: bool = _param(True, "graph backend: start the five graph nodes as child processes (Cyclone DDS); "
                                "false uses nodes already running, e.g. from launch/attack.launch.py")
+    drive: str = _param("messages", "graph backend: how the player hands frames to the planner: messages (a plan "
+                        "answers every tracks message, stamped the same) or clock (for nodes on timers under use_sim_time: "
+                        "/clock advances to each frame once its tracks are out; the first plan stamped from it to the "
+                        "next frame is taken); docs/graph.md, Driving the planner", choices=("messages", "clock"))
     interface: str = _param(DEFAULT_INTERFACE, "graph backend: the message types and topic names the graph speaks to a "
                             "stack's own nodes (docs/plugging-in.md, Interface profiles)", choices=tuple(INTERFACES))
 
@@ -248,7 +252,8 @@ def _schema(cls: type, prefix: str = "") -> dict[str, Param]:
 
 
 SCHEMA: dict[str, Param] = _schema(AttackParams)
-EXECUTION = ("workers", "rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes")
+EXECUTION = ("workers", "rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes",
+             "graph.drive")
 """How rollouts are executed, not what they compute: left out of the report's params and the config
 hash, so the graph and embedded backends give the same report."""
 

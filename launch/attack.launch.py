@@ -3,12 +3,13 @@ orchestrator driving its search through them, all configured from one params fil
 
     ros2 launch advperc_ros attack.launch.py params:=config/idm_lane_following.yaml
     ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external output:=results/mine
-    ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external interface:=autoware
+    ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external interface:=autoware drive:=clock
     ros2 launch advperc_ros attack.launch.py params:=my.yaml output:=results/mine resume:=true  # after Ctrl-C
 
 `planner:=external` leaves our planner node out: run yours on the planner topics (docs/graph.md).
 `interface:=autoware` (or any profile of docs/plugging-in.md) makes the graph speak that stack's types
-and topic names, overriding the params file's `graph.interface`.
+and topic names, and `drive:=clock` drives a planner that runs on a timer under use_sim_time; each
+overrides the params file's `graph.interface` or `graph.drive`.
 The params file is validated before any node starts; the launch ends when the orchestrator does.
 The orchestrator reads the params file itself (only the graph settings are overridden), so its
 report is the one `ros2 run advperc_ros orchestrator` and `advperc attack` write for that file.
@@ -33,11 +34,12 @@ from launch_ros.actions import Node
 
 from advperc_ros.exits import EXIT_INPUT
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
-from advperc_ros.params import INTERFACES, ParamsError, load_params, resolve_bag
+from advperc_ros.params import INTERFACES, SCHEMA, ParamsError, load_params, resolve_bag
 from launch import LaunchDescription
 
 PACKAGE = "advperc_ros"
-ARGUMENTS = ("params", "planner", "output", "resume", "interface")  # every launch argument this file declares
+ARGUMENTS = ("params", "planner", "output", "resume", "interface", "drive")
+CHOICES = {"interface": tuple(INTERFACES), "drive": SCHEMA["graph.drive"].choices}  # overriding graph.<argument>  # every launch argument this file declares
 
 
 def _exit_with(code: int) -> None:
@@ -82,18 +84,20 @@ def _graph(context, *args, **kwargs):
     if planner not in ("ours", "external"):
         raise _refuse(f"launch argument 'planner' must be ours or external, got {planner!r}")
     external = planner == "external"
-    interface = LaunchConfiguration("interface").perform(context)
-    if interface and interface not in INTERFACES:
-        raise _refuse(f"launch argument 'interface' must be one of {', '.join(INTERFACES)}, got {interface!r}")
-    if interface:
-        params = params.with_values(**{"graph.interface": interface})
+    for argument, choices in CHOICES.items():
+        value = LaunchConfiguration(argument).perform(context)
+        if value and value not in choices:
+            raise _refuse(f"launch argument '{argument}' must be one of {', '.join(choices)}, got {value!r}")
+        if value:
+            params = params.with_values(**{f"graph.{argument}": value})
     nodes = [
         Node(package=PACKAGE, executable=spec.name, name=spec.name, output="screen",
              parameters=[ros_parameters(spec, params, bag)])
         for spec in SPECS
         if not (external and spec.name == "planner")
     ]
-    overrides = {"rollout_backend": "graph", "graph.spawn_nodes": False, "graph.interface": params.graph.interface}
+    overrides = {"rollout_backend": "graph", "graph.spawn_nodes": False, "graph.interface": params.graph.interface,
+                 "graph.drive": params.graph.drive}
     output = LaunchConfiguration("output").perform(context)
     if output:
         overrides["output"] = output
@@ -117,6 +121,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("interface", default_value="",
                               description="the stack's message types and topic names (advperc, autoware, ...); "
                                           "default: the params file's graph.interface"),
+        DeclareLaunchArgument("drive", default_value="",
+                              description="messages: planners answer every tracks message; clock: planners on timers "
+                                          "under use_sim_time; default: the params file's graph.drive"),
         DeclareLaunchArgument("resume", default_value="false",
                               description="true: finish the attack interrupted while writing to `output`"),
         OpaqueFunction(function=_graph),

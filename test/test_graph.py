@@ -244,13 +244,14 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
     assert all(p.poll() is not None for p in processes)  # shut down on exit
 
 
-@pytest.mark.parametrize("interface", ["autoware", "vision_msgs"])
-def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path, scenario, interface):
+@pytest.mark.parametrize("interface, drive", [("autoware", "clock"), ("vision_msgs", "messages")])
+def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path, scenario, interface, drive):
     """Behind Autoware's types (DetectedObjects, PredictedObjects, Trajectory, Odometry on
-    /localization/kinematic_state) our tracker and planner give the embedded attack rollout within
-    the graph's 1e-9, tracks and plans included; behind vision_msgs (detections without velocity) the
-    embedded rollout with the same interface, whose detections carry no velocity either."""
-    params = load_params(params_for(tmp_path, **{"graph.interface": interface}))
+    /localization/kinematic_state), driven by the clock, our tracker and planner give the embedded
+    attack rollout within the graph's 1e-9, tracks and plans included; behind vision_msgs (detections
+    without velocity) the embedded rollout with the same interface, whose detections carry no velocity
+    either."""
+    params = load_params(params_for(tmp_path, **{"graph.interface": interface, "graph.drive": drive}))
     stack = Stack(scenario, params)
     attack = lead_drop(scenario)
     with GraphRollouts(scenario, params, BAG) as graph:
@@ -433,12 +434,21 @@ def test_launch_file_builds_the_graph():
     spec = importlib.util.spec_from_file_location("attack_launch", REPO / "launch" / "attack.launch.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
+    started = []
+    real_node = module.Node
+    module.Node = lambda **kwargs: started.append(kwargs) or real_node(**kwargs)
     context = LaunchContext()
-    for planner, nodes in (("ours", 6), ("external", 5)):
+    for planner, nodes, interface, drive in (("ours", 6, "", ""), ("external", 5, "autoware", "clock")):
+        started.clear()
         context.launch_configurations.update(params=str(REPO / "config" / "idm_lane_following.yaml"), planner=planner,
-                                             output="", resume="false")
-        actions = module._graph(context)
-        assert len([a for a in actions if type(a).__name__ == "Node"]) == nodes
+                                             output="", resume="false", interface=interface, drive=drive)
+        module._graph(context)
+        assert len(started) == nodes
+        given = {node["name"]: {k: v for layer in node["parameters"] if isinstance(layer, dict) for k, v in layer.items()}
+                 for node in started}
+        for name in ("scenario_player", "error_injector", "tracker", "orchestrator"):  # every one, alike
+            assert given[name]["graph.interface"] == (interface or "advperc"), name
+        assert given["scenario_player"]["graph.drive"] == given["orchestrator"]["graph.drive"] == (drive or "messages")
 
 
 # ----- (f) graphs side by side, and what a killed one leaves ---------------------------------------------

@@ -12,6 +12,7 @@ import pytest
 from conftest import need_ros
 
 from advperc_ros.core.boxes import BOX_FIELDS
+from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.planners.base import EMPTY_PLAN, Trajectory
 from advperc_ros.exceptions import MessageError, UnknownProfile
 from advperc_ros.params import SCHEMA
@@ -105,24 +106,28 @@ def _trajectory(xs, speeds) -> bytes:
 
 
 def test_an_autoware_trajectory_without_times_is_timed_from_the_ego_and_its_speeds():
-    """Sampled by distance (1 m), starting 3 m behind the ego, at 10 m/s: from the ego's nearest point
-    on, point i is reached (i m) / (10 m/s) after the plan's time; the points behind are dropped."""
+    """Sampled by distance (1 m), starting 3 m behind the ego, at 10 m/s: the plan starts at the ego's
+    foot on it (x = 0.2), each point x is reached (x - 0.2 m) / (10 m/s) after the plan's time, and the
+    points behind are dropped."""
     xs = np.arange(-3.0, 30.0)
     first = STAMP - 5_000_000_000
     _, timed = autoware.decode_trajectory(_trajectory(xs, np.full(len(xs), 10.0)), first, (0.2, 1.0), "t")
-    assert timed.x[0] == 0.0 and len(timed.x) == 30
-    np.testing.assert_allclose(timed.t, 5.0 + timed.x / 10.0, rtol=0, atol=1e-12)
+    assert timed.x[0] == pytest.approx(0.2) and timed.x[1] == 1.0 and len(timed.x) == 30
+    np.testing.assert_allclose(timed.t, 5.0 + (timed.x - 0.2) / 10.0, rtol=0, atol=1e-12)
 
 
-def test_a_trajectory_timed_from_speeds_ends_where_the_speed_reaches_zero():
-    """Speeds 4 m/s falling to 0 at x = 5: segments take length over mean speed; the stop is the end."""
+def test_a_trajectory_timed_from_speeds_stops_where_the_speed_reaches_zero():
+    """Speeds 4 m/s falling to 0 at x = 5: segments take length over mean speed; the ego stops at x = 5
+    and waits there (the stop point held for STOP_HOLD)."""
     xs = np.arange(0.0, 10.0)
     speeds = np.clip(4.0 - 0.8 * xs, 0.0, None)  # 0 from x = 5 on
     _, timed = autoware.decode_trajectory(_trajectory(xs, speeds), STAMP, (0.0, 0.0), "t")
     sent = speeds.astype(np.float32).astype(float)  # longitudinal_velocity_mps is a float32
     means = (sent[:-1] + sent[1:]) / 2
-    assert len(timed.t) == 6  # points 0..5: the segment 4 -> 5 (mean 0.4) is driven, 5 -> 6 (mean 0) is not
-    np.testing.assert_allclose(timed.t, np.concatenate(([0.0], np.cumsum(1.0 / means[:5]))), rtol=0, atol=1e-12)
+    assert len(timed.t) == 7  # points 0..5: the segment 4 -> 5 (mean 0.4) is driven, 5 -> 6 (mean 0) is not
+    np.testing.assert_allclose(timed.t[:6], np.concatenate(([0.0], np.cumsum(1.0 / means[:5]))), rtol=0, atol=1e-12)
+    assert timed.x[-1] == timed.x[-2] == 5.0 and timed.t[-1] == timed.t[-2] + autoware.STOP_HOLD
+    assert follow_plan(timed, timed.t[5] + 2.0).x == 5.0
 
 
 @pytest.mark.parametrize("name", sorted(BUNDLED))
@@ -198,3 +203,20 @@ def test_stack_types_are_the_upstream_packages_own(msgtype):
     if msgtype in examples:
         data = examples[msgtype]
         assert serialize_message(deserialize_message(data, getattr(module, name))) == data
+
+
+def test_an_ego_a_hair_from_a_sample_point_still_gets_a_speed():
+    """The ego's foot 1e-12 m before a sample point made a segment of 1e-13 s, and the speed read from
+    the plan 0/0: nan odometry (seen with the Autoware example). Such points are one point."""
+    xs = np.arange(-3.0, 30.0)
+    _, timed = autoware.decode_trajectory(_trajectory(xs, np.full(len(xs), 10.0)), STAMP, (3.0 - 1e-12, 0.0), "t")
+    assert np.all(np.diff(timed.t) >= 1e-4)
+    assert follow_plan(timed, timed.t[0] + 0.1).v == pytest.approx(10.0)
+
+
+def test_a_plan_whose_poses_are_a_rounding_error_apart_is_refused_not_followed_at_nan():
+    from advperc_ros.exceptions import PlanError
+
+    t = np.array([3.0, np.nextafter(3.0, 4.0), 3.1])  # one ulp apart
+    with pytest.raises(PlanError, match="too close in time"):
+        follow_plan(Trajectory(t=t, x=np.array([0.0, 0.0, 1.0]), y=np.zeros(3), yaw=np.zeros(3)), 3.0)

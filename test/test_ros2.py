@@ -378,7 +378,7 @@ def _in_workspace(workspace: Path, command: str, domain: int) -> subprocess.Pope
 
 
 @pytest.mark.parametrize("arguments, line", [
-    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, output, resume, interface)"),
+    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, output, resume, interface, drive)"),
     ("interface:=ros1", "launch argument 'interface' must be one of advperc, autoware, autoware_tracked, vision_msgs, "
                         "got 'ros1'"),
     ("output:=x", "{missing}: no such params file"),

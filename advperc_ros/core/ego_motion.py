@@ -42,6 +42,8 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
     x, y, yaw = _interp(t_next, times, rows)
     (x_before, y_before), (x_after, y_after) = _interp(before, times, rows[:2]), _interp(after, times, rows[:2])
     moved = np.hypot(x_after - x_before, y_after - y_before)
+    if not after > before:  # poses a rounding error apart in time: no speed can be read from them
+        raise PlanError(f"plan poses around {t_next:.3f} s are too close in time ({half:.3g} s) to give a speed")
     return EgoState(x=x, y=y, yaw=wrap_angle(yaw), v=float(moved / (after - before)))
 
 

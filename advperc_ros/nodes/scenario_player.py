@@ -6,7 +6,13 @@ On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lo
    stamped t_k (frame 0: the bag's own start odometry, restamped t_0);
 2. wait for the rule value (/rules/diagnostics stamped t_k) and the plan (/planning/trajectory
    stamped t_k); messages with other stamps are ignored. Waiting for both at every published
-   frame, even when the rollout ends there, leaves no answer in flight when it ends;
+   frame, even when the rollout ends there, leaves no answer in flight when it ends.
+   With `graph.drive: clock` (planners on timers under use_sim_time) /clock is published last
+   instead: once the tracked objects stamped t_k are out, so that a timer the clock fires finds
+   them; the first plan stamped in [t_k, t_{k+1}) is taken. A rollout starts with the clock at
+   the scenario's last stamp, so that its step to t_0 is a jump back in every rollout, the first
+   too: ROS timers do not fire on a jump back, so a timer-driven node must take one as the start of
+   a rollout (reset, and plan at once; docs/graph.md);
 3. exactly as `core.rollout`: stop at a rule violation if `stop_at_collision`; an empty plan (the
    planner failed) or one that does not cover t_{k+1} makes the rollout inconclusive; else move the
    ego along the plan (`core.rollout.after_plan`, the embedded rollout's rule) and publish frame k+1;
@@ -54,15 +60,18 @@ class _Run:
     frame: int
     deadline: float
     ego_xy: tuple[float, float] = (0.0, 0.0)  # where the ego is at this frame (a plan without times is timed from it)
+    clocked: bool = True  # /clock shows this frame's time (drive: clock sets it once the frame's tracks are out)
     rule: float | None = None
     plan: Trajectory | None = None
 
 
 class ScenarioPlayer:
     def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, profile: Profile,
-                 logger: Logger) -> None:
+                 by_clock: bool, logger: Logger) -> None:
         self.scenario = read_scenario(bag)
         self._plan_layer = profile.plan
+        self._tracks_layer = profile.tracks
+        self._by_clock = by_clock
         self._stop_at_collision = stop_at_collision
         self._timeout = timeout
         self._log = logger
@@ -85,6 +94,8 @@ class ScenarioPlayer:
                 self._pub[topic].publish(topics[topic][0][1])
         transport.subscriber(READY, CONTROL_TYPE, callback=self.on_ready)
         transport.subscriber(profile.plan.topic, profile.plan.msgtype, callback=self.on_plan, raw=True)
+        if by_clock:
+            transport.subscriber(profile.tracks.topic, profile.tracks.msgtype, callback=self.on_tracks, raw=True)
         transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule, raw=True)
 
     def _stamp(self, frame: int) -> int:
@@ -98,12 +109,16 @@ class ScenarioPlayer:
 
     def _publish_frame(self, frame: int, odometry: bytes) -> None:
         stamp = self._stamp(frame)
-        self._pub[CLOCK].publish(cdr.encode_clock(stamp))
+        if not self._by_clock:
+            self._pub[CLOCK].publish(cdr.encode_clock(stamp))
+        elif frame == 0:
+            self._pub[CLOCK].publish(cdr.encode_clock(self._stamp(-1)))
         self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
         for publisher in self._ego:
             publisher.publish(odometry)
         run = self._running()
         run.frame = frame
+        run.clocked = not self._by_clock
         ego = msgs.ego_from_cdr(odometry, ODOMETRY)[1]
         run.ego_xy = (ego.x, ego.y)
         run.rule = run.plan = None
@@ -116,12 +131,26 @@ class ScenarioPlayer:
         self._run = _Run(rollout, 0, 0.0)
         self._publish_frame(0, self._start)
 
-    def on_plan(self, data: bytes) -> None:
-        if self._run is None:
+    def on_tracks(self, data: bytes) -> None:
+        """(drive: clock) The frame's tracked objects are out: advance /clock to the frame."""
+        run = self._run
+        if run is None or run.clocked:
             return
-        stamp, plan = self._plan_layer.decode(data, self._stamp(0), self._run.ego_xy, self._plan_layer.topic)
-        if stamp == self._stamp(self._run.frame):
-            self._run.plan = plan
+        stamp = self._tracks_layer.decode(data, self._tracks_layer.topic)[0]
+        if stamp == self._stamp(run.frame):
+            run.clocked = True
+            self._pub[CLOCK].publish(cdr.encode_clock(stamp))
+            self._step()  # a message-driven planner's plan may have come first
+
+    def on_plan(self, data: bytes) -> None:
+        run = self._run
+        if run is None or run.plan is not None:
+            return
+        stamp, plan = self._plan_layer.decode(data, self._stamp(0), run.ego_xy, self._plan_layer.topic)
+        frame_stamp = self._stamp(run.frame)
+        following = self._stamp(run.frame + 1) if run.frame + 1 < self.scenario.num_frames else None
+        if stamp == frame_stamp or (self._by_clock and frame_stamp < stamp and (following is None or stamp < following)):
+            run.plan = plan
             self._step()
 
     def on_rule(self, data: bytes) -> None:
@@ -134,7 +163,7 @@ class ScenarioPlayer:
 
     def _step(self) -> None:
         run = self._running()
-        if run.rule is None or run.plan is None:
+        if run.rule is None or run.plan is None or not run.clocked:
             return
         k = run.frame
         if violates(run.rule, self._stop_at_collision):
@@ -153,7 +182,8 @@ class ScenarioPlayer:
         run = self._run
         if run is None or time.monotonic() < run.deadline:
             return
-        missing = " and ".join(what for what, got in (("rule value", run.rule), ("plan", run.plan)) if got is None)
+        missing = " and ".join(what for what, got in (("rule value", run.rule), ("tracked objects", run.clocked or None),
+                                                      ("plan", run.plan)) if got is None)
         self._finish(Status.INCONCLUSIVE, f"frame {run.frame}: no {missing} stamped {self._stamp(run.frame)} within "
                                    f"{self._timeout:g} s (a node is dead or silent)", timeout=True)
 
@@ -172,10 +202,11 @@ class ScenarioPlayer:
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> ScenarioPlayer:
     return ScenarioPlayer(transport, values["bag"], values["stop_at_collision"], values["graph.timeout"],
-                          load_profile(values["graph.interface"]), logger)
+                          load_profile(values["graph.interface"]), values["graph.drive"] == "clock", logger)
 
 
-SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout", "graph.interface"), _build)
+SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout", "graph.interface", "graph.drive"),
+                _build)
 
 
 def main(args: list[str] | None = None) -> int:

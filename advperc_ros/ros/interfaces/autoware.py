@@ -18,9 +18,10 @@ Conversions, and where they cannot be exact:
   prediction needs a Lanelet2 map; classification is CAR with probability 1 (every object of the
   bundled scenarios is a vehicle); covariances are zero (the boxes carry none).
 - plan: `time_from_start` carries each point's time, to the nanosecond (exact). Autoware's own
-  planners sample by distance and often leave it 0; such a trajectory is timed from its speeds:
-  the point nearest the ego is the plan's time, each later segment takes its length over the mean
-  of its two speeds, and the plan ends where the speed falls to zero (`STOPPED_SPEED`).
+  planners sample by distance, start behind the ego and often leave it 0; such a trajectory is
+  timed from its speeds: the ego's foot on the polyline (pose and speed interpolated there) is the
+  plan's time, each later segment takes its length over the mean of its two speeds, and where the
+  speed falls to zero (`STOPPED_SPEED`) the ego stops and waits at that point.
 """
 
 import math
@@ -49,6 +50,8 @@ KINEMATIC_STATE_TOPIC = "/localization/kinematic_state"
 PREDICTION_HORIZON = 8.0  # s
 PREDICTION_STEP = 0.5  # s
 STOPPED_SPEED = 1e-3  # m/s: a trajectory timed from its speeds ends where they fall below this
+STOP_HOLD = 3600.0  # s: a trajectory that stops there holds its stop point this long
+MERGE_DISTANCE = 1e-3  # m: points this close are one (a foot on a sample would make a step of no time)
 _CAR = 1  # ObjectClassification.CAR
 _BOUNDING_BOX, _CYLINDER, _POLYGON = 0, 1, 2  # Shape.type
 _AVAILABLE = 2  # orientation_availability
@@ -245,16 +248,36 @@ def decode_trajectory(data: Cdr, first_stamp_ns: int, ego_xy: tuple[float, float
 
 def _timed_by_speed(xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, speeds: np.ndarray, now: float,
                     ego_xy: tuple[float, float]) -> Trajectory:
-    if not len(xs):
-        return Trajectory(t=np.zeros(0), x=xs, y=ys, yaw=yaws)
-    start = int(np.argmin(np.hypot(xs - ego_xy[0], ys - ego_xy[1])))
-    xs, ys, yaws, speeds = xs[start:], ys[start:], yaws[start:], speeds[start:]
+    if len(xs) < 2:
+        return Trajectory(t=np.zeros(0), x=xs[:0], y=ys[:0], yaw=yaws[:0])
+    # the ego's foot on the polyline (the nearest point of the nearest segment), where the plan's time is now
+    dx, dy = np.diff(xs), np.diff(ys)
+    lengths2 = np.maximum(dx * dx + dy * dy, 1e-18)
+    u = np.clip(((ego_xy[0] - xs[:-1]) * dx + (ego_xy[1] - ys[:-1]) * dy) / lengths2, 0.0, 1.0)
+    segment = int(np.argmin(np.hypot(xs[:-1] + u * dx - ego_xy[0], ys[:-1] + u * dy - ego_xy[1])))
+    w = float(u[segment])
+    foot = (xs[segment] + w * dx[segment], ys[segment] + w * dy[segment],
+            yaws[segment] + w * _angle(yaws[segment + 1] - yaws[segment]),
+            speeds[segment] + w * (speeds[segment + 1] - speeds[segment]))
+    rest = slice(segment + 1, None)
+    xs, ys = np.append(foot[0], xs[rest]), np.append(foot[1], ys[rest])
+    yaws, speeds = np.append(foot[2], yaws[rest]), np.append(foot[3], speeds[rest])
+    keep = np.append(True, np.hypot(np.diff(xs), np.diff(ys)) > MERGE_DISTANCE)  # the foot on a point: that point once
+    xs, ys, yaws, speeds = xs[keep], ys[keep], yaws[keep], speeds[keep]
     mean = (speeds[:-1] + speeds[1:]) / 2
-    moving = np.flatnonzero(mean < STOPPED_SPEED)
-    end = int(moving[0]) + 1 if len(moving) else len(xs)  # the last point reached before a stop
-    durations = np.hypot(np.diff(xs[:end]), np.diff(ys[:end])) / mean[:end - 1]
-    t = now + np.concatenate(([0.0], np.cumsum(durations)))
-    return Trajectory(t=t, x=xs[:end], y=ys[:end], yaw=yaws[:end])
+    stopped = np.flatnonzero(mean < STOPPED_SPEED)
+    end = int(stopped[0]) + 1 if len(stopped) else len(xs)  # the last point reached before a stop
+    t = now + np.concatenate(([0.0], np.cumsum(np.hypot(np.diff(xs[:end]), np.diff(ys[:end])) / mean[:end - 1])))
+    xs, ys, yaws = xs[:end], ys[:end], yaws[:end]
+    if len(stopped):  # it stops there and waits: the stop point held for STOP_HOLD
+        t, xs, ys, yaws = (np.append(t, t[-1] + STOP_HOLD), np.append(xs, xs[-1]), np.append(ys, ys[-1]),
+                           np.append(yaws, yaws[-1]))
+    return Trajectory(t=t, x=xs, y=ys, yaw=yaws)
+
+
+def _angle(delta: float) -> float:
+    """`delta` wrapped to [-pi, pi): the short way between two headings."""
+    return (delta + math.pi) % (2 * math.pi) - math.pi
 
 
 PROFILE = Profile(

@@ -488,3 +488,27 @@ def test_two_graphs_on_one_domain_never_write_a_no_collision_report(workspace, r
             assert not (tmp_path / f"graph{k}").exists()
             refused += "another graph is running" in errors[0]
     assert refused >= 1, [log[-1500:] for _, log in ended]
+
+
+# ----- a team's own stack: Autoware's messages, a planner on a timer ---------------------------------------
+
+def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_through_ros2_launch(
+        workspace, ros_domain, tmp_path):
+    """examples/autoware_planner.py (PredictedObjects in, a distance-sampled Trajectory out, a 10 Hz
+    timer under use_sim_time; nothing of ours imported) attacked with `interface:=autoware drive:=clock`:
+    every rollout conclusive, a collision found, the report naming the team's node."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
+    output = tmp_path / "attack"
+    planner = _in_workspace(workspace, f"python3 {REPO / 'examples' / 'autoware_planner.py'}", ros_domain)
+    try:
+        attack = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} output:={output} "
+                                          "planner:=external interface:=autoware drive:=clock", ros_domain)
+        code, log = _ended(attack, timeout=2 * TIMEOUT)
+    finally:
+        os.killpg(planner.pid, signal.SIGINT)
+        planner_log = _ended(planner, timeout=60)[1]
+    assert code == 0, _orchestrator_lines(log) + planner_log[-2000:]
+    report = _report(output)
+    assert report["collision"] is True and report["inconclusive_rollouts"] == 0, report
+    assert report["planner"] == "external" and report["planner_node"] == "/autoware_style_planner"
+    assert "Traceback" not in planner_log, planner_log[-3000:]

@@ -170,7 +170,7 @@ class GraphParams:
                         "/clock advances to each frame once its tracks are out; the first plan stamped from it to the "
                         "next frame is taken); docs/graph.md, Driving the planner", choices=("messages", "clock"))
     interface: str = _param(DEFAULT_INTERFACE, "graph backend: the message types and topic names the graph speaks to a "
-                            "stack's own nodes (docs/plugging-in.md, Interface profiles)", choices=tuple(INTERFACES))
+                            "stack's own nodes (docs/stacks.md, Interface profiles)", choices=tuple(INTERFACES))
 
 
 @dataclass(frozen=True)

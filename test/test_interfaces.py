@@ -220,3 +220,20 @@ def test_a_plan_whose_poses_are_a_rounding_error_apart_is_refused_not_followed_a
     t = np.array([3.0, np.nextafter(3.0, 4.0), 3.1])  # one ulp apart
     with pytest.raises(PlanError, match="too close in time"):
         follow_plan(Trajectory(t=t, x=np.array([0.0, 0.0, 1.0]), y=np.zeros(3), yaw=np.zeros(3)), 3.0)
+
+
+def test_the_docs_profile_table_is_the_registry_s():
+    """docs/stacks.md's table lists every profile's topics and types as the code has them."""
+    page = (Path(__file__).resolve().parent.parent / "docs" / "stacks.md").read_text()
+    table = page.split("<!-- profiles table")[1].split("<!-- end of profiles table")[0]
+    rows = {}
+    for line in table.splitlines()[3:]:
+        cells = [cell.strip() for cell in line.strip("|").split("|")]
+        rows[cells[0].split()[0].strip("`")] = [cell.replace("`", "").split() for cell in cells[1:]]
+    assert sorted(rows) == sorted(BUNDLED)
+    for name, (detections, tracks, plan, ego) in rows.items():
+        profile = load_profile(name)
+        assert detections == [profile.detections.topic, profile.detections.msgtype], name
+        assert tracks == [profile.tracks.topic, profile.tracks.msgtype], name
+        assert plan == [profile.plan.topic, profile.plan.msgtype], name
+        assert ego == [profile.ego_topic], name

@@ -151,7 +151,8 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         params = replace(params, planner=EXTERNAL, planner_params={})
     return AttackOutcome(scenario=scenario, params=params, heuristic_best=result.heuristic, best=result.best,
                          recorded=recorded, log=problem.log, wall_time_s=time.perf_counter() - started,
-                         planner_node=attacked.node, joint=result.joint, approach=result.approach)
+                         planner_node=attacked.node, tracker_node=attacked.tracker_node, joint=result.joint,
+                         approach=result.approach)
 
 
 def default_output(params: AttackParams, scenario_name: str) -> Path:
@@ -199,5 +200,5 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
 def summary(report: dict) -> dict:
     """What both ways print of a report when they finish: the scores of an attack found, or how
     close the search came and why nothing was found."""
-    found = ("nds", "nds_t", "fn", "tp") if report["collision"] else ("closest_approach", "message")
+    found = ("nds", "nds_t", "fn", "tp", "reproduced") if report["collision"] else ("closest_approach", "message")
     return {key: report[key] for key in ("scenario", "planner", "objective", "collision", *found, "rollouts")}

@@ -10,6 +10,8 @@ from advperc_ros.core.search.joint import Joint
 from advperc_ros.core.search.problem import Evaluation, LogRow
 from advperc_ros.params import AttackParams
 
+REPRODUCTION_TOLERANCE = 1e-9  # m: the graph's own tolerance against the embedded rollout (docs/graph.md)
+
 
 @dataclass(frozen=True)
 class AttackOutcome:
@@ -21,6 +23,7 @@ class AttackOutcome:
     log: list[LogRow]
     wall_time_s: float
     planner_node: str | None = None  # the external planner node, when one planned
+    tracker_node: str | None = None  # the external tracker node, when one tracked
     # when no single drop collided: the joint drops, with the ego's rollout with every vehicle hidden
     # (the most any drop can take away) and the agents of the failure mode they found, if any
     joint: Joint | None = None
@@ -33,6 +36,19 @@ class AttackOutcome:
         if self.best is None:
             raise ValueError(f"{self.scenario.name}: no attack was found")
         return self.best
+
+    @property
+    def reproduced(self) -> bool | None:
+        """Whether the attack, rolled out again at the end (`recorded`), gave the verdict and the
+        minimum signed distance the search saw (within REPRODUCTION_TOLERANCE); None without an
+        attack. A planner or node whose output depends on more than its reset and its inputs (state
+        kept across resets, wall-clock timing) makes the search's attack a claim nobody can replay:
+        this is where that shows."""
+        if self.best is None or self.recorded is None:
+            return None
+        found, again = self.best.rollout, self.recorded
+        return bool(found.collided == again.collided and found.inconclusive == again.inconclusive
+                    and abs(found.min_signed_distance - again.min_signed_distance) <= REPRODUCTION_TOLERANCE)
 
     @property
     def attack_rollout(self) -> RolloutResult:

@@ -71,10 +71,13 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     }
     if outcome.planner_node is not None:
         report["planner_node"] = outcome.planner_node
+    if outcome.tracker_node is not None:  # a team's tracker made the tracks: ours and its parameters did not
+        report["tracker_node"] = outcome.tracker_node
     if best is not None:
         rollout = outcome.attack_rollout
         frame, slot = rollout.closest_approach()
         report.update(
+            reproduced=outcome.reproduced,
             min_signed_distance=rounded("min_signed_distance", rollout.min_signed_distance),
             collision_frame=frame,
             collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
@@ -105,7 +108,9 @@ def _fmt(value, digits: int = 2) -> str:
 
 def _planner_label(report: dict) -> str:
     node = report.get("planner_node")
-    return report["planner"] if node is None else f"{report['planner']} ({node or 'node name unknown'})"
+    label = report["planner"] if node is None else f"{report['planner']} ({node or 'node name unknown'})"
+    tracker = report.get("tracker_node")
+    return label if tracker is None else f"{label} on the tracks of external tracker {tracker or '(node name unknown)'}"
 
 
 def report_markdown(report: dict) -> str:
@@ -118,6 +123,11 @@ def report_markdown(report: dict) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+NOT_REPRODUCED = ("- **not reproduced**: rolled out again after the search, this attack did not give the verdict and "
+                  "minimum signed distance the search saw, so the planner (or a node of the graph) depends on more "
+                  "than its reset and its inputs; the attack and its bag may not replay")
 
 
 def _table(report: dict) -> list[str]:
@@ -136,6 +146,7 @@ def _table(report: dict) -> list[str]:
         "",
         f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
         f"min signed distance {report['min_signed_distance']:.3f} m",
+        *([] if report["reproduced"] else [NOT_REPRODUCED]),
         *([f"- no single agent's drop collided: agents {listed_ids(joint)} dropped jointly"] if joint else []),
         "- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
     ]

@@ -6,7 +6,9 @@ orchestrator driving its search through them, all configured from one params fil
     ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external interface:=autoware drive:=clock
     ros2 launch advperc_ros attack.launch.py params:=my.yaml output:=results/mine resume:=true  # after Ctrl-C
 
-`planner:=external` leaves our planner node out: run yours on the planner topics (docs/graph.md).
+`planner:=external` leaves our planner node out: run yours on the planner topics (docs/graph.md);
+`tracker:=external` leaves our tracker out: yours reads the injector's detections and publishes
+the tracked objects the planner reads (docs/stacks.md).
 `interface:=autoware` (or any profile of docs/plugging-in.md) makes the graph speak that stack's types
 and topic names, and `drive:=clock` drives a planner that runs on a timer under use_sim_time; each
 overrides the params file's `graph.interface` or `graph.drive`.
@@ -38,7 +40,7 @@ from advperc_ros.params import INTERFACES, SCHEMA, ParamsError, load_params, res
 from launch import LaunchDescription
 
 PACKAGE = "advperc_ros"
-ARGUMENTS = ("params", "planner", "output", "resume", "interface", "drive")
+ARGUMENTS = ("params", "planner", "tracker", "output", "resume", "interface", "drive")
 CHOICES = {"interface": tuple(INTERFACES), "drive": SCHEMA["graph.drive"].choices}  # overriding graph.<argument>  # every launch argument this file declares
 
 
@@ -80,10 +82,13 @@ def _graph(context, *args, **kwargs):
         bag = resolve_bag(params).resolve()
     except ParamsError as exc:
         raise _refuse(str(exc)) from None
-    planner = LaunchConfiguration("planner").perform(context)
-    if planner not in ("ours", "external"):
-        raise _refuse(f"launch argument 'planner' must be ours or external, got {planner!r}")
-    external = planner == "external"
+    external = set()  # the nodes a team brings: ours are left out
+    for argument in ("planner", "tracker"):
+        value = LaunchConfiguration(argument).perform(context)
+        if value not in ("ours", "external"):
+            raise _refuse(f"launch argument '{argument}' must be ours or external, got {value!r}")
+        if value == "external":
+            external.add(argument)
     for argument, choices in CHOICES.items():
         value = LaunchConfiguration(argument).perform(context)
         if value and value not in choices:
@@ -94,7 +99,7 @@ def _graph(context, *args, **kwargs):
         Node(package=PACKAGE, executable=spec.name, name=spec.name, output="screen",
              parameters=[ros_parameters(spec, params, bag)])
         for spec in SPECS
-        if not (external and spec.name == "planner")
+        if spec.name not in external
     ]
     overrides = {"rollout_backend": "graph", "graph.spawn_nodes": False, "graph.interface": params.graph.interface,
                  "graph.drive": params.graph.drive}
@@ -117,6 +122,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("params", default_value="", description="orchestrator params YAML (as for `advperc attack`)"),
         DeclareLaunchArgument("planner", default_value="ours",
                               description="ours: start our planner node; external: leave it out and use yours"),
+        DeclareLaunchArgument("tracker", default_value="ours",
+                              description="ours: start our tracker node; external: leave it out and use yours (it reads "
+                                          "the interface's detections and publishes its tracked objects)"),
         DeclareLaunchArgument("output", default_value="", description="results folder (default results/<scenario>-seed<N>)"),
         DeclareLaunchArgument("interface", default_value="",
                               description="the stack's message types and topic names (advperc, autoware, ...); "

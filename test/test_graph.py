@@ -438,15 +438,16 @@ def test_launch_file_builds_the_graph():
     real_node = module.Node
     module.Node = lambda **kwargs: started.append(kwargs) or real_node(**kwargs)
     context = LaunchContext()
-    for planner, nodes, interface, drive in (("ours", 6, "", ""), ("external", 5, "autoware", "clock")):
+    for planner, tracker, nodes, interface, drive in (("ours", "ours", 6, "", ""),
+                                                      ("external", "external", 4, "autoware", "clock")):
         started.clear()
         context.launch_configurations.update(params=str(REPO / "config" / "idm_lane_following.yaml"), planner=planner,
-                                             output="", resume="false", interface=interface, drive=drive)
+                                             tracker=tracker, output="", resume="false", interface=interface, drive=drive)
         module._graph(context)
         assert len(started) == nodes
         given = {node["name"]: {k: v for layer in node["parameters"] if isinstance(layer, dict) for k, v in layer.items()}
                  for node in started}
-        for name in ("scenario_player", "error_injector", "tracker", "orchestrator"):  # every one, alike
+        for name in ("scenario_player", "error_injector", "orchestrator"):  # every one, alike
             assert given[name]["graph.interface"] == (interface or "advperc"), name
         assert given["scenario_player"]["graph.drive"] == given["orchestrator"]["graph.drive"] == (drive or "messages")
 

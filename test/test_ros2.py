@@ -378,7 +378,7 @@ def _in_workspace(workspace: Path, command: str, domain: int) -> subprocess.Pope
 
 
 @pytest.mark.parametrize("arguments, line", [
-    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, output, resume, interface, drive)"),
+    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, tracker, output, resume, interface, drive)"),
     ("interface:=ros1", "launch argument 'interface' must be one of advperc, autoware, autoware_tracked, vision_msgs, "
                         "got 'ros1'"),
     ("output:=x", "{missing}: no such params file"),
@@ -510,5 +510,27 @@ def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_thro
     assert code == 0, _orchestrator_lines(log) + planner_log[-2000:]
     report = _report(output)
     assert report["collision"] is True and report["inconclusive_rollouts"] == 0, report
+    assert report["reproduced"] is True  # the timer-driven node, driven by the clock, replays its attack
     assert report["planner"] == "external" and report["planner_node"] == "/autoware_style_planner"
     assert "Traceback" not in planner_log, planner_log[-3000:]
+
+
+def test_a_team_s_own_tracker_on_vision_msgs_detections_is_attacked_with_our_planner(workspace, ros_domain, tmp_path):
+    """examples/vision_tracker.py (Detection3DArray in, our MarkerArray tracks out; nothing of ours
+    imported) in place of our tracker with `tracker:=external interface:=vision_msgs`: the errors go
+    in at the detector's output and through the team's tracker to our planner; the report names it."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
+    output = tmp_path / "attack"
+    tracker = _in_workspace(workspace, f"python3 {REPO / 'examples' / 'vision_tracker.py'}", ros_domain)
+    try:
+        attack = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} output:={output} "
+                                          "tracker:=external interface:=vision_msgs", ros_domain)
+        code, log = _ended(attack, timeout=2 * TIMEOUT)
+    finally:
+        os.killpg(tracker.pid, signal.SIGINT)
+        tracker_log = _ended(tracker, timeout=60)[1]
+    assert code == 0, _orchestrator_lines(log) + tracker_log[-2000:]
+    report = _report(output)
+    assert report["collision"] is True and report["inconclusive_rollouts"] == 0 and report["reproduced"] is True, report
+    assert report["planner"] == "idm" and report["tracker_node"] == "/vision_tracker"
+    assert "on the tracks of external tracker /vision_tracker" in (output / "report.md").read_text()

@@ -18,10 +18,12 @@ EXTERNAL = "external"  # the `planner` of a report whose planner was a node of s
 @dataclass(frozen=True)
 class AttackedPlanner:
     """Which planner the rollouts went through: the params' own, or an external node (its name as
-    the middleware tells it, "" where it cannot), so the report names the system attacked."""
+    the middleware tells it, "" where it cannot), so the report names the system attacked; and the
+    tracker node whose tracks it planned on, when that was a team's own (None: ours)."""
 
     name: str
     node: str | None = None
+    tracker_node: str | None = None
 
 
 class Rollouts(Protocol):

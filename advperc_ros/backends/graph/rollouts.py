@@ -54,6 +54,7 @@ from advperc_ros.ros.topics import ERRORS
 from advperc_ros.ros.transport import Transport
 
 PLANNER_NODE = "planner"
+TRACKER_NODE = "tracker"
 STARTUP_TIMEOUT = 60.0  # s for the children to start, discover each other and pass the warm-up
 WARMUP_STALL = 0.5  # s without progress after which a warm-up rollout is first re-sent
 GRACE = 5.0  # s beyond graph.timeout before a silent graph is declared dead
@@ -170,10 +171,13 @@ class GraphRollouts:
     def attacked_planner(self) -> AttackedPlanner:
         """Our planner node (started by us, or announced on /attack/nodes: the launch file
         configures it from the same params), else an external node, named where the middleware
-        tells who publishes the plans."""
-        if self.params.graph.spawn_nodes or PLANNER_NODE in self.client.present:
-            return AttackedPlanner(self.params.planner)
-        return AttackedPlanner(EXTERNAL, ", ".join(self.client.transport.publishers_of(self.profile.plan.topic)))
+        tells who publishes the plans; the same for the tracker whose tracks it read."""
+        ours = self.params.graph.spawn_nodes
+        publishers = self.client.transport.publishers_of
+        tracker = None if ours or TRACKER_NODE in self.client.present else ", ".join(publishers(self.profile.tracks.topic))
+        if ours or PLANNER_NODE in self.client.present:
+            return AttackedPlanner(self.params.planner, tracker_node=tracker)
+        return AttackedPlanner(EXTERNAL, ", ".join(publishers(self.profile.plan.topic)), tracker)
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall

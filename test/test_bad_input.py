@@ -243,6 +243,10 @@ def _cases() -> list[Case]:
         Case("advperc pem fit BAG --output", "output where nothing can be made (`/proc`)", lambda f: ["pem", "fit", str(GOOD_BAG), "--output", "/proc/m.json"], "cannot create the model file", "/proc/m.json"),
         Case("advperc import-commonroad XML", "recording missing", lambda f: ["import-commonroad", str(f / "none.xml")], "none.xml", "none.xml"),
         Case("advperc import-commonroad XML", "recording not XML", lambda f: (f / "r.xml").write_text("<<<") and ["import-commonroad", str(f / "r.xml"), "--output", str(f / "bag")], "r.xml", "r.xml"),
+        Case("advperc import-bag LOG", "log missing", lambda f: ["import-bag", str(f / "none")], "no such bag", "none"),
+        Case("advperc import-bag LOG", "log without odometry", lambda f: _drive_log(f, odometry=False) + ["--output", str(f / "bag")], "no odometry topic", "log"),
+        Case("advperc import-bag LOG --objects", "objects topic of another type", lambda f: _drive_log(f) + ["--objects", "/localization/kinematic_state", "--output", str(f / "bag")], "has type 'nav_msgs/msg/Odometry', not one of", "log"),
+        Case("advperc import-bag LOG", "log shorter than two frames", lambda f: _drive_log(f, frames=1) + ["--output", str(f / "bag")], "overlap for less than two frames", "log"),
         Case("advperc make-bags SCENARIO", "scenario file missing", lambda f: ["make-bags", str(f / "none.yaml"), "--output-dir", str(f / "bags")], "none.yaml", "none.yaml"),
         Case("advperc make-bags SCENARIO --output-dir", "output folder a file", lambda f: (f / "file").write_text("x") and ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "file")], "is not a folder", "file"),
         Case("advperc make-bags SCENARIO --output-dir", "output folder a symbolic link to nothing", lambda f: _link(f / "bags", "nowhere") or ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "bags")], "symbolic link to nothing", "bags"),
@@ -252,6 +256,25 @@ def _cases() -> list[Case]:
         Case("advperc make-bags SCENARIO", "scenario not YAML", lambda f: (f / "s.yaml").write_text("a: [") and ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "s.yaml", "s.yaml"),
     ]
     return cases
+
+
+def _drive_log(folder: Path, odometry: bool = True, frames: int = 5) -> list[str]:
+    """`import-bag` of a small Autoware log in `folder` (objects at rest, the ego driving at 5 m/s)."""
+    from test_import_bag import ODOMETRY, OBJECTS, write_log
+
+    from advperc_ros.core.scenario import EgoState
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros.interfaces import autoware
+
+    one = {"ids": np.array([1]), "x": np.array([30.0]), "y": np.array([0.0]), "yaw": np.array([0.0]), "vx": np.zeros(1),
+           "vy": np.zeros(1), "length": np.array([4.5]), "width": np.array([1.8]), "height": np.array([1.5]),
+           "score": np.array([np.nan])}
+    stamps = [k * 100_000_000 for k in range(frames)]
+    topics = {OBJECTS: (autoware.PREDICTED, [(t, autoware.encode_predicted(one, t)) for t in stamps])}
+    if odometry:
+        topics[ODOMETRY] = ("nav_msgs/msg/Odometry", [(t, msgs.ego_to_cdr(EgoState(0.5 * k, 0.0, 0.0, 5.0), t))
+                                                       for k, t in enumerate(stamps)])
+    return ["import-bag", str(write_log(folder / "log", topics))]
 
 
 def _link(path: Path, target: str) -> None:

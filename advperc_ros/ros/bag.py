@@ -171,6 +171,11 @@ def _read(path: Path, topics: Iterable[str]) -> _Contents:
     return _Contents(messages, listing, wrong)
 
 
+def bag_topics(path: Path) -> dict[str, tuple[str | None, int]]:
+    """Every topic of a bag -> (its type, None if its connections differ; its message count)."""
+    return _read(path, ()).topics
+
+
 def read_topics(path: Path, topics: Iterable[str], raw: bool = False
                 ) -> tuple[dict[str, list[tuple[int, Any]]], dict[str, str]]:
     """Messages of the given topics in log-time order, as (log time, message), and the bag's
@@ -281,11 +286,13 @@ def _ego(messages: list[tuple[int, bytes]], where: str) -> EgoState:
     return msgs.ego_from_cdr(messages[0][1], where)[1]
 
 
-def _route(messages: list[tuple[int, bytes]], where: str) -> Polyline:
+def route_of(messages: list[tuple[int, bytes]], where: str) -> Polyline:
+    """The route a bag's /ego/route holds (its first message)."""
     return _polyline(cdr.decode_path(messages[0][1], where)[1][:, :2], f"{where}: field 'poses'")
 
 
-def _lanes(messages: list[tuple[int, bytes]], where: str) -> tuple[Lane, ...]:
+def lanes_of(messages: list[tuple[int, bytes]], where: str) -> tuple[Lane, ...]:
+    """The lanes a bag's /map/lanes holds (its first message)."""
     markers = _deserialize(messages[0][1], TOPIC_TYPES[LANES], where)
     return tuple(Lane(id=name, centerline=_polyline(points, f"{where}: field 'points' of lane {name!r}"), width=width)
                  for name, points, width in msgs.markers_to_lanes(markers))
@@ -308,7 +315,7 @@ def check_ground_truth(path: Path) -> GroundTruthCheck:
     contents = _read(path, [GROUND_TRUTH, ODOMETRY, ROUTE, LANES])
     problems: list[str] = []
     parts: dict[str, Any] = {}  # topic -> what its decoder returns
-    for topic, decode in ((GROUND_TRUTH, _objects), (ODOMETRY, _ego), (ROUTE, _route), (LANES, _lanes)):
+    for topic, decode in ((GROUND_TRUTH, _objects), (ODOMETRY, _ego), (ROUTE, route_of), (LANES, lanes_of)):
         if topic == LANES and not contents.messages[LANES] and LANES not in contents.wrong:
             parts[LANES] = ()  # the map is optional
             continue

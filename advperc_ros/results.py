@@ -7,6 +7,7 @@ interrupted run never leaves a folder that looks complete.
 
 import csv
 import json
+from collections.abc import Callable
 from dataclasses import asdict, fields
 from pathlib import Path
 
@@ -24,6 +25,7 @@ from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr, topics
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import BagError
+from advperc_ros.ros.interfaces.registry import load_profile
 
 REPORT_JSON = "report.json"
 REPORT_MD = "report.md"
@@ -48,18 +50,34 @@ def write_search_log(path: Path, log: list[LogRow]) -> None:
 
 
 def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
-    """Per frame: ground truth, perceived objects, tracks, ego odometry, plan and rule value."""
+    """Per frame: ground truth, perceived objects, tracks, ego odometry, plan and rule value; under an
+    interface profile of its own (`graph.interface`), the perceived objects, tracks, plan and ego also
+    in the profile's types on its topics, so the team's own viewers and tools read the attack."""
     scenario = outcome.scenario
     rollout = outcome.attack_rollout
     tracks, plans = rollout.tracks or [], rollout.plans or []
     perceived = inject(scenario.agents, outcome.attack.errors)
+    profile = load_profile(outcome.params.graph.interface)
+    detections, tracked, planned = profile.detections, profile.tracks, profile.plan
+    # (topic, type, frames it has, its payload at frame k stamped ns) of each layer outside the contract
+    extra: list[tuple[str, str, int, Callable[[int, int], bytes]]] = [
+        (detections.topic, detections.msgtype, rollout.num_frames,
+         lambda k, ns: detections.encode(perceived.frame(k), ns, "perception")),
+        (tracked.topic, tracked.msgtype, len(tracks), lambda k, ns: tracked.encode(tracks[k], ns, "tracking")),
+        (planned.topic, planned.msgtype, len(plans), lambda k, ns: planned.encode(plans[k], ns)),
+    ]
+    extra = [layer for layer in extra if layer[0] not in topics.TOPIC_TYPES]
+    ego_too = profile.ego_topic != topics.ODOMETRY
     with bags.open_bag_for_writing(path) as bag:
         bags.write_scenario_static(bag, scenario)
         for k in range(rollout.num_frames):
             ns = int(scenario.stamps_ns[k])
             bag.write(topics.CLOCK, ns, cdr.encode_clock(ns))
             bag.write(topics.GROUND_TRUTH, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "ground_truth"))
-            bag.write(topics.ODOMETRY, ns, msgs.ego_to_cdr(_ego(rollout.ego[k]), ns))
+            odometry = msgs.ego_to_cdr(_ego(rollout.ego[k]), ns)
+            bag.write(topics.ODOMETRY, ns, odometry)
+            if ego_too:
+                bag.write(profile.ego_topic, ns, odometry, topics.TOPIC_TYPES[topics.ODOMETRY])
             distance = float(rollout.rule[k])
             bag.write(topics.RULE, ns, cdr.encode_float64(distance))
             bag.write(topics.RULE_DIAGNOSTICS, ns, msgs.diagnostics_cdr(
@@ -71,6 +89,9 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
                 bag.write(topics.TRACKING, ns, cdr.encode_objects(tracks[k], ns, "tracking"))
             if k < len(plans):
                 bag.write(topics.PLAN, ns, msgs.trajectory_cdr(plans[k], ns))
+            for topic, msgtype, frames, payload in extra:
+                if k < frames:
+                    bag.write(topic, ns, payload(k, ns), msgtype)
         bag.write(topics.SUMMARY, int(scenario.stamps_ns[rollout.num_frames - 1]), msgs.string(summary))
 
 

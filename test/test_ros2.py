@@ -287,8 +287,8 @@ def _bag_info(path: Path) -> tuple[str, dict[str, tuple[str, int]]]:
 
 
 def _recorded(path: Path) -> dict[str, tuple[str, int]]:
-    messages, _ = bags.read_topics(path, topics.TOPIC_TYPES, raw=True)
-    return {topic: (topics.TOPIC_TYPES[topic], len(found)) for topic, found in messages.items() if found}
+    """Every topic of a bag as rosbags reads it: (type, count)."""
+    return {topic: (msgtype, count) for topic, (msgtype, count) in bags.bag_topics(path).items()}
 
 
 def test_ros2_bag_info_lists_every_topic_of_our_bags(tmp_path, ros_domain):
@@ -296,13 +296,20 @@ def test_ros2_bag_info_lists_every_topic_of_our_bags(tmp_path, ros_domain):
     ground_truth = sorted((REPO / "bags").iterdir())
     attack = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack",
                              str(_small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
-                                               bag=str(REPO / "bags" / "idm_lane_following"))),
+                                               bag=str(REPO / "bags" / "idm_lane_following"),
+                                               graph={"interface": "autoware"})),
                              "--output", str(tmp_path / "out"), "--quiet"], capture_output=True, text=True, timeout=TIMEOUT)
     assert attack.returncode == 0, attack.stderr
     for path in [*ground_truth, tmp_path / "out" / "attack"]:
         distro, listed = _bag_info(path)
         assert distro == "jazzy" and listed == _recorded(path), path
-    assert {topics.PERCEPTION, topics.TRACKING, topics.PLAN, topics.RULE} <= set(_bag_info(tmp_path / "out" / "attack")[1])
+    listed = _bag_info(tmp_path / "out" / "attack")[1]
+    assert {topics.PERCEPTION, topics.TRACKING, topics.PLAN, topics.RULE} <= set(listed)
+    # under the Autoware profile the attacked layers in Autoware's own types too, as its tools read them
+    assert listed["/perception/object_recognition/detection/objects"][0] == "autoware_perception_msgs/msg/DetectedObjects"
+    assert listed["/perception/object_recognition/objects"][0] == "autoware_perception_msgs/msg/PredictedObjects"
+    assert listed["/planning/scenario_planning/trajectory"][0] == "autoware_planning_msgs/msg/Trajectory"
+    assert listed["/localization/kinematic_state"] == listed[topics.ODOMETRY]
 
 
 def test_ros2_bag_play_feeds_ground_truth_the_graph_accepts(ros_domain):

@@ -52,13 +52,15 @@ class BagWriter:
         self._writer = writer
         self._connections: dict[str, Connection] = {}
 
-    def write(self, topic: str, ns_time: int, message) -> None:
-        """Write a rosbags message, or its CDR payload (bytes, as `cdr` encodes it)."""
+    def write(self, topic: str, ns_time: int, message, msgtype: str | None = None) -> None:
+        """Write a rosbags message, or its CDR payload (bytes, as `cdr` encodes it); `msgtype` for a
+        topic outside the contract (an interface profile's)."""
+        msgtype = msgtype or TOPIC_TYPES[topic]
         if topic not in self._connections:
             self._connections[topic] = self._writer.add_connection(
-                topic, TOPIC_TYPES[topic], typestore=msgs.TYPESTORE, offered_qos_profiles=[_qos(topic in LATCHED)]
+                topic, msgtype, typestore=msgs.TYPESTORE, offered_qos_profiles=[_qos(topic in LATCHED)]
             )
-        self._writer.write(self._connections[topic], int(ns_time), cdr.payload(message, TOPIC_TYPES[topic]))
+        self._writer.write(self._connections[topic], int(ns_time), cdr.payload(message, msgtype))
 
     def set_custom_data(self, key: str, value: str) -> None:
         self._writer.set_custom_data(key, value)

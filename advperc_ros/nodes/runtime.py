@@ -23,7 +23,7 @@ import os
 import re
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -124,19 +124,24 @@ def ros_arguments_error(text: str) -> str:
     return f"parameter '{name}': cannot parse the override '{rule}'{hint}"
 
 
+def _override_rules(args: list[str]) -> Iterator[str]:
+    """The `[node:]name:=value` rules given with `-p` / `--param`, in order (the one scan of the
+    arguments both readers below use)."""
+    for flag, rule in itertools.pairwise(args):
+        if flag in ("-p", "--param"):
+            yield rule
+
+
 def _refused_override(args: list[str] | None) -> str | None:
     """What rcl would refuse among the `-p name:=value` overrides (a value that is not YAML, or
     a mapping), said before rcl says it in two lines of its own."""
-    args = list(args or [])
-    for flag, rule in itertools.pairwise(args):
-        if flag in ("-p", "--param"):
-            value = rule.partition(":=")[2]
-            try:
-                parsed = yaml.safe_load(value)
-            except yaml.YAMLError:
-                return ros_arguments_error(f"parameter override rule: '-p {rule}'")
-            if isinstance(parsed, dict):
-                return ros_arguments_error(f"parameter override rule: '-p {rule}'")
+    for rule in _override_rules(list(args or [])):
+        try:
+            parsed = yaml.safe_load(rule.partition(":=")[2])
+        except yaml.YAMLError:
+            return ros_arguments_error(f"parameter override rule: '-p {rule}'")
+        if isinstance(parsed, dict):
+            return ros_arguments_error(f"parameter override rule: '-p {rule}'")
     return None
 
 
@@ -155,8 +160,8 @@ def command_line_overrides(args: list[str] | None, node_name: str) -> dict[str, 
     args = list(sys.argv if args is None else args)
     ros = args[args.index("--ros-args") + 1:] if "--ros-args" in args else []
     values: dict[str, Any] = {}
-    for flag, rule in itertools.pairwise(ros):
-        if flag not in ("-p", "--param") or ":=" not in rule:
+    for rule in _override_rules(ros):
+        if ":=" not in rule:
             continue
         target, value = rule.split(":=", 1)
         node, _, name = target.rpartition(":")

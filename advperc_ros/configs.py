@@ -52,8 +52,9 @@ def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
 
 
 def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
-    """The tracker's gate and track lifetime, from dotted values (the tracker node's own)."""
-    return TrackerConfig(**_fields(TRACKER, values))
+    """The tracker's gate and track lifetime, from dotted values (the tracker node's own), and whether
+    it is in the loop at all (`attacked_layer`: detections, as the paper, or the tracks themselves)."""
+    return TrackerConfig(**_fields(TRACKER, values), in_loop=values["attacked_layer"] == "detections")
 
 
 def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningContext:

@@ -184,6 +184,9 @@ class AttackParams:
     seed: int = _param(0, "seed of the search's random draws; same params and seed give the same attack", low=0,
                        high=INT64_MAX)
     stop_at_collision: bool = _param(True, "end a rollout at its first rule violation")
+    attacked_layer: str = _param("detections", "where the errors go in: detections (the detector's output, before "
+                                 "the tracker, as the paper) or tracks (the objects the planner reads, our tracker left "
+                                 "out: for a team that brings only a planner)", choices=("detections", "tracks"))
     rule: RuleParams = RuleParams()
     ego: EgoParams = EgoParams()
     tracker: TrackerParams = TrackerParams()

@@ -63,6 +63,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         "bag_sha256": bags.digest(bag_path),
         "planner": params.planner,
         "objective": params.objective,
+        "attacked_layer": params.attacked_layer,
         "seed": params.seed,
         "collision": best is not None,
         "min_signed_distance": None,
@@ -115,7 +116,8 @@ def _planner_label(report: dict) -> str:
 
 def report_markdown(report: dict) -> str:
     """report.md: the report as the paper's Table 1 row, or why no collision was found."""
-    title = f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']})"
+    layer = ", errors on the tracked objects" if report["attacked_layer"] == "tracks" else ""
+    title = f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']}{layer})"
     lines = [title, ""] + (_table(report) if report["collision"] else _no_collision(report)) + [
         "",
         f"- seed {report['seed']}, config hash {report['config_hash']}, {report['rollouts']} rollouts, "

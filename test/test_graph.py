@@ -244,14 +244,16 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
     assert all(p.poll() is not None for p in processes)  # shut down on exit
 
 
-@pytest.mark.parametrize("interface, drive", [("autoware", "clock"), ("vision_msgs", "messages")])
-def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path, scenario, interface, drive):
+@pytest.mark.parametrize("interface, drive, layer", [("autoware", "clock", "detections"),
+                                                     ("vision_msgs", "messages", "tracks")])
+def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path, scenario, interface, drive, layer):
     """Behind Autoware's types (DetectedObjects, PredictedObjects, Trajectory, Odometry on
     /localization/kinematic_state), driven by the clock, our tracker and planner give the embedded
     attack rollout within the graph's 1e-9, tracks and plans included; behind vision_msgs (detections
     without velocity) the embedded rollout with the same interface, whose detections carry no velocity
-    either."""
-    params = load_params(params_for(tmp_path, **{"graph.interface": interface, "graph.drive": drive}))
+    either (and, with the tracked objects as the attacked layer, no tracker in between on either)."""
+    params = load_params(params_for(tmp_path, **{"graph.interface": interface, "graph.drive": drive,
+                                                 "attacked_layer": layer}))
     stack = Stack(scenario, params)
     attack = lead_drop(scenario)
     with GraphRollouts(scenario, params, BAG) as graph:
@@ -263,7 +265,7 @@ def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path
         np.testing.assert_allclose(got["vx"], want["vx"], rtol=0, atol=TOLERANCE)
     for got, want in zip(result.plans, embedded.plans):
         np.testing.assert_allclose(got.t, want.t, rtol=0, atol=TOLERANCE)
-    if interface == "vision_msgs":  # the interface changed what the tracker saw: not the MarkerArray rollout
+    if interface == "vision_msgs":  # the interface changed what the planner saw: not the MarkerArray rollout
         markers = Stack(scenario, params.with_values(**{"graph.interface": "advperc"})).rollout(attack, record=True)
         assert any(not np.allclose(a["vx"], b["vx"]) for a, b in zip(markers.tracks, embedded.tracks) if len(a["vx"]) == len(b["vx"]))
 

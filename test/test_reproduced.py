@@ -44,3 +44,4 @@ def test_a_planner_keeping_state_across_resets_is_caught(repo, tmp_path, capsys)
     assert NOT_REPRODUCED in markdown
     printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert printed["reproduced"] is False
+

@@ -11,7 +11,7 @@ from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.tracker import Tracker
+from advperc_ros.core.tracker import make_tracker
 from advperc_ros.params import AttackParams, params_from_values
 
 
@@ -28,7 +28,7 @@ class Stack:
         self.scenario = scenario
         self.params = params
         self.config = configs.rollout
-        self.tracker = Tracker(configs.tracker)
+        self.tracker = make_tracker(configs.tracker)
         self.planner = load_planner(params.planner, configs.planning_context(scenario), params.planner_params)
         self.attacked_planner = AttackedPlanner(params.planner)
         self._pool: ProcessPoolExecutor | None = None

@@ -28,7 +28,7 @@ from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
 from advperc_ros.core.rules import CollisionRule, excusable
 from advperc_ros.core.scenario import EgoState, Scenario
-from advperc_ros.core.tracker import Tracker
+from advperc_ros.core.tracker import ObjectTracker
 from advperc_ros.exceptions import PlanTimeout
 
 STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes following the plan
@@ -189,7 +189,7 @@ def plan_alarm(seconds: float | None) -> Iterator[Callable[[bool], object]]:
 def rollout(
     scenario: Scenario,
     errors: PerceptionErrors,
-    tracker: Tracker,
+    tracker: ObjectTracker,
     planner: Planner,
     config: RolloutConfig = RolloutConfig(),
     record: bool = False,

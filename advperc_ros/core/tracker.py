@@ -20,6 +20,7 @@ second track while the first coasts on as a phantom until it ages out. Attacks m
 """
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from filterpy.common import Q_discrete_white_noise
@@ -49,6 +50,9 @@ class TrackerConfig:
     accel_std: float = 2.0  # m/s^2, white-acceleration process noise
     heading_accel_std: float = 1.0  # 1/s^2 on cos/sin
     initial_velocity_std: float = 0.5  # m/s, trust in the detection's velocity
+    # False when the attacked layer is the tracked objects (param `attacked_layer: tracks`): no tracker
+    # between the errors and the planner, which reads the perturbed objects as they are
+    in_loop: bool = True
 
 
 @dataclass(frozen=True)
@@ -109,6 +113,31 @@ def _renormalise_heading(heading: np.ndarray) -> None:
     if np.count_nonzero(unit) < unit.size:
         norm[~unit] = 1.0
     heading /= norm
+
+
+class ObjectTracker(Protocol):
+    """What a rollout needs of the layer between perception and the planner."""
+
+    def reset(self) -> None: ...
+
+    def step(self, t: float, detections: dict[str, np.ndarray]) -> dict[str, np.ndarray]: ...
+
+
+class NoTracker:
+    """The attacked layer is the tracked objects: the planner reads the perturbed objects themselves,
+    one per agent with the agent's id, for a team that brings only a planner (its own tracker's
+    output is what it would attack)."""
+
+    def reset(self) -> None:
+        """Nothing is kept between frames."""
+
+    def step(self, t: float, detections: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        return detections
+
+
+def make_tracker(config: TrackerConfig) -> ObjectTracker:
+    """The paper's tracker, or none when the errors go in after it (`config.in_loop` false)."""
+    return Tracker(config) if config.in_loop else NoTracker()
 
 
 class Tracker:

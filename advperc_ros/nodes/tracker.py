@@ -3,14 +3,15 @@
 Every /perception/objects frame is answered with /tracking/objects stamped the same (confirmed
 tracks, coasting ones included). A frame stamped at or before the last answered one starts a
 new rollout and resets the tracker (`RolloutClock`); the tracker's time is counted from the
-rollout's first stamp, exactly as the embedded rollout counts it.
+rollout's first stamp, exactly as the embedded rollout counts it. With `attacked_layer: tracks` it
+tracks nothing: the perturbed objects go on as the tracks, one per agent (`core.tracker.NoTracker`).
 """
 
 import sys
 from typing import Any
 
 from advperc_ros.configs import tracker_config
-from advperc_ros.core.tracker import Tracker
+from advperc_ros.core.tracker import ObjectTracker, make_tracker
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
 from advperc_ros.ros.interfaces.base import ObjectsLayer
 from advperc_ros.ros.interfaces.registry import load_profile
@@ -19,7 +20,7 @@ from advperc_ros.ros.transport import Transport
 
 
 class TrackerNode:
-    def __init__(self, transport: Transport, tracker: Tracker, detections: ObjectsLayer, tracks: ObjectsLayer,
+    def __init__(self, transport: Transport, tracker: ObjectTracker, detections: ObjectsLayer, tracks: ObjectsLayer,
                  logger: Logger) -> None:
         self._tracker = tracker
         self._log = logger
@@ -44,10 +45,10 @@ class TrackerNode:
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> TrackerNode:
     profile = load_profile(values["graph.interface"])
-    return TrackerNode(transport, Tracker(tracker_config(values)), profile.detections, profile.tracks, logger)
+    return TrackerNode(transport, make_tracker(tracker_config(values)), profile.detections, profile.tracks, logger)
 
 
-SPEC = NodeSpec("tracker", ("tracker.gate", "tracker.max_age", "graph.interface"), _build)
+SPEC = NodeSpec("tracker", ("tracker.gate", "tracker.max_age", "attacked_layer", "graph.interface"), _build)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -3,6 +3,7 @@
 import importlib
 import itertools
 import os
+import re
 import shutil
 from pathlib import Path
 
@@ -63,17 +64,31 @@ def need_program(name: str) -> str:
     return path
 
 
-# ROS tests use domain ids 200..232 (test_dds and test_graph take 100..199), a fresh one per test while
-# they last; rclpy and the ros2 tools read ROS_DOMAIN_ID, and activate.sh keeps DDS on loopback.
-_ros_domains = itertools.cycle(range(200 + (os.getpid() % 3) * 11, 233))
+def _worker() -> tuple[int, int]:
+    """(this xdist worker's index, the number of workers); (0, 1) without xdist."""
+    name = os.environ.get("PYTEST_XDIST_WORKER", "gw0")
+    return int(name.removeprefix("gw") or 0), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+
+
+def _share(low: int, high: int) -> range:
+    """This worker's own slice of the domain ids low..high: two workers never use one id, so DDS tests
+    may run on every worker at once (each worker runs one test at a time)."""
+    index, count = _worker()
+    size = (high - low + 1) // max(count, 1)
+    return range(low + index * size, low + (index + 1) * size)
+
+
+# ROS tests use domain ids 200..232, bare-DDS tests 100..199, each worker its own slice of both; a fresh
+# id per test while they last. rclpy and the ros2 tools read ROS_DOMAIN_ID, and activate.sh keeps DDS on loopback.
+_ros_domains = itertools.cycle(_share(200, 232))
 
 
 def bare_dds_domains(offset: int):
-    """Domain ids 100..199 for a module's bare-DDS tests, from `offset` on by this process's id,
-    wrapping round: the DDS group runs one test at a time, so an id comes back only after the test
-    that had it is over (a range ending at 199 ran out when the process id put its start at 190)."""
-    start = (os.getpid() % 10) * 10 + offset
-    return (100 + (start + i) % 100 for i in itertools.count())
+    """Domain ids of this worker's slice of 100..199 for a module's bare-DDS tests, from `offset` on
+    (modulo the slice), wrapping round: a worker runs one test at a time, so an id comes back only
+    after the test that had it is over."""
+    ids = _share(100, 199)
+    return (ids[(offset + i) % len(ids)] for i in itertools.count())
 
 
 @pytest.fixture
@@ -91,21 +106,28 @@ def ros_domain(fresh_domain) -> int:
 
 
 # The suite runs on `pytest -n auto --dist loadgroup` (README), one xdist group a module, so that its module- and
-# session-scoped fixtures (an attack run once and read by many tests) are built on one worker only; every test
-# that puts traffic on DDS is in one group, run one after another on one worker, so the per-module domain ids
-# above never meet a test of another worker's at the same time.
-DDS_MODULES = {"test_dds", "test_graph", "test_ros2", "test_orchestrator_node"}
+# session-scoped fixtures (an attack run once and read by many tests) are built on one worker only. The DDS and
+# ROS tests are split over three groups (domain ids are per worker, above, so any two may run at once): bare DDS,
+# the ROS 2 tools and nodes, and the one test that runs docs/ros2.md's block (three whole attacks over ROS 2).
+DDS_MODULES = {"test_dds", "test_graph"}
+ROS_MODULES = {"test_ros2", "test_orchestrator_node"}
+LONGEST_TEST = "test_readme_ros_section_runs_as_written"
 
 
-# The groups that take a worker longest, longest first (`--durations=0` with ROS 2 sourced: the DDS group about
-# 570 s, the others 150 s down to 40 s); the rest take less and follow in file order.
-LONGEST_GROUPS = ("dds", "test_bundled_scenarios", "test_campaign", "test_obp", "test_junction_scenarios", "test_guided",
-                  "test_resume", "test_cli", "test_commonroad")
+# The groups that take a worker longest, longest first (`--durations=0` with ROS 2 sourced); the rest take
+# less and follow in file order.
+LONGEST_GROUPS = ("ros", "ros_readme", "dds", "test_junction_scenarios", "test_bundled_scenarios", "test_guided",
+                  "test_campaign", "test_resume", "test_cli", "test_commonroad", "test_obp", "test_import_bag",
+                  "test_reproduced")
 
 
 def _xdist_group(item) -> str:
     module = item.module.__name__.rpartition(".")[2]
-    return "dds" if module in DDS_MODULES or "fresh_domain" in item.fixturenames else module
+    if item.originalname == LONGEST_TEST:
+        return "ros_readme"
+    if module in ROS_MODULES or "fresh_domain" in item.fixturenames:
+        return "ros"
+    return "dds" if module in DDS_MODULES else module
 
 
 def pytest_configure(config):
@@ -115,9 +137,49 @@ def pytest_configure(config):
         config.option.loadscopereorder = False
 
 
+# ----- CI's second run, with ROS 2 sourced -----------------------------------------------------------------
+# The first run (the README's command) runs every test; those that need ROS skip. The second, with the kit
+# sourced and ADVPERC_ROS_RERUN=1, runs again what may behave otherwise with ROS 2 in the environment: every
+# test that skipped in the first run (recorded in pytest's cache), and every DDS and ROS module whole (the kit's
+# CYCLONEDDS_URI and ROS_DOMAIN_ID change what bare Cyclone does). Nothing may skip there.
+SKIPPED_KEY = "advperc/skipped"
+RERUN = os.environ.get("ADVPERC_ROS_RERUN") == "1"
+
+
+
+_SKIPPED: set[str] = set()
+
+
+def pytest_runtest_logreport(report):
+    """Remember the tests that skipped (on the controller, which sees every worker's reports; xdist
+    names them `<node id>@<group>`)."""
+    if report.skipped and not RERUN:
+        _SKIPPED.add(re.sub(r"@\w+$", "", report.nodeid))
+
+
+def pytest_sessionfinish(session):
+    if not RERUN and not hasattr(session.config, "workerinput") and session.config.cache is not None:
+        session.config.cache.set(SKIPPED_KEY, sorted(_SKIPPED))
+
+
+def _rerun(item, skipped: set[str]) -> bool:
+    module = item.module.__name__.rpartition(".")[2]
+    return item.nodeid in skipped or module in DDS_MODULES | ROS_MODULES or "fresh_domain" in item.fixturenames
+
+
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the marks into the groups
-def pytest_collection_modifyitems(items):
-    """Groups as above, the longest first, so that none starts late and ends long after the other workers."""
+def pytest_collection_modifyitems(config, items):
+    """Groups as above, the longest first, so that none starts late and ends long after the other workers;
+    in CI's second run only the tests above."""
+    if RERUN:
+        skipped = set(config.cache.get(SKIPPED_KEY, [])) if config.cache is not None else set()
+        if not skipped:
+            raise pytest.UsageError("ADVPERC_ROS_RERUN=1: no record of a first run's skipped tests in the cache "
+                                    "(run the suite without ROS first, with the cache provider on)")
+        kept = [item for item in items if _rerun(item, skipped)]
+        config.hook.pytest_deselected(items=[item for item in items if not _rerun(item, skipped)])
+        items[:] = kept
+
     def start(item) -> int:
         group = _xdist_group(item)
         return LONGEST_GROUPS.index(group) if group in LONGEST_GROUPS else len(LONGEST_GROUPS)

@@ -24,7 +24,7 @@ from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.refine import dropped_runs
 from advperc_ros.core.search.registry import search_method
-from advperc_ros.exceptions import InconclusiveSearch
+from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, ParamsError, resolve_bag
@@ -184,8 +184,8 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
             try:
                 outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
                     rollouts, checkpoint, scenario.agents, configs.rollout))
-            except InconclusiveSearch:
-                finished = True  # rollouts that found nothing out are not worth resuming: a rerun starts afresh
+            except (InconclusiveSearch, GroundTruthFails):
+                finished = True  # rollouts that found nothing out, or nothing to attack: not worth resuming
                 raise
         report = write_results(output, outcome, bag_path)
         finished = True

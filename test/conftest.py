@@ -158,8 +158,9 @@ def pytest_runtest_logreport(report):
 
 
 def pytest_sessionfinish(session):
-    if not RERUN and not hasattr(session.config, "workerinput") and session.config.cache is not None:
-        session.config.cache.set(SKIPPED_KEY, sorted(_SKIPPED))
+    cache = getattr(session.config, "cache", None)  # none under `-p no:cacheprovider`
+    if not RERUN and not hasattr(session.config, "workerinput") and cache is not None:
+        cache.set(SKIPPED_KEY, sorted(_SKIPPED))
 
 
 def _rerun(item, skipped: set[str]) -> bool:
@@ -172,7 +173,8 @@ def pytest_collection_modifyitems(config, items):
     """Groups as above, the longest first, so that none starts late and ends long after the other workers;
     in CI's second run only the tests above."""
     if RERUN:
-        skipped = set(config.cache.get(SKIPPED_KEY, [])) if config.cache is not None else set()
+        cache = getattr(config, "cache", None)
+        skipped = set(cache.get(SKIPPED_KEY, [])) if cache is not None else set()
         if not skipped:
             raise pytest.UsageError("ADVPERC_ROS_RERUN=1: no record of a first run's skipped tests in the cache "
                                     "(run the suite without ROS first, with the cache provider on)")

@@ -210,7 +210,11 @@ def rollout(
     times = scenario.times
     num_frames = scenario.num_frames
     tracker.reset()
-    planner.reset()
+    inconclusive = None
+    try:
+        planner.reset()
+    except Exception as exc:  # a plug-in whose reset fails plans nothing: no verdict, as a failing plan()
+        inconclusive = f"frame 0: planner's reset() raised {type(exc).__name__}: {exc}"
     ego = scenario.ego_start
     ego_states: list[tuple[float, float, float, float]] = []  # x, y, yaw, v at frames 0..k
     distances = np.full((num_frames, agents.shape[1]), np.inf)
@@ -218,11 +222,12 @@ def rollout(
     measured = np.zeros(num_frames, dtype=bool)  # frames measured during the drive: they could end it
     tracks_log: list[dict[str, np.ndarray]] = []
     plans_log: list[Trajectory] = []
-    inconclusive = None
-    last = num_frames - 1
+    last = 0 if inconclusive is not None else num_frames - 1
     with plan_alarm(config.plan_timeout) as arm:
         for k, t in enumerate(times.tolist()):
             ego_states.append((ego.x, ego.y, ego.yaw, ego.v))
+            if inconclusive is not None:  # reset() failed
+                break
             started = clock()
             ends = False
             if config.stop_at_collision and rule.may_touch(ego, k):  # else frame k cannot end the rollout
@@ -240,15 +245,18 @@ def rollout(
                 arm(True)
                 plan = planner.plan(t, ego, tracks)
                 arm(False)
-            except Exception as exc:  # a plug-in planner that crashes or hangs gives no verdict, not a pass
+            except (Exception, SystemExit) as exc:  # a plug-in that crashes, hangs or exits gives no verdict, not a pass
                 arm(False)
                 inconclusive, last = f"frame {k}: planner raised {type(exc).__name__}: {exc}", k
             else:
-                following = after_plan(plan, k, times)
-                if following.inconclusive is not None:
-                    inconclusive, last = following.inconclusive, k
-                elif following.ego is not None:  # not done
-                    ego = following.ego
+                if not isinstance(plan, Trajectory):  # None, a list of poses...: a plan nobody can follow
+                    inconclusive, last = f"frame {k}: planner returned {type(plan).__name__}, not a Trajectory", k
+                else:
+                    following = after_plan(plan, k, times)
+                    if following.inconclusive is not None:
+                        inconclusive, last = following.inconclusive, k
+                    elif following.ego is not None:  # not done
+                        ego = following.ego
             stage_times["planner"] += clock() - started
             if record:
                 tracks_log.append(tracks)

@@ -30,15 +30,20 @@ def load_planner(name: str, context: PlanningContext, params: Mapping[str, Any])
         cls = getattr(importlib.import_module(module_name), class_name)
     except (ImportError, AttributeError) as exc:
         raise PlannerError(f"planner '{name}' cannot be imported: {_one_line(exc)}") from exc
+    except (Exception, SystemExit) as exc:  # its module fails as it runs: a bug of the plug-in, said in one line
+        raise PlannerError(f"planner '{name}': importing {module_name} raised {type(exc).__name__}: "
+                           f"{_one_line(exc)}") from exc
     try:
         planner = cls(context, **params)
     except (TypeError, ValueError) as exc:  # the planner's own check of its parameters
         raise PlannerError(f"planner '{name}' rejected its parameters: {_one_line(exc)}") from exc
+    except (Exception, SystemExit) as exc:
+        raise PlannerError(f"planner '{name}': constructing it raised {type(exc).__name__}: {_one_line(exc)}") from exc
     if not isinstance(planner, Planner):
         raise PlannerError(f"planner '{name}' lacks the planner protocol (reset() and plan(t, ego, tracks))")
     return planner
 
 
-def _one_line(exc: Exception) -> str:
+def _one_line(exc: BaseException) -> str:
     """The exception's message on one line: the CLI reports input errors as one line."""
     return " ".join(str(exc).split())

@@ -14,10 +14,12 @@ graph has no Lanelet2 map). Output: autoware_planning_msgs/Trajectory on
 ego, `time_from_start` left 0 as Autoware's planners leave it, the speed in
 `longitudinal_velocity_mps`.
 
-What makes a timer-driven node work under the graph's clock (docs/graph.md, "Driving the planner"):
-plan on every tick with the latest inputs, stamp the trajectory with the clock's time, and take a
-jump of the clock back as the start of a new rollout: forget everything and plan at once, since ROS
-timers do not fire on a jump back.
+What makes a timer-driven node work under the graph's clock (docs/stacks.md, "Driving the planner"):
+plan on every tick, stamp the trajectory with the clock's time, and take a jump of the clock back as
+the start of a new rollout: plan at once, since ROS timers do not fire on a jump back. And, for an
+attack that replays (`reproduced: true`): plan a tick with the inputs of that time. The clock may
+reach this node before the objects it waits for (another process publishes them), so a tick whose
+objects are older waits for them, and their arrival plans it.
 
 The planning itself is a placeholder, an adaptive cruise control along the route: cruise at the
 speed limit, follow the nearest predicted object ahead within the lane at a time gap.
@@ -91,6 +93,7 @@ class AutowareStylePlanner(Node):
         self.route: Route | None = None
         self.odometry: Odometry | None = None
         self.objects: PredictedObjects | None = None
+        self.waiting: int | None = None  # a tick's time whose objects have not come yet
         self.trajectory = self.create_publisher(Trajectory, "/planning/scenario_planning/trajectory", RELIABLE)
         self.create_subscription(Path, "/ego/route", self.on_route, LATCHED)
         self.create_subscription(Odometry, "/localization/kinematic_state", self.on_odometry, RELIABLE)
@@ -109,15 +112,25 @@ class AutowareStylePlanner(Node):
 
     def on_objects(self, msg: PredictedObjects) -> None:
         self.objects = msg
+        if self.waiting is not None and self.stamp_of(msg) == self.waiting:
+            self.on_timer()
 
     def on_jump_back(self, jump) -> None:
         # (resetting the timer here would deadlock: the callback runs under the clock's lock)
         self.on_timer()
 
+    @staticmethod
+    def stamp_of(msg) -> int:
+        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
     def on_timer(self) -> None:
+        now = self.get_clock().now()
         if self.route is None or self.odometry is None or self.objects is None:
             return
-        now = self.get_clock().now()
+        if self.stamp_of(self.objects) != now.nanoseconds:  # this tick's objects are still on their way
+            self.waiting = now.nanoseconds
+            return
+        self.waiting = None
         self.trajectory.publish(self.plan(now.to_msg()))
 
     def lead(self, s_ego: float) -> tuple[float, float] | None:

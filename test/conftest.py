@@ -107,8 +107,8 @@ def ros_domain(fresh_domain) -> int:
 
 # The suite runs on `pytest -n auto --dist loadgroup` (README), one xdist group a module, so that its module- and
 # session-scoped fixtures (an attack run once and read by many tests) are built on one worker only. The DDS and
-# ROS tests are split over three groups (domain ids are per worker, above, so any two may run at once): bare DDS,
-# the ROS 2 tools and nodes, and the one test that runs docs/ros2.md's block (three whole attacks over ROS 2).
+# ROS tests are split over four groups (domain ids are per worker, above, so any two may run at once): bare DDS,
+# the ROS 2 tools and nodes, the launches in a colcon workspace, and the one test that runs docs/ros2.md's block.
 DDS_MODULES = {"test_dds", "test_graph"}
 ROS_MODULES = {"test_ros2", "test_orchestrator_node"}
 LONGEST_TEST = "test_readme_ros_section_runs_as_written"
@@ -116,7 +116,7 @@ LONGEST_TEST = "test_readme_ros_section_runs_as_written"
 
 # The groups that take a worker longest, longest first (`--durations=0` with ROS 2 sourced); the rest take
 # less and follow in file order.
-LONGEST_GROUPS = ("ros", "ros_readme", "dds", "test_junction_scenarios", "test_bundled_scenarios", "test_guided",
+LONGEST_GROUPS = ("ros_workspace", "ros_readme", "ros", "dds", "test_junction_scenarios", "test_bundled_scenarios", "test_guided",
                   "test_campaign", "test_resume", "test_cli", "test_commonroad", "test_obp", "test_import_bag",
                   "test_reproduced")
 
@@ -125,6 +125,8 @@ def _xdist_group(item) -> str:
     module = item.module.__name__.rpartition(".")[2]
     if item.originalname == LONGEST_TEST:
         return "ros_readme"
+    if "workspace" in item.fixturenames:  # `ros2 launch` and `ros2 run` in a colcon workspace: the long ones
+        return "ros_workspace"
     if module in ROS_MODULES or "fresh_domain" in item.fixturenames:
         return "ros"
     return "dds" if module in DDS_MODULES else module

@@ -364,6 +364,8 @@ def test_rclpy_transport_passes_rosbags_messages_through(ros_domain):
         while not got and time.monotonic() < deadline:
             transport.spin_once(0.05)
         assert [m.data for m in got] == ["ünïcode"]
+        sender.destroy_node()  # its participant leaves the domain now, not whenever the worker collects garbage
+        receiver.destroy_node()
     finally:
         rclpy.try_shutdown()
 
@@ -425,6 +427,9 @@ def test_example_external_planner_answers_every_tracks_message(ros_domain):
         assert [msgs.stamp_ns(p.header.stamp) for p in plans] == stamps
         _, pose_stamps = msgs.path_points(plans[0])
         assert pose_stamps[0] == stamps[0] and np.all(np.diff(pose_stamps) > 0)
+        executor.shutdown()  # the nodes leave the domain now: a later test on this domain id would see them
+        planner.destroy_node()
+        tester.destroy_node()
     finally:
         rclpy.try_shutdown()
 

@@ -495,46 +495,45 @@ def test_two_graphs_on_one_domain_never_write_a_no_collision_report(workspace, r
 
 # ----- a team's own stack: Autoware's messages, a planner on a timer ---------------------------------------
 
+def _attack_beside(workspace: Path, domain: int, tmp_path: Path, example: str, arguments: str) -> tuple[Path, str]:
+    """`ros2 launch` of a short attack with `arguments` while a team's node (`examples/<example>`) runs
+    beside it; (the results folder, the node's output), the launch having exited 0."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
+    output = tmp_path / "attack"
+    node = _in_workspace(workspace, f"python3 {REPO / 'examples' / example}", domain)
+    try:
+        attack = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} output:={output} "
+                                          f"{arguments}", domain)
+        code, log = _ended(attack, timeout=2 * TIMEOUT)
+    finally:
+        os.killpg(node.pid, signal.SIGINT)
+        node_log = _ended(node, timeout=60)[1]
+    assert code == 0, _orchestrator_lines(log) + node_log[-2000:]
+    assert "Traceback" not in node_log, node_log[-3000:]
+    return output, node_log
+
+
 def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_through_ros2_launch(
         workspace, ros_domain, tmp_path):
     """examples/autoware_planner.py (PredictedObjects in, a distance-sampled Trajectory out, a 10 Hz
     timer under use_sim_time; nothing of ours imported) attacked with `interface:=autoware drive:=clock`:
     every rollout conclusive, a collision found, the report naming the team's node."""
-    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
-    output = tmp_path / "attack"
-    planner = _in_workspace(workspace, f"python3 {REPO / 'examples' / 'autoware_planner.py'}", ros_domain)
-    try:
-        attack = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} output:={output} "
-                                          "planner:=external interface:=autoware drive:=clock", ros_domain)
-        code, log = _ended(attack, timeout=2 * TIMEOUT)
-    finally:
-        os.killpg(planner.pid, signal.SIGINT)
-        planner_log = _ended(planner, timeout=60)[1]
-    assert code == 0, _orchestrator_lines(log) + planner_log[-2000:]
+    output, _ = _attack_beside(workspace, ros_domain, tmp_path, "autoware_planner.py",
+                               "planner:=external interface:=autoware drive:=clock")
     report = _report(output)
     assert report["collision"] is True and report["inconclusive_rollouts"] == 0, report
     assert report["reproduced"] is True  # the timer-driven node, driven by the clock, replays its attack
     assert report["planner"] == "external" and report["planner_node"] == "/autoware_style_planner"
     assert report["params"]["planner"] == "external" and report["params"]["planner_params"] == {}  # not ours: no IDM
     assert "external (/autoware_style_planner) planner" in (output / "report.md").read_text()
-    assert "Traceback" not in planner_log, planner_log[-3000:]
 
 
 def test_a_team_s_own_tracker_on_vision_msgs_detections_is_attacked_with_our_planner(workspace, ros_domain, tmp_path):
     """examples/vision_tracker.py (Detection3DArray in, our MarkerArray tracks out; nothing of ours
     imported) in place of our tracker with `tracker:=external interface:=vision_msgs`: the errors go
     in at the detector's output and through the team's tracker to our planner; the report names it."""
-    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
-    output = tmp_path / "attack"
-    tracker = _in_workspace(workspace, f"python3 {REPO / 'examples' / 'vision_tracker.py'}", ros_domain)
-    try:
-        attack = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} output:={output} "
-                                          "tracker:=external interface:=vision_msgs", ros_domain)
-        code, log = _ended(attack, timeout=2 * TIMEOUT)
-    finally:
-        os.killpg(tracker.pid, signal.SIGINT)
-        tracker_log = _ended(tracker, timeout=60)[1]
-    assert code == 0, _orchestrator_lines(log) + tracker_log[-2000:]
+    output, _ = _attack_beside(workspace, ros_domain, tmp_path, "vision_tracker.py",
+                               "tracker:=external interface:=vision_msgs")
     report = _report(output)
     assert report["collision"] is True and report["inconclusive_rollouts"] == 0 and report["reproduced"] is True, report
     assert report["planner"] == "idm" and report["tracker_node"] == "/vision_tracker"

@@ -25,6 +25,8 @@ Conversions, and where they cannot be exact:
 """
 
 import math
+from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -102,53 +104,65 @@ def _predicted_path(x: float, y: float, yaw: float, vx: float, vy: float):
         time_step=_duration(int(round(PREDICTION_STEP * 1e9))), confidence=1.0)
 
 
+def _objects_message(msgtype: str, objects: Objects, stamp_ns: int, build: Callable[..., Any]) -> bytes:
+    """The CDR of an Autoware objects array of `msgtype`: one `build(id, *BOX_FIELDS)` per box."""
+    msg = T[msgtype](header=msgs.header(stamp_ns), objects=[build(*row) for row in _rows(objects)])
+    return bytes(TYPESTORE.serialize_cdr(msg, msgtype))
+
+
+def _motion(x: float, y: float, yaw: float, vx: float, vy: float) -> tuple[Any, Any, Any]:
+    """(pose, twist, acceleration) with covariance, as every Autoware kinematics type holds them."""
+    still = T["geometry_msgs/msg/Accel"](linear=_vector3(), angular=_vector3())
+    return (_with_covariance("Pose", msgs.pose(x, y, yaw)), _with_covariance("Twist", _twist(vx, vy, yaw)),
+            _with_covariance("Accel", still))
+
+
+def _detected(object_id: int, x: float, y: float, yaw: float, vx: float, vy: float, length: float, width: float,
+              height: float, score: float) -> Any:
+    pose, twist, _ = _motion(x, y, yaw, vx, vy)
+    kinematics = T["autoware_perception_msgs/msg/DetectedObjectKinematics"](
+        pose_with_covariance=pose, has_position_covariance=False, orientation_availability=_AVAILABLE,
+        twist_with_covariance=twist, has_twist=True, has_twist_covariance=False)
+    return T["autoware_perception_msgs/msg/DetectedObject"](
+        existence_probability=_probability(score), classification=_classification(), kinematics=kinematics,
+        shape=_shape(length, width, height))
+
+
+def _tracked(object_id: int, x: float, y: float, yaw: float, vx: float, vy: float, length: float, width: float,
+             height: float, score: float) -> Any:
+    pose, twist, accel = _motion(x, y, yaw, vx, vy)
+    kinematics = T["autoware_perception_msgs/msg/TrackedObjectKinematics"](
+        pose_with_covariance=pose, twist_with_covariance=twist, acceleration_with_covariance=accel,
+        orientation_availability=_AVAILABLE, is_stationary=False)
+    return T["autoware_perception_msgs/msg/TrackedObject"](
+        object_id=_uuid(object_id), existence_probability=_probability(score), classification=_classification(),
+        kinematics=kinematics, shape=_shape(length, width, height))
+
+
+def _predicted(object_id: int, x: float, y: float, yaw: float, vx: float, vy: float, length: float, width: float,
+               height: float, score: float) -> Any:
+    pose, twist, accel = _motion(x, y, yaw, vx, vy)
+    kinematics = T["autoware_perception_msgs/msg/PredictedObjectKinematics"](
+        initial_pose_with_covariance=pose, initial_twist_with_covariance=twist,
+        initial_acceleration_with_covariance=accel, predicted_paths=[_predicted_path(x, y, yaw, vx, vy)])
+    return T["autoware_perception_msgs/msg/PredictedObject"](
+        object_id=_uuid(object_id), existence_probability=_probability(score), classification=_classification(),
+        kinematics=kinematics, shape=_shape(length, width, height))
+
+
 def encode_detected(objects: Objects, stamp_ns: int, kind: str = "perception") -> bytes:
     """A frame of boxes as a DetectedObjects' CDR (`kind` unused: the type has no colour)."""
-    items = []
-    for _, x, y, yaw, vx, vy, length, width, height, score in _rows(objects):
-        kinematics = T["autoware_perception_msgs/msg/DetectedObjectKinematics"](
-            pose_with_covariance=_with_covariance("Pose", msgs.pose(x, y, yaw)), has_position_covariance=False,
-            orientation_availability=_AVAILABLE, twist_with_covariance=_with_covariance("Twist", _twist(vx, vy, yaw)),
-            has_twist=True, has_twist_covariance=False)
-        items.append(T["autoware_perception_msgs/msg/DetectedObject"](
-            existence_probability=_probability(score), classification=_classification(), kinematics=kinematics,
-            shape=_shape(length, width, height)))
-    msg = T[DETECTED](header=msgs.header(stamp_ns), objects=items)
-    return bytes(TYPESTORE.serialize_cdr(msg, DETECTED))
+    return _objects_message(DETECTED, objects, stamp_ns, _detected)
 
 
 def encode_tracked(objects: Objects, stamp_ns: int, kind: str = "tracking") -> bytes:
     """A frame of boxes as a TrackedObjects' CDR."""
-    items = []
-    for object_id, x, y, yaw, vx, vy, length, width, height, score in _rows(objects):
-        kinematics = T["autoware_perception_msgs/msg/TrackedObjectKinematics"](
-            pose_with_covariance=_with_covariance("Pose", msgs.pose(x, y, yaw)),
-            twist_with_covariance=_with_covariance("Twist", _twist(vx, vy, yaw)),
-            acceleration_with_covariance=_with_covariance("Accel", T["geometry_msgs/msg/Accel"](
-                linear=_vector3(), angular=_vector3())),
-            orientation_availability=_AVAILABLE, is_stationary=False)
-        items.append(T["autoware_perception_msgs/msg/TrackedObject"](
-            object_id=_uuid(object_id), existence_probability=_probability(score), classification=_classification(),
-            kinematics=kinematics, shape=_shape(length, width, height)))
-    msg = T[TRACKED](header=msgs.header(stamp_ns), objects=items)
-    return bytes(TYPESTORE.serialize_cdr(msg, TRACKED))
+    return _objects_message(TRACKED, objects, stamp_ns, _tracked)
 
 
 def encode_predicted(objects: Objects, stamp_ns: int, kind: str = "tracking") -> bytes:
     """A frame of boxes as a PredictedObjects' CDR, each with its constant-velocity path."""
-    items = []
-    for object_id, x, y, yaw, vx, vy, length, width, height, score in _rows(objects):
-        kinematics = T["autoware_perception_msgs/msg/PredictedObjectKinematics"](
-            initial_pose_with_covariance=_with_covariance("Pose", msgs.pose(x, y, yaw)),
-            initial_twist_with_covariance=_with_covariance("Twist", _twist(vx, vy, yaw)),
-            initial_acceleration_with_covariance=_with_covariance("Accel", T["geometry_msgs/msg/Accel"](
-                linear=_vector3(), angular=_vector3())),
-            predicted_paths=[_predicted_path(x, y, yaw, vx, vy)])
-        items.append(T["autoware_perception_msgs/msg/PredictedObject"](
-            object_id=_uuid(object_id), existence_probability=_probability(score), classification=_classification(),
-            kinematics=kinematics, shape=_shape(length, width, height)))
-    msg = T[PREDICTED](header=msgs.header(stamp_ns), objects=items)
-    return bytes(TYPESTORE.serialize_cdr(msg, PREDICTED))
+    return _objects_message(PREDICTED, objects, stamp_ns, _predicted)
 
 
 def _probability(score: float) -> float:

@@ -28,7 +28,7 @@ from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, ParamsError, resolve_bag
-from advperc_ros.paths import check_output
+from advperc_ros.paths import MIB, check_free_space, check_output, full_disk_said
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
 
@@ -166,6 +166,24 @@ def default_output(params: AttackParams, scenario_name: str) -> Path:
     return candidate
 
 
+CHECKPOINT_BYTES_PER_NUMBER = 25  # a float's repr and its separator in a checkpoint line, rounded up
+CHECKPOINT_BYTES_PER_ABSENCE = 6  # `null, `: the distance to an agent absent at that frame
+RESULTS_PER_BAG_BYTE = 8  # results folder / ground-truth bag: its layers' bags (4.3 measured, more under a profile)
+PLOTS_BYTES = 4 * MIB  # the plots, the animation and the reports, whatever the bag
+
+
+def output_bytes(scenario: Scenario, search: SearchConfig, bag_path: Path) -> int:
+    """A generous estimate of the disk an attack uses: its checkpoint (a line per rollout of the
+    search's bound: the ego and each agent's distance per frame) and its results folder."""
+    frames, agents = scenario.agents.shape
+    rollouts = budget(search, agents, joint=True, approach=True)
+    present = int(scenario.agents.valid.sum())
+    line = (4 * frames + present) * CHECKPOINT_BYTES_PER_NUMBER + (frames * agents - present) * CHECKPOINT_BYTES_PER_ABSENCE
+    bag = sum(part.stat().st_size for part in Path(bag_path).rglob("*") if part.is_file()) if Path(bag_path).is_dir() \
+        else Path(bag_path).stat().st_size
+    return rollouts * line + RESULTS_PER_BAG_BYTE * bag + PLOTS_BYTES
+
+
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,
                      transport: Any = None, resume: bool = False) -> tuple[Path, dict]:
     """Run the attack the params describe and write its results folder; (folder, report). Every
@@ -176,25 +194,33 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     scenario = read_scenario(bag_path)
     output = output if output is not None else default_output(params, scenario.name)
     check_output(output)
-    checkpoint = Checkpoint(output, params, resume)
     configs = core_configs(params)  # once, for the backend, the checkpoint and the search
+    check_free_space(output, output_bytes(scenario, configs.search, bag_path))
+    source = params.source or "PARAMS"
+    checkpoint = Checkpoint(output, params, resume)
     finished = False
-    try:
-        with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
-            try:
-                outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
-                    rollouts, checkpoint, scenario.agents, configs.rollout))
-            except (InconclusiveSearch, GroundTruthFails):
-                finished = True  # rollouts that found nothing out, or nothing to attack: not worth resuming
-                raise
-        report = write_results(output, outcome, bag_path)
-        finished = True
-    except KeyboardInterrupt:
-        source = params.source or "PARAMS"
-        raise Interrupted(f"finish it with: advperc attack {source} --resume {output}", output) from None
-    finally:
-        checkpoint.close(finished)
+    with full_disk_said(output, f"the checkpoint keeps every rollout done; free some space, then: advperc attack {source} "
+                                f"--resume {output}"):
+        try:
+            report = _attack_with_checkpoint(scenario, params, bag_path, output, transport, configs, checkpoint, progress)
+            finished = True
+        except (InconclusiveSearch, GroundTruthFails):
+            finished = True  # rollouts that found nothing out, or nothing to attack: not worth resuming
+            raise
+        except KeyboardInterrupt:
+            raise Interrupted(f"finish it with: advperc attack {source} --resume {output}", output) from None
+        finally:
+            checkpoint.close(finished)
     return output, report
+
+
+def _attack_with_checkpoint(scenario: Scenario, params: AttackParams, bag_path: Path, output: Path, transport: Any,
+                            configs: CoreConfigs, checkpoint: Checkpoint, progress: bool) -> dict:
+    """The search on the params' backend with every rollout checkpointed, then the results folder."""
+    with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
+        outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
+            rollouts, checkpoint, scenario.agents, configs.rollout))
+    return write_results(output, outcome, bag_path)
 
 
 def summary(report: dict) -> dict:

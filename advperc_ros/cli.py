@@ -167,23 +167,27 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     from advperc_ros.backends.embedded import Stack
     from advperc_ros.core.robustness import RobustnessPoint, robustness_curve
     from advperc_ros.core.search.problem import AttackProblem
+    from advperc_ros.core.staging import staging_path
+    from advperc_ros.paths import check_output
     from advperc_ros.results import ERRORS, read_attack
     from advperc_ros.ros.bag import read_scenario
 
     results = Path(args.results)
     params, bag, errors = read_attack(results)
+    table = results / "robustness.csv"
+    check_output(table, "robustness table")  # a read-only results folder failed after all the rollouts
     scenario = read_scenario(bag)
     if errors.shape != scenario.agents.shape:
         raise BagError(f"{results / ERRORS}: field 'fn' has shape {errors.shape}, the bag {bag} has {scenario.agents.shape}")
     problem = AttackProblem(scenario, Stack(scenario, params).rollout, params.objective)
     points = robustness_curve(problem, errors, args.strengths, args.samples, np.random.default_rng(args.seed))
-    staging = results / ".robustness.partial.csv"
+    staging = staging_path(table)
     with staging.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=[f.name for f in fields(RobustnessPoint)])
         writer.writeheader()
         writer.writerows(asdict(p) for p in points)
     plots.robustness(results / "robustness.png", points, params.objective)
-    staging.rename(results / "robustness.csv")
+    staging.rename(table)
     for p in points:
         print(f"strength {p.strength:5.2f}: {p.adversarial_fraction:5.2f} still collide, "
               f"mean {params.objective} {p.mean_metric:.4f}")
@@ -233,6 +237,7 @@ def cmd_score(args: argparse.Namespace) -> int:
 
 def cmd_pem_fit(args: argparse.Namespace) -> int:
     from advperc_ros.core.pem_fit import fit_pem
+    from advperc_ros.core.staging import staging_path
     from advperc_ros.importers.nuscenes import load_pairs
     from advperc_ros.paths import check_output
     from advperc_ros.ros.bag import aligned_objects
@@ -245,7 +250,8 @@ def cmd_pem_fit(args: argparse.Namespace) -> int:
         sources = [aligned_objects(gt or Path(bag), Path(bag), args.topic) for bag in args.inputs]
     model, source = fit_pem(sources, args.inputs)
     output = Path(args.output)
-    staging = output.with_name(f".{output.name}.partial")
+    staging = staging_path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)  # check_output allowed folders still to be made
     model.save(staging)
     staging.rename(output)
     print(f"{output}: {source}")

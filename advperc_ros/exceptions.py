@@ -46,6 +46,12 @@ class UnknownProfile(AdvpercError, ValueError):
     """An interface name that names no bundled interface profile."""
 
 
+class OutOfSpace(AdvpercError, OSError):
+    """The output's disk is too full for the run: refused before the work when the estimate does not
+    fit, or stopped with the checkpoint kept when the disk fills during it; the text says how much
+    and how to go on."""
+
+
 # ----- nothing to attack, or no way to attack it -----
 
 class GroundTruthFails(AdvpercError, RuntimeError):

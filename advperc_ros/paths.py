@@ -1,10 +1,18 @@
 """Where results go: checked before any work starts, so no long run is lost to an unwritable path."""
 
+import errno
 import os
+import shutil
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
+from advperc_ros.exceptions import OutOfSpace
 from advperc_ros.params import ParamsError
+
+MIB = 1 << 20
+FULL = (errno.ENOSPC, errno.EDQUOT)  # a full disk, and a full quota: the same to the user
 
 
 def check_output(output: Path, kind: str = "output folder") -> None:
@@ -38,3 +46,32 @@ def check_output(output: Path, kind: str = "output folder") -> None:
         os.rmdir(tempfile.mkdtemp(prefix=".advperc-probe-", dir=parent))
     except OSError as exc:
         raise ParamsError(f"{output}: cannot create the {kind} in {parent}: {exc.strerror}") from None
+
+
+def _existing(path: Path) -> Path:
+    """`path` or its nearest ancestor that exists: where the file system's free space is asked."""
+    while not path.exists() and path != path.parent:
+        path = path.parent
+    return path
+
+
+def check_free_space(output: Path, needed_bytes: int, kind: str = "output folder") -> None:
+    """Refuse a run whose output (an estimate from the caller, generous rather than tight) does not
+    fit the free space where it goes: better one line now than a full disk after hours of search."""
+    place = _existing(output.parent)
+    free = shutil.disk_usage(place).free
+    if free < needed_bytes:
+        raise OutOfSpace(f"{output}: the {kind} needs about {needed_bytes / MIB:.1f} MiB and {place} has "
+                         f"{free / MIB:.1f} MiB free: free some space or choose another place")
+
+
+@contextmanager
+def full_disk_said(output: Path, then: str) -> Iterator[None]:
+    """A disk that fills during the block (ENOSPC, EDQUOT) as one OutOfSpace line naming the output
+    and saying what to do `then`; any other OSError stays the bug it is."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.errno not in FULL:
+            raise
+        raise OutOfSpace(f"{output}: the disk filled while writing ({exc.strerror}): {then}") from None

@@ -6,6 +6,7 @@ field, exit code 2, and nothing written. The table of them in docs/commands.md i
 import json
 import os
 import re
+import shutil
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +32,7 @@ class Case:
     argv: Callable[[Path], list[str]]  # builds the inputs in a folder, returns the arguments
     says: str  # what the error line must contain (the field, or what is wrong with it)
     names_file: str | None = "?"  # a file name the line must contain ("?": the first file argument)
+    setup: Callable[[pytest.MonkeyPatch], None] | None = None  # the machine's part of the case (a full disk)
 
 
 def _params(folder: Path, text: str | None = None, **changes) -> str:
@@ -200,6 +202,8 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml --output", "output under a symbolic link loop", lambda f: _link(f / "loop", "loop") or ["attack", _params(f), "--output", str(f / "loop" / "out")], "symbolic link loop", "loop"),
         Case("advperc attack P.yaml --output", "output under a symbolic link to nothing", lambda f: _link(f / "gone", "nowhere") or ["attack", _params(f), "--output", str(f / "gone" / "out")], "symbolic link to nothing", "gone"),
         Case("advperc attack P.yaml --output", "output name over 255 bytes", lambda f: ["attack", _params(f), "--output", str(f / ("o" * 300))], "longer than the file system allows", None),
+        Case("advperc attack P.yaml --output", "output on a disk without room for the run's estimate", attack_flags(), "MiB free", "out",
+             setup=_disk_with_one_mib_free),
         Case("advperc attack P.yaml --resume", "`--resume` and another `--output`", attack_flags("--resume", "elsewhere"), "give the folder once", None),
         Case("advperc attack P.yaml", "bag folder empty", lambda f: (f / "bag").mkdir() or ["attack", _params(f, bag=str(f / "bag"))], "bag", "bag"),
         Case("advperc attack P.yaml", "bag file not MCAP", lambda f: _broken_bag(f) and ["attack", _params(f, bag=str(f / "bag"))], "not a readable rosbag2 bag", "bag"),
@@ -211,6 +215,7 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "bag: position 1e300 (finite; its square is not)", attack_bag(frames=[boxes([1]), boxes([1], x=1e300), boxes([1])]), "'x'", "bag"),
         Case("advperc attack P.yaml", "bag: zero box width", attack_bag(frames=[boxes([1]), boxes([1], width=0.0), boxes([1])]), "'width'", "bag"),
         Case("advperc attack P.yaml", "bag without /ego/odometry", attack_bag(odometry=None), "/ego/odometry", "bag"),
+        Case("advperc attack P.yaml", "bag: two /ego/odometry messages (a drive, not a start)", attack_bag(odometry=[(5.0, -1.75, 0.0, 8.0)] * 2), "holds 2 messages", "bag"),
         Case("advperc attack P.yaml", "bag without /ego/route", attack_bag(route=None), "/ego/route", "bag"),
         Case("advperc attack P.yaml", "bag: /ego/odometry of another type", attack_bag(wrong_type="/ego/odometry"), "/ego/odometry", "bag"),
         Case("advperc attack P.yaml", "bag: /clock of another type (it failed after the whole search)", attack_bag(clock=True, wrong_type="/clock"), "topic '/clock' has type", "bag"),
@@ -277,6 +282,11 @@ def _drive_log(folder: Path, odometry: bool = True, frames: int = 5) -> list[str
     return ["import-bag", str(write_log(folder / "log", topics))]
 
 
+def _disk_with_one_mib_free(monkeypatch: pytest.MonkeyPatch) -> None:
+    usage = shutil.disk_usage("/")
+    monkeypatch.setattr("advperc_ros.paths.shutil.disk_usage", lambda place: type(usage)(10 << 20, 9 << 20, 1 << 20))
+
+
 def _link(path: Path, target: str) -> None:
     path.symlink_to(target)
 
@@ -309,6 +319,8 @@ def test_bad_input_is_one_line_exit_2_nothing_written(case, tmp_path, capsys, mo
     folder.mkdir()
     monkeypatch.chdir(folder)
     argv = case.argv(folder)
+    if case.setup is not None:
+        case.setup(monkeypatch)
     before = _tree(folder)
     try:
         code = main(argv)

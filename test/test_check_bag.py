@@ -44,11 +44,11 @@ def marker_lanes(lanes: list[tuple[list[tuple[float, float]], float]]) -> object
 
 
 def write_bag(path: Path, frames: list[dict] | None = None, stamps: list[int] | None = None,
-              odometry: tuple | None = (5.0, -1.75, 0.0, 8.0), route: list | None = ((0.0, -1.75), (100.0, -1.75)),
+              odometry: tuple | list[tuple] | None = (5.0, -1.75, 0.0, 8.0), route: list | None = ((0.0, -1.75), (100.0, -1.75)),
               lanes: list | None = (LANE,), wrong_type: str | None = None, clock: bool = False) -> Path:
     """A ground-truth bag as a team might record it: frames of objects at `stamps` (default every
     0.1 s), the ego's start, route and lanes (None leaves a topic out), /clock with `clock`; `wrong_type`
-    records that topic as a std_msgs/String instead. Written with rosbags directly, so anything can go in."""
+    records that topic as a std_msgs/String instead; a list of `odometry` tuples, one message each. Written with rosbags directly, so anything can go in."""
     frames = [boxes([1, 2]) for _ in range(4)] if frames is None else frames
     stamps = [k * DT for k in range(len(frames))] if stamps is None else stamps
     messages = []
@@ -58,7 +58,8 @@ def write_bag(path: Path, frames: list[dict] | None = None, stamps: list[int] | 
         points = np.array(route, dtype=float).reshape(-1, 2)
         messages.append((topics.ROUTE, 0, cdr.encode_path(points[:, 0], points[:, 1], np.zeros(len(points)), [0] * len(points), 0)))
     if odometry is not None:
-        messages.append((topics.ODOMETRY, 0, cdr.encode_odometry(*odometry, 0)))
+        messages += [(topics.ODOMETRY, k * DT, cdr.encode_odometry(*ego, k * DT))
+                     for k, ego in enumerate(odometry if isinstance(odometry, list) else [odometry])]
     messages += [(topics.GROUND_TRUTH, k, cdr.encode_objects(frame, stamp, "ground_truth"))
                  for k, (frame, stamp) in enumerate(zip(frames, stamps))]
     if clock:  # /clock at every frame, as a recording of a sim-time stack has it
@@ -118,6 +119,8 @@ BROKEN = {
     "zero size": (dict(frames=[boxes([1]), boxes([1], width=0.0)]), ["'width'", "agent 1", "frame 1"]),
     "no odometry": (dict(odometry=None), [topics.ODOMETRY, "missing"]),
     "nan odometry": (dict(odometry=(np.nan, 0.0, 0.0, 8.0)), ["'ego.start'", "finite"]),
+    "two odometry messages": (dict(odometry=[(5.0, -1.75, 0.0, 8.0), (5.8, -1.75, 0.0, 8.0)]),
+                              [topics.ODOMETRY, "2 messages", "the ego's start only"]),
     "no route": (dict(route=None), [topics.ROUTE, "missing"]),
     "route of one point": (dict(route=[(0.0, 0.0), (0.0, 0.0)]), [topics.ROUTE, "'poses'", "two distinct points"]),
     "nan route": (dict(route=[(0.0, 0.0), (np.nan, 1.0)]), [topics.ROUTE, "'poses'", "finite"]),

@@ -147,6 +147,7 @@ def obstacle_484_round(root: ET.Element) -> None:
     (last_state_of_484_at_step_20000, ["'dynamicObstacle 484.time_step'", "20000"]),
     (first_state_of_484_twice, ["'dynamicObstacle 484'", "two states at time step 1"]),
     (obstacle_484_round, ["'dynamicObstacle 484.shape'", "rectangle"]),
+    (lambda root: root.find("obstacle").set("id", "482"), ["'dynamicObstacle 482'", "planningProblem 482", "unique"]),
 ])
 def test_broken_recordings_name_the_field(importer, seeds, tmp_path, edit, words):
     path = edited(seeds, tmp_path, edit)

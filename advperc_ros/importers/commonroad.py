@@ -267,9 +267,26 @@ def import_commonroad(path: str | Path) -> ImportedScenario:
     return imported
 
 
+def _check_unique_ids(cr_scenario, problems) -> None:
+    """CommonRoad ids are unique across a scenario; the reader does not check it. An obstacle with the
+    planning problem's id would be an agent and the ego at once to whoever reads ids, and a lanelet's
+    would make a route through an obstacle's number."""
+    owners: dict[int, str] = {}
+    named = ([("lanelet", lanelet.lanelet_id) for lanelet in cr_scenario.lanelet_network.lanelets]
+             + [("planningProblem", problem_id) for problem_id in problems.planning_problem_dict]
+             + [("dynamicObstacle", o.obstacle_id) for o in cr_scenario.dynamic_obstacles]
+             + [("staticObstacle", o.obstacle_id) for o in cr_scenario.static_obstacles])
+    for kind, element_id in named:
+        if element_id in owners:
+            raise ScenarioError(f"field '{kind} {element_id}' has the id of {owners[element_id]}: "
+                                "ids must be unique across a CommonRoad scenario")
+        owners[element_id] = f"{kind} {element_id}"
+
+
 def _convert(cr_scenario, problems) -> ImportedScenario:
     if not problems.planning_problem_dict:
         raise ScenarioError("field 'planningProblem' is missing (needed for the ego's start)")
+    _check_unique_ids(cr_scenario, problems)
     problem = problems.planning_problem_dict[min(problems.planning_problem_dict)]
     network = cr_scenario.lanelet_network
     dt = float(_finite(cr_scenario.dt, "timeStepSize"))

@@ -285,6 +285,11 @@ def _polyline(points: np.ndarray, where: str) -> Polyline:
 
 
 def _ego(messages: list[tuple[int, bytes]], where: str) -> EgoState:
+    """The ego's start: one message. More would be a drive (an attack bag's ego, a recording), whose
+    first message is not obviously the start a user meant; `advperc import-bag` turns a drive into one."""
+    if len(messages) != 1:
+        raise BagError(f"{where} holds {len(messages)} messages; a ground-truth bag holds the ego's start only "
+                       "(one message): an attack bag or a recorded drive? import a drive with advperc import-bag")
     return msgs.ego_from_cdr(messages[0][1], where)[1]
 
 

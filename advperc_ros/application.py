@@ -176,7 +176,7 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     scenario = read_scenario(bag_path)
     output = output if output is not None else default_output(params, scenario.name)
     check_output(output)
-    checkpoint = Checkpoint(output, params, resume)
+    checkpoint = Checkpoint(output, params, scenario, resume)
     configs = core_configs(params)  # once, for the backend, the checkpoint and the search
     finished = False
     try:

@@ -28,7 +28,7 @@ from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, ParamsError, resolve_bag
-from advperc_ros.paths import check_output
+from advperc_ros.paths import check_output, exclusive
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
 
@@ -166,16 +166,32 @@ def default_output(params: AttackParams, scenario_name: str) -> Path:
     return candidate
 
 
+def output_lock(output: Path) -> Path:
+    """The file an attack holds beside its output while it runs: a second attack on that output would
+    resume the checkpoint the first is still writing, or delete it to start afresh."""
+    return output.parent / f".{output.name}.lock"
+
+
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,
                      transport: Any = None, resume: bool = False) -> tuple[Path, dict]:
     """Run the attack the params describe and write its results folder; (folder, report). Every
     rollout is checkpointed as it completes (advperc_ros.backends.resumed); `resume` finishes an attack
-    that was killed, with the report it would have written. `transport`: an rclpy node's
+    that was killed, with the report it would have written. The output is locked first, before
+    anything is made or removed, so only one attack at a time has it. `transport`: an rclpy node's
     transport, to reach graph nodes already running."""
     bag_path = resolve_bag(params)
     scenario = read_scenario(bag_path)
     output = output if output is not None else default_output(params, scenario.name)
     check_output(output)
+    output.parent.mkdir(parents=True, exist_ok=True)  # where the lock goes
+    with exclusive(output_lock(output), f"{output}: another attack is running on this output; let it finish or "
+                                        "stop it first"):
+        return output, _checkpointed_attack(params, scenario, bag_path, output, progress, transport, resume)
+
+
+def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Path, output: Path, progress: bool,
+                         transport: Any, resume: bool) -> dict:
+    """The attack with its checkpoint, its report written into `output`; the caller holds the output's lock."""
     checkpoint = Checkpoint(output, params, scenario, resume)
     configs = core_configs(params)  # once, for the backend, the checkpoint and the search
     finished = False
@@ -194,7 +210,7 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
         raise Interrupted(f"finish it with: advperc attack {source} --resume {output}", output) from None
     finally:
         checkpoint.close(finished)
-    return output, report
+    return report
 
 
 def summary(report: dict) -> dict:

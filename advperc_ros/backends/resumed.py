@@ -180,7 +180,7 @@ class Checkpoint:
             try:
                 line = _parsed(raw)
             except ValueError:
-                if raw is tail:  # no newline and not JSON: a kill cut it short, its rollout runs again
+                if n > len(lines):  # the tail, no newline and not JSON: a kill cut it short, its rollout runs again
                     break
                 raise self._damaged(path, f"line {n} is not JSON (only the last line may be cut short, by a kill)") from None
             try:

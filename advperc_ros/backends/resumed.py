@@ -141,8 +141,9 @@ class Checkpoint:
         rollouts = self.folder / ROLLOUTS
         if resume and os.path.lexists(rollouts):
             if self._read(self.folder / PARAMS) != self._identity.encode():
-                raise ParamsError(f"{self.folder}: the checkpoint is of an attack with other params; "
-                                  "resume with the params it began with")
+                raise ParamsError(f"{self.folder / PARAMS}: the checkpoint is of an attack with other params (or "
+                                  "damaged): resume with the params it began with, or delete "
+                                  f"{self.folder} to start the attack over")
             self.done, self._last = self._load(rollouts, scenario.agents.shape)
         else:  # a fresh attack, or one killed before its first checkpoint
             if os.path.lexists(self.folder) and not resume:

@@ -108,16 +108,16 @@ def put(field: str, *at_and_value) -> Callable[[dict], None]:
 
 
 DAMAGED = [
-    ("an empty mapping", lambda raw: b"{}", "is not a checkpointed rollout"),
-    ("a list", lambda raw: b"[1, 2]", "is not a checkpointed rollout"),
-    ("null", lambda raw: b"null", "is not a checkpointed rollout"),
-    ("a string", lambda raw: b'"errors"', "is not a checkpointed rollout"),
+    ("an empty mapping", lambda raw: b"{}", "not a checkpointed rollout"),
+    ("a list", lambda raw: b"[1, 2]", "not a checkpointed rollout"),
+    ("null", lambda raw: b"null", "not a checkpointed rollout"),
+    ("a string", lambda raw: b'"errors"', "not a checkpointed rollout"),
     ("not UTF-8", lambda raw: raw[:40] + b"\xff\xfe" + raw[42:], "is not JSON"),
     ("cut short", lambda raw: raw[: len(raw) // 2], "is not JSON"),
     ("empty", lambda raw: b"", "is not JSON"),
     ("nested too deep for the parser", lambda raw: b"[" * 100_000, "is not JSON"),
-    ("a field missing", edit(lambda line: line.pop("distances")), "is not a checkpointed rollout"),
-    ("a field more", edit(put("extra", 1)), "is not a checkpointed rollout"),
+    ("a field missing", edit(lambda line: line.pop("distances")), "not a checkpointed rollout"),
+    ("a field more", edit(put("extra", 1)), "not a checkpointed rollout"),
     ("`errors` not a digest", edit(put("errors", "abc")), "'errors' is not a sha256 digest"),
     ("`chain` a number", edit(put("chain", 3)), "'chain' is not a sha256 digest"),
     ("`ego` a number", edit(put("ego", 3.0)), f"'ego' is not a list of 1 to {FRAMES} rows"),
@@ -218,14 +218,14 @@ def test_a_torn_last_line_is_dropped_and_the_attack_ends_with_the_uninterrupted_
 
 
 @pytest.mark.parametrize("name, make, says", [
-    ("the checkpoint folder a file", lambda c: shutil.rmtree(c) or c.write_text("x"), "is not a folder"),
-    ("params.json missing", lambda c: (c / "params.json").unlink(), "params.json: is missing or not a regular file"),
+    ("the checkpoint folder a file", lambda c: shutil.rmtree(c) or c.write_text("x"), "not a folder"),
+    ("params.json missing", lambda c: (c / "params.json").unlink(), "params.json: missing or not a regular file"),
     ("params.json a folder", lambda c: (c / "params.json").unlink() or (c / "params.json").mkdir(),
-     "params.json: is missing or not a regular file"),
+     "params.json: missing or not a regular file"),
     ("params.json a FIFO (it would block)", lambda c: (c / "params.json").unlink() or os.mkfifo(c / "params.json"),
-     "params.json: is missing or not a regular file"),
+     "params.json: missing or not a regular file"),
     ("rollouts.jsonl a folder", lambda c: (c / ROLLOUTS).unlink() or (c / ROLLOUTS).mkdir(),
-     "rollouts.jsonl: is missing or not a regular file"),
+     "rollouts.jsonl: missing or not a regular file"),
 ])
 def test_a_checkpoint_of_the_wrong_shape_is_refused_in_one_line(kept, tmp_path, capsys, name, make, says):
     output = tmp_path / "out"

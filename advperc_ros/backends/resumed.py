@@ -92,7 +92,7 @@ def _parsed(raw: bytes) -> object:
 def _fields(line: object) -> dict:
     """A line's JSON value as the mapping of its fields, else a ValueError."""
     if not isinstance(line, dict) or set(line) != set(FIELDS):
-        raise ValueError(f"is not a checkpointed rollout (a mapping of exactly {', '.join(FIELDS)})")
+        raise ValueError(f"not a checkpointed rollout (a mapping of exactly {', '.join(FIELDS)})")
     return line
 
 
@@ -137,7 +137,7 @@ class Checkpoint:
         self.folder = checkpoint_folder(output)
         self._identity = json.dumps(params.canonical(), sort_keys=True)
         if os.path.lexists(self.folder) and (self.folder.is_symlink() or not self.folder.is_dir()):
-            raise self._damaged(self.folder, "is not a folder")
+            raise self._damaged(self.folder, "not a folder")
         rollouts = self.folder / ROLLOUTS
         if resume and os.path.lexists(rollouts):
             if self._read(self.folder / PARAMS) != self._identity.encode():
@@ -163,7 +163,7 @@ class Checkpoint:
     def _read(self, path: Path) -> bytes:
         """A checkpoint file's bytes; a folder, a FIFO (it would block) or an unreadable file is damage."""
         if not path.is_file():
-            raise self._damaged(path, "is missing or not a regular file")
+            raise self._damaged(path, "missing or not a regular file")
         try:
             return path.read_bytes()
         except OSError as exc:

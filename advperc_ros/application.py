@@ -186,6 +186,7 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     output.parent.mkdir(parents=True, exist_ok=True)  # where the lock goes
     with exclusive(output_lock(output), f"{output}: another attack is running on this output; let it finish or "
                                         "stop it first"):
+        check_output(output)  # again: an attack that held the lock until now may have finished into it
         return output, _checkpointed_attack(params, scenario, bag_path, output, progress, transport, resume)
 
 

@@ -8,7 +8,8 @@ import os
 import shutil
 import signal
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +18,7 @@ from conftest import REPO
 from test_cli import write_params
 from test_resume import _attack, _report
 
+from advperc_ros import application
 from advperc_ros.application import output_lock
 from advperc_ros.backends.resumed import ROLLOUTS, Checkpoint, checkpoint_folder
 from advperc_ros.cli import main
@@ -258,3 +260,21 @@ def test_a_second_attack_on_a_running_attacks_output_ends_in_one_line_and_touche
         first.wait(timeout=60)
     with exclusive(output_lock(output), "still held"):  # the kernel let go of the killed attack's lock
         pass
+
+
+def test_an_attack_that_finished_into_the_output_while_this_one_waited_for_its_lock_is_not_overwritten(
+        tmp_path, capsys, monkeypatch):
+    """The output is checked again once the lock is held: the attack that held it may have written it."""
+    params = write_params(tmp_path / "p.yaml", REPO, **SHORT)
+    output = tmp_path / "out"
+    locked = application.exclusive
+
+    @contextmanager
+    def finished_meanwhile(lock: Path, busy: str) -> Iterator[None]:
+        output.mkdir()  # the results of the attack that held the lock until now
+        with locked(lock, busy):
+            yield
+
+    monkeypatch.setattr(application, "exclusive", finished_meanwhile)
+    refused(["attack", str(params), "--output", str(output), "--quiet"], capsys, f"{output}: output folder exists already")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "p.yaml"]  # no checkpoint, no lock

@@ -3,6 +3,7 @@ refused in one line naming the file and the line (exit 2), and the checkpoint is
 last line cut short by a kill is dropped, and the attack still ends with the uninterrupted report. A
 running attack's output is locked: a second attack on it ends in one line and touches nothing."""
 
+import fcntl
 import json
 import os
 import shutil
@@ -278,3 +279,21 @@ def test_an_attack_that_finished_into_the_output_while_this_one_waited_for_its_l
     monkeypatch.setattr(application, "exclusive", finished_meanwhile)
     refused(["attack", str(params), "--output", str(output), "--quiet"], capsys, f"{output}: output folder exists already")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out", "p.yaml"]  # no checkpoint, no lock
+
+
+def test_a_lock_file_removed_while_it_was_being_taken_is_taken_anew(tmp_path, monkeypatch):
+    """The run that held the lock ended (and removed its file) between this one's open and flock: the
+    lock this one got guards nothing, so it locks a file of its own."""
+    lock = tmp_path / ".out.lock"
+    flock, held = fcntl.flock, []
+
+    def the_holder_ends_first(fd: int, operation: int) -> None:
+        flock(fd, operation)
+        if not held:
+            lock.unlink()
+        held.append(os.fstat(fd).st_ino)
+
+    monkeypatch.setattr(fcntl, "flock", the_holder_ends_first)
+    with exclusive(lock, "busy"):
+        assert len(held) == 2 and os.stat(lock).st_ino == held[-1]
+    assert not lock.exists()

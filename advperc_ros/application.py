@@ -28,7 +28,7 @@ from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch
 from advperc_ros.exits import Interrupted
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import AttackParams, ParamsError, resolve_bag
-from advperc_ros.paths import MIB, check_free_space, check_output, full_disk_said
+from advperc_ros.paths import MIB, check_free_space, check_output, exclusive, full_disk_said
 from advperc_ros.results import write_results
 from advperc_ros.ros.bag import read_scenario
 
@@ -184,11 +184,18 @@ def output_bytes(scenario: Scenario, search: SearchConfig, bag_path: Path) -> in
     return rollouts * line + RESULTS_PER_BAG_BYTE * bag + PLOTS_BYTES
 
 
+def output_lock(output: Path) -> Path:
+    """The file an attack holds beside its output while it runs: a second attack on that output would
+    resume the checkpoint the first is still writing, or delete it to start afresh."""
+    return output.parent / f".{output.name}.lock"
+
+
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,
                      transport: Any = None, resume: bool = False) -> tuple[Path, dict]:
     """Run the attack the params describe and write its results folder; (folder, report). Every
     rollout is checkpointed as it completes (advperc_ros.backends.resumed); `resume` finishes an attack
-    that was killed, with the report it would have written. `transport`: an rclpy node's
+    that was killed, with the report it would have written. The output is locked first, before
+    anything is made or removed, so only one attack at a time has it. `transport`: an rclpy node's
     transport, to reach graph nodes already running."""
     bag_path = resolve_bag(params)
     scenario = read_scenario(bag_path)
@@ -196,13 +203,27 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     check_output(output)
     configs = core_configs(params)  # once, for the backend, the checkpoint and the search
     check_free_space(output, output_bytes(scenario, configs.search, bag_path))
+    output.parent.mkdir(parents=True, exist_ok=True)  # where the lock goes
+    with exclusive(output_lock(output), f"{output}: another attack is running on this output; let it finish or "
+                                        "stop it first"):
+        check_output(output)  # again: an attack that held the lock until now may have finished into it
+        return output, _checkpointed_attack(params, scenario, bag_path, output, progress, transport, resume, configs)
+
+
+def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Path, output: Path, progress: bool,
+                         transport: Any, resume: bool, configs: CoreConfigs) -> dict:
+    """The attack with its checkpoint, its report written into `output`; the caller holds the output's
+    lock. A disk that fills on the way ends it in one line, the checkpoint kept for --resume."""
     source = params.source or "PARAMS"
-    checkpoint = Checkpoint(output, params, resume)
+    checkpoint = Checkpoint(output, params, scenario, resume)
     finished = False
     with full_disk_said(output, f"the checkpoint keeps every rollout done; free some space, then: advperc attack {source} "
                                 f"--resume {output}"):
         try:
-            report = _attack_with_checkpoint(scenario, params, bag_path, output, transport, configs, checkpoint, progress)
+            with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
+                outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
+                    rollouts, checkpoint, scenario.agents, configs.rollout))
+            report = write_results(output, outcome, bag_path)
             finished = True
         except (InconclusiveSearch, GroundTruthFails):
             finished = True  # rollouts that found nothing out, or nothing to attack: not worth resuming
@@ -211,16 +232,7 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
             raise Interrupted(f"finish it with: advperc attack {source} --resume {output}", output) from None
         finally:
             checkpoint.close(finished)
-    return output, report
-
-
-def _attack_with_checkpoint(scenario: Scenario, params: AttackParams, bag_path: Path, output: Path, transport: Any,
-                            configs: CoreConfigs, checkpoint: Checkpoint, progress: bool) -> dict:
-    """The search on the params' backend with every rollout checkpointed, then the results folder."""
-    with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
-        outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
-            rollouts, checkpoint, scenario.agents, configs.rollout))
-    return write_results(output, outcome, bag_path)
+    return report
 
 
 def summary(report: dict) -> dict:

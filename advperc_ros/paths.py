@@ -1,6 +1,8 @@
-"""Where results go: checked before any work starts, so no long run is lost to an unwritable path."""
+"""Where results go: checked before any work starts, so no long run is lost to an unwritable path,
+and held by one run at a time, so two runs never write the same place."""
 
 import errno
+import fcntl
 import os
 import shutil
 import tempfile
@@ -75,3 +77,40 @@ def full_disk_said(output: Path, then: str) -> Iterator[None]:
         if exc.errno not in FULL:
             raise
         raise OutOfSpace(f"{output}: the disk filled while writing ({exc.strerror}): {then}") from None
+
+
+@contextmanager
+def exclusive(lock: Path, busy: str) -> Iterator[None]:
+    """Hold the file `lock` (made if need be) for this run alone while the block runs, else a
+    ParamsError saying `busy`. An flock, so the kernel releases it however the run ends (SIGKILL
+    too) and a killed run never blocks the next. The file goes when the block ends; a run that
+    opened it just before finds, once it holds its lock, that the name no longer leads to the file
+    it locked, and opens the name again."""
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
+        except OSError as exc:
+            raise ParamsError(f"{lock}: cannot make the lock file: {exc.strerror}") from None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise ParamsError(busy) from None
+        if _names(lock, fd):
+            break
+        os.close(fd)  # the lock of a file its last holder removed: it guards nothing
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)  # before the lock goes, so a waiting run sees the file is gone
+        os.close(fd)
+
+
+def _names(path: Path, fd: int) -> bool:
+    """Whether `path` still leads to the open file `fd`."""
+    try:
+        found = os.stat(path, follow_symlinks=False)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(fd)
+    return (found.st_dev, found.st_ino) == (held.st_dev, held.st_ino)

@@ -3,11 +3,13 @@ field, exit code 2, and nothing written. The table of them in docs/commands.md i
 `CASES` (`ADVPERC_WRITE_DOCS=1 python -m pytest test/test_bad_input.py` rewrites it), so it cannot drift.
 """
 
+import dataclasses
 import json
 import os
 import re
 import shutil
 from collections.abc import Callable
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,7 +17,14 @@ import numpy as np
 import pytest
 import yaml
 
+from advperc_ros.application import output_lock
+from advperc_ros.backends.resumed import ROLLOUTS, Checkpoint, checkpoint_folder
 from advperc_ros.cli import main
+from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.params import load_params
+from advperc_ros.paths import exclusive
+from advperc_ros.ros.bag import read_scenario
 from conftest import REPO
 from test_check_bag import boxes, write_bag
 
@@ -114,6 +123,67 @@ def model(text: str) -> Callable[[Path], list[str]]:
     return build
 
 
+def resume(damage: Callable[[Path], object]) -> Callable[[Path], list[str]]:
+    """`attack --resume` of an output whose checkpoint (three rollouts, as an attack writes them) `damage`
+    changed; `damage` gets the checkpoint folder."""
+    def build(folder: Path) -> list[str]:
+        params = _params(folder)
+        _checkpoint(folder / "out", params)
+        damage(checkpoint_folder(folder / "out"))
+        return ["attack", params, "--resume", str(folder / "out"), "--quiet"]
+    return build
+
+
+def _checkpoint(output: Path, params: str, seed: int = 0) -> None:
+    """A checkpoint of three made-up rollouts of the good bag, written by the attack's own writer."""
+    scenario = read_scenario(GOOD_BAG)
+    frames, agents = scenario.agents.shape
+    checkpoint = Checkpoint(output, dataclasses.replace(load_params(params), seed=seed), scenario, resume=False)
+    for k in range(3):
+        errors = PerceptionErrors.none(frames, agents)
+        errors.dx[k] = 1.0
+        checkpoint.append(errors, RolloutResult(ego=np.full((frames, 4), float(k)), distances=np.full((frames, agents), 9.5)))
+    checkpoint.close(finished=False)
+
+
+def _rollouts(change: Callable[[list], object]) -> Callable[[Path], None]:
+    """A damage of the rollouts file: `change` edits its list of lines (as bytes) in place."""
+    def damage(checkpoint: Path) -> None:
+        lines = (checkpoint / ROLLOUTS).read_bytes().splitlines()
+        change(lines)
+        (checkpoint / ROLLOUTS).write_bytes(b"".join(line + b"\n" for line in lines))
+    return damage
+
+
+def _second_line(change: Callable[[dict], object]) -> Callable[[Path], None]:
+    """A damage of the second line's JSON value: `change` edits it in place."""
+    def edit(lines: list) -> None:
+        line = json.loads(lines[1])
+        change(line)
+        lines[1] = json.dumps(line).encode()
+    return _rollouts(edit)
+
+
+def _splice(checkpoint: Path) -> None:
+    """The second line replaced by the second line of another attack's (seed 1) checkpoint."""
+    other = checkpoint.parent / "other"
+    _checkpoint(other, str(checkpoint.parent / "p.yaml"), seed=1)
+    theirs = (checkpoint_folder(other) / ROLLOUTS).read_bytes().splitlines()[1]
+    shutil.rmtree(checkpoint_folder(other))
+    _rollouts(lambda lines: lines.__setitem__(1, theirs))(checkpoint)
+
+
+HELD = ExitStack()  # the output locks of the attacks `running` stands for, held as they would hold them
+
+
+def running(*flags: str) -> Callable[[Path], list[str]]:
+    """`attack` onto an output another attack is running on (its lock held)."""
+    def build(folder: Path) -> list[str]:
+        HELD.enter_context(exclusive(output_lock(folder / "out"), "held"))
+        return ["attack", _params(folder), *flags, str(folder / "out"), "--quiet"]
+    return build
+
+
 def _cases() -> list[Case]:
     cases = [
         Case("advperc attack P.yaml", "params file missing", lambda f: ["attack", str(f / "none.yaml")], "no such params file"),
@@ -205,6 +275,32 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml --output", "output on a disk without room for the run's estimate", attack_flags(), "MiB free", "out",
              setup=_disk_with_one_mib_free),
         Case("advperc attack P.yaml --resume", "`--resume` and another `--output`", attack_flags("--resume", "elsewhere"), "give the folder once", None),
+        Case("advperc attack P.yaml --resume", "checkpoint line `{}`", resume(_rollouts(lambda lines: lines.__setitem__(1, b"{}"))), "line 2: not a checkpointed rollout", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint line `[1, 2]`", resume(_rollouts(lambda lines: lines.__setitem__(1, b"[1, 2]"))), "line 2: not a checkpointed rollout", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint line `null`", resume(_rollouts(lambda lines: lines.__setitem__(1, b"null"))), "line 2: not a checkpointed rollout", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint line not UTF-8", resume(_rollouts(lambda lines: lines.__setitem__(1, b"\xff" + lines[1]))), "line 2 is not JSON", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint line cut short, not the last (damage, not a kill)", resume(_rollouts(lambda lines: lines.__setitem__(1, lines[1][:100]))), "line 2 is not JSON", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint line without `chain`", resume(_second_line(lambda line: line.pop("chain"))), "line 2: not a checkpointed rollout", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `errors` not a digest", resume(_second_line(lambda line: line.update(errors="x"))), "'errors' is not a sha256 digest", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `ego` row of 3 numbers", resume(_second_line(lambda line: line["ego"][7].pop())), "'ego' row 7 is not a list of 4 values", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `ego` value NaN", resume(_second_line(lambda line: line["ego"][7].__setitem__(0, float("nan")))), "'ego' row 7 column 0 is not a finite number", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `ego` value a string", resume(_second_line(lambda line: line["ego"][7].__setitem__(0, "1.0"))), "'ego' row 7 column 0 is not a finite number", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `ego` longer than the bag", resume(_second_line(lambda line: line["ego"].append([0.0] * 4))), "'ego' is not a list of 1 to 251 rows", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `distances` a row short of `ego`", resume(_second_line(lambda line: line["distances"].pop())), "'distances' is not a list of 251 rows", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `distances` of 4 agents (the bag has 5)", resume(_second_line(lambda line: line["distances"][0].pop())), "'distances' row 0 is not a list of 5 values", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint distance `true`", resume(_second_line(lambda line: line["distances"][0].__setitem__(0, True))), "'distances' row 0 column 0 is not a finite number or null", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `planner_failures` -1", resume(_second_line(lambda line: line.update(planner_failures=-1))), "'planner_failures' is neither null nor a count", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `inconclusive` a number", resume(_second_line(lambda line: line.update(inconclusive=3))), "'inconclusive' is neither null nor a string", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint distance edited by hand (it was used silently)", resume(_second_line(lambda line: line["distances"][0].__setitem__(0, 2.5))), "line 2 was changed after it was written", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint lines reordered", resume(_rollouts(lambda lines: lines.reverse())), "line 1 was changed after it was written, moved", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint line of another attack's checkpoint", resume(_splice), "comes from another attack's checkpoint", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint folder a file", resume(lambda c: shutil.rmtree(c) or c.write_text("x")), "not a folder", ".out.checkpoint"),
+        Case("advperc attack P.yaml --resume", "checkpoint `rollouts.jsonl` a folder", resume(lambda c: (c / ROLLOUTS).unlink() or (c / ROLLOUTS).mkdir()), "missing or not a regular file", "rollouts.jsonl"),
+        Case("advperc attack P.yaml --resume", "checkpoint `params.json` missing", resume(lambda c: (c / "params.json").unlink()), "missing or not a regular file", "params.json"),
+        Case("advperc attack P.yaml --resume", "checkpoint `params.json` a folder", resume(lambda c: (c / "params.json").unlink() or (c / "params.json").mkdir()), "missing or not a regular file", "params.json"),
+        Case("advperc attack P.yaml --resume", "checkpoint of an attack with other params", resume(lambda c: (c / "params.json").write_text("{}")), "the checkpoint is of an attack with other params", "params.json"),
+        Case("advperc attack P.yaml --output", "another attack running on that output", running("--output"), "another attack is running on this output", "out"),
+        Case("advperc attack P.yaml --resume", "`--resume` of an attack still running (it ran alongside and crashed)", running("--resume"), "another attack is running on this output", "out"),
         Case("advperc attack P.yaml", "bag folder empty", lambda f: (f / "bag").mkdir() or ["attack", _params(f, bag=str(f / "bag"))], "bag", "bag"),
         Case("advperc attack P.yaml", "bag file not MCAP", lambda f: _broken_bag(f) and ["attack", _params(f, bag=str(f / "bag"))], "not a readable rosbag2 bag", "bag"),
         Case("advperc attack P.yaml", "bag without /ground_truth/objects", attack_bag(frames=[]), "/ground_truth/objects", "bag"),

@@ -10,16 +10,28 @@ a checkpoint can only finish the attack it began.
 
 Layout: `<output parent>/.<output name>.checkpoint/` holds `params.json` (the canonical params and
 seed) and `rollouts.jsonl`, one line per rollout appended and flushed to disk before the search
-goes on (floats as `repr`, exact). A line cut short by a kill is ignored: that rollout runs again.
-An attack killed before its first checkpoint resumes from the start. The folder goes when the
-results folder is complete; a fresh attack refuses to start over a checkpoint it would lose.
+goes on (floats as `repr`, exact). A resume checks every line before it uses any, since a
+checkpoint is outside input (disks fail, people edit files): a mapping of exactly the fields
+below, `ego` 1 to T rows (the scenario's frames) of 4 finite numbers, `distances` one row per ego
+row of a finite number or null (+inf) per agent of the scenario, `inconclusive` null or a string,
+`planner_failures` null or a count. Each line's `chain` is the sha256 of the params, the previous
+line's chain and the line's own content, so a value edited by hand, a line moved, or one taken from
+another attack's checkpoint is refused as well (against accidents, not a forger: sha256 has no
+key). Anything wrong refuses the checkpoint in one line naming the file and line, before the files
+are touched; deleting the folder starts the attack over. Only the last line may be cut short (a
+kill mid-write: no newline, not JSON): it is dropped and that rollout runs again. An attack killed
+before its first checkpoint resumes from the start. The folder goes when the results folder is
+complete; a fresh attack refuses to start over a checkpoint it would lose. The caller holds the
+output's lock (`application.attack_to_folder`), so a running attack's checkpoint is its alone.
 """
 
 import hashlib
 import json
 import math
 import os
+import re
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -28,14 +40,25 @@ from advperc_ros.backends.base import AttackedPlanner, Rollouts
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
+from advperc_ros.core.scenario import Scenario
 from advperc_ros.params import AttackParams, ParamsError
 
 PARAMS = "params.json"
 ROLLOUTS = "rollouts.jsonl"
+FIELDS = ("errors", "ego", "distances", "inconclusive", "planner_failures", "chain")  # a line's, as written
+SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
 def checkpoint_folder(output: Path) -> Path:
     return output.parent / f".{output.name}.checkpoint"
+
+
+@dataclass(frozen=True)
+class Stored:
+    """A checkpointed rollout: the digest of the errors it was asked for, and what it gave."""
+
+    errors: str
+    result: RolloutResult
 
 
 def _digest(errors: PerceptionErrors) -> str:
@@ -45,57 +68,146 @@ def _digest(errors: PerceptionErrors) -> str:
     return sha.hexdigest()
 
 
-def _record(errors: PerceptionErrors, result: RolloutResult) -> str:
-    return json.dumps({"errors": _digest(errors), "ego": result.ego.tolist(),
-                       "distances": [[None if math.isinf(d) else d for d in row] for row in result.distances.tolist()],
-                       "inconclusive": result.inconclusive, "planner_failures": result.planner_failures})
+def _chain(identity: str, previous: str, content: str) -> str:
+    """A line's `chain`: its content bound to the attack (the params) and to the line before it
+    ('' for the first), so an edit, a move or a line of another checkpoint breaks it."""
+    return hashlib.sha256("\n".join((identity, previous, content)).encode()).hexdigest()
 
 
-def _result(record: dict) -> RolloutResult:
-    distances = np.array([[np.inf if d is None else d for d in row] for row in record["distances"]], dtype=float)
-    ego = np.array(record["ego"], dtype=float).reshape(-1, 4)
-    return RolloutResult(ego=ego, distances=distances.reshape(ego.shape[0], -1), inconclusive=record["inconclusive"],
-                         planner_failures=record["planner_failures"])
+def _content(errors: PerceptionErrors, result: RolloutResult) -> dict:
+    """A line's fields but its chain."""
+    return {"errors": _digest(errors), "ego": result.ego.tolist(),
+            "distances": [[None if math.isinf(d) else d for d in row] for row in result.distances.tolist()],
+            "inconclusive": result.inconclusive, "planner_failures": result.planner_failures}
+
+
+def _parsed(raw: bytes) -> object:
+    """A line's JSON value, else a ValueError (bytes not UTF-8 are one too)."""
+    try:
+        return json.loads(raw.decode())
+    except RecursionError:  # `[[[[...`: the parser's own stack
+        raise ValueError("nested too deep") from None
+
+
+def _fields(line: object) -> dict:
+    """A line's JSON value as the mapping of its fields, else a ValueError."""
+    if not isinstance(line, dict) or set(line) != set(FIELDS):
+        raise ValueError(f"not a checkpointed rollout (a mapping of exactly {', '.join(FIELDS)})")
+    return line
+
+
+def _stored(line: dict, shape: tuple[int, int]) -> Stored:
+    """A line's rollout, checked against the scenario's (frames, agents) `shape`; else a ValueError
+    saying what is wrong with it."""
+    for name in ("errors", "chain"):
+        if not isinstance(line[name], str) or not SHA256.fullmatch(line[name]):
+            raise ValueError(f"'{name}' is not a sha256 digest (64 lowercase hex digits)")
+    if line["inconclusive"] is not None and not isinstance(line["inconclusive"], str):
+        raise ValueError("'inconclusive' is neither null nor a string")
+    failures = line["planner_failures"]
+    if failures is not None and (type(failures) is not int or failures < 0):
+        raise ValueError("'planner_failures' is neither null nor a count (an integer, at least 0)")
+    frames, agents = shape
+    ego = _table(line["ego"], "ego", range(1, frames + 1), 4, nullable=False)
+    distances = _table(line["distances"], "distances", range(len(ego), len(ego) + 1), agents, nullable=True)
+    return Stored(line["errors"], RolloutResult(ego=ego, distances=distances, inconclusive=line["inconclusive"],
+                                                planner_failures=failures))
+
+
+def _table(value: object, name: str, rows: range, width: int, nullable: bool) -> np.ndarray:
+    """`value` as a float array of `rows` rows of `width` finite numbers (or, when `nullable`, null:
+    +inf); else a ValueError naming the row and column."""
+    if not isinstance(value, list) or len(value) not in rows:
+        count = rows.start if len(rows) == 1 else f"{rows.start} to {rows.stop - 1}"
+        raise ValueError(f"'{name}' is not a list of {count} rows")
+    kind = "a finite number or null" if nullable else "a finite number"
+    for k, row in enumerate(value):
+        if not isinstance(row, list) or len(row) != width:
+            raise ValueError(f"'{name}' row {k} is not a list of {width} values")
+        for j, cell in enumerate(row):
+            if not ((type(cell) is float and math.isfinite(cell)) or (nullable and cell is None)):
+                raise ValueError(f"'{name}' row {k} column {j} is not {kind}")
+    return np.array([[np.inf if cell is None else cell for cell in row] for row in value], dtype=float)
 
 
 class Checkpoint:
     """The rollouts of one attack so far, on disk next to its (future) results folder."""
 
-    def __init__(self, output: Path, params: AttackParams, resume: bool) -> None:
+    def __init__(self, output: Path, params: AttackParams, scenario: Scenario, resume: bool) -> None:
         self.folder = checkpoint_folder(output)
-        identity = json.dumps(params.canonical(), sort_keys=True)
-        if resume and (self.folder / PARAMS).is_file():
-            if (self.folder / PARAMS).read_text() != identity:
-                raise ParamsError(f"{self.folder}: the checkpoint is of an attack with other params; "
-                                  "resume with the params it began with")
-            self.done = self._load()
+        self._identity = json.dumps(params.canonical(), sort_keys=True)
+        if os.path.lexists(self.folder) and (self.folder.is_symlink() or not self.folder.is_dir()):
+            raise self._damaged(self.folder, "not a folder")
+        rollouts = self.folder / ROLLOUTS
+        if resume and os.path.lexists(rollouts):
+            if self._read(self.folder / PARAMS) != self._identity.encode():
+                raise ParamsError(f"{self.folder / PARAMS}: the checkpoint is of an attack with other params (or "
+                                  "damaged): resume with the params it began with, or delete "
+                                  f"{self.folder} to start the attack over")
+            self.done, self._last = self._load(rollouts, scenario.agents.shape)
         else:  # a fresh attack, or one killed before its first checkpoint
-            if self.folder.exists() and not resume:
+            if os.path.lexists(self.folder) and not resume:
                 raise ParamsError(f"{output}: an interrupted attack left {self.folder}: finish it with --resume "
                                   f"{output}, or delete that folder")
             shutil.rmtree(self.folder, ignore_errors=True)
             self.folder.mkdir(parents=True)
-            (self.folder / PARAMS).write_text(identity)
-            self.done = []
-        self._file = (self.folder / ROLLOUTS).open("a")
+            (self.folder / PARAMS).write_text(self._identity)
+            self.done, self._last = [], ""
+        self._file = rollouts.open("a")
 
-    def _load(self) -> list[dict]:
-        path = self.folder / ROLLOUTS
-        if not path.exists():
-            return []
-        records = []
-        with path.open() as handle:
-            for line in handle:
-                try:
-                    records.append(json.loads(line))
-                except json.JSONDecodeError:  # the line a kill cut short: its rollout runs again
+    def _damaged(self, path: Path, what: str) -> ParamsError:
+        """The one line refusing a damaged checkpoint: the file, what is wrong, and the way on."""
+        return ParamsError(f"{path}: {what}; the checkpoint cannot be resumed: delete {self.folder} to start the "
+                           "attack over")
+
+    def _read(self, path: Path) -> bytes:
+        """A checkpoint file's bytes; a folder, a FIFO (it would block) or an unreadable file is damage."""
+        if not path.is_file():
+            raise self._damaged(path, "missing or not a regular file")
+        try:
+            return path.read_bytes()
+        except OSError as exc:
+            raise self._damaged(path, f"cannot be read ({exc.strerror})") from None
+
+    def _load(self, path: Path, shape: tuple[int, int]) -> tuple[list[Stored], str]:
+        """The checkpointed rollouts and the last one's chain, every line checked before the file is
+        touched; then the file keeps its whole lines alone (a last line cut short is dropped)."""
+        data = self._read(path)
+        *lines, tail = data.split(b"\n")  # tail: b"" when the last line is whole
+        done: list[Stored] = []
+        kept: list[bytes] = []
+        last = ""
+        for n, raw in enumerate([*lines, tail] if tail else lines, 1):
+            try:
+                line = _parsed(raw)
+            except ValueError:
+                if n > len(lines):  # the tail, no newline and not JSON: a kill cut it short, its rollout runs again
                     break
-        # rewrite without a torn tail, so appends start on a clean line
-        path.write_text("".join(_record_line(r) for r in records))
-        return records
+                raise self._damaged(path, f"line {n} is not JSON (only the last line may be cut short, by a kill)") from None
+            try:
+                fields = _fields(line)
+                done.append(_stored(fields, shape))
+            except ValueError as exc:
+                raise self._damaged(path, f"line {n}: {exc}") from None
+            last = self._follow(path, n, fields, last)
+            kept.append(raw)
+        whole = b"".join(raw + b"\n" for raw in kept)
+        if whole != data:
+            _replace(path, whole)
+        return done, last
+
+    def _follow(self, path: Path, n: int, line: dict, previous: str) -> str:
+        """Line `n`'s chain, checked to follow `previous` with this line's content."""
+        content = {name: value for name, value in line.items() if name != "chain"}
+        if _chain(self._identity, previous, json.dumps(content)) != line["chain"]:
+            raise self._damaged(path, f"line {n} was changed after it was written, moved, or comes from another "
+                                      "attack's checkpoint (its 'chain' does not follow)")
+        return line["chain"]
 
     def append(self, errors: PerceptionErrors, result: RolloutResult) -> None:
-        self._file.write(_record(errors, result) + "\n")
+        content = _content(errors, result)
+        self._last = _chain(self._identity, self._last, json.dumps(content))
+        self._file.write(json.dumps({**content, "chain": self._last}) + "\n")
         self._file.flush()
         os.fsync(self._file.fileno())
 
@@ -107,8 +219,14 @@ class Checkpoint:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def _record_line(record: dict) -> str:
-    return json.dumps(record) + "\n"
+def _replace(path: Path, data: bytes) -> None:
+    """`path` holding `data`, whole or not at all: a kill mid-write leaves the old file."""
+    staging = path.with_name(f".{path.name}.partial")
+    with staging.open("wb") as handle:
+        handle.write(data)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(staging, path)
 
 
 class ResumedRollouts:
@@ -137,10 +255,10 @@ class ResumedRollouts:
         stored: list[RolloutResult] = []
         while len(stored) < len(batch) and self._next < len(self._checkpoint.done):
             record, errors = self._checkpoint.done[self._next], batch[len(stored)]
-            if record["errors"] != _digest(errors):
+            if record.errors != _digest(errors):
                 raise ParamsError(f"{self._checkpoint.folder}: rollout {self._next + 1} differs from the one recorded: "
                                   "the checkpoint is of another attack (or another version of this tool)")
-            stored.append(judge(_result(record), self._agents, self._config))
+            stored.append(judge(record.result, self._agents, self._config))
             self._next += 1
         rest = batch[len(stored):]
         many = getattr(self._backend, "rollout_many", None)

@@ -3,13 +3,10 @@ cells not finished yet on the executor, and keep the summary current after every
 killed at any point is resumed by running it again.
 """
 
-import fcntl
 import json
 import shutil
 import sys
 from collections import deque
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -26,7 +23,7 @@ from advperc_ros.campaign.summary import (
     write_summary,
 )
 from advperc_ros.exits import EXIT_OK
-from advperc_ros.params import ParamsError
+from advperc_ros.paths import exclusive
 
 LOCK = ".campaign.lock"
 EXIT_BUG = 1  # what Python exits with on an uncaught exception
@@ -45,17 +42,6 @@ class CampaignRun:
         return {"output": str(self.output), "cells": len(self.records), "ran": len(self.ran),
                 "finished_before": len(self.finished_before), "collide": sum(1 for r in self.records if r["collision"]),
                 "failures": outcomes.count(FAILURE), "errors": outcomes.count(ERROR)}
-
-
-@contextmanager
-def _locked(output: Path) -> Iterator[None]:
-    """The output folder for this run alone: two runs would start the same cells."""
-    with (output / LOCK).open("w") as handle:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise ParamsError(f"{output}: another campaign run is using this folder") from None
-        yield
 
 
 def _clear_staging(output: Path) -> None:
@@ -91,7 +77,7 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
     cells = plan(campaign)  # everything checked before any work
     output = campaign.output.resolve()
     output.mkdir(parents=True, exist_ok=True)
-    with _locked(output):
+    with exclusive(output / LOCK, f"{output}: another campaign run is using this folder"):  # it would start the same cells
         _clear_staging(output)
         reports = {cell.name: cell.report(output) for cell in cells}
         todo = deque(cell for cell in cells if reports[cell.name] is None)

@@ -213,7 +213,7 @@ def rollout(
     inconclusive = None
     try:
         planner.reset()
-    except Exception as exc:  # a plug-in whose reset fails plans nothing: no verdict, as a failing plan()
+    except (Exception, SystemExit) as exc:  # a plug-in whose reset fails or exits plans nothing: no verdict
         inconclusive = f"frame 0: planner's reset() raised {type(exc).__name__}: {exc}"
     ego = scenario.ego_start
     ego_states: list[tuple[float, float, float, float]] = []  # x, y, yaw, v at frames 0..k

@@ -49,11 +49,11 @@ class PlannerNode:
 
     def _answer(self, stamp: int, tracks: dict, ego: Any) -> None:
         first, t = self._pairs.clock.answer(stamp)
-        if first:
-            self._planner.reset()
         try:
+            if first:
+                self._planner.reset()
             path = self._encode_plan(self._planner.plan(t, ego, tracks), stamp)
-        except Exception as exc:  # a plug-in that crashes must still answer: with an empty plan
+        except (Exception, SystemExit) as exc:  # a plug-in that crashes or exits must still answer: with an empty plan
             self._log.error(f"planner raised {type(exc).__name__} at t={t:.3f} s: {exc}; answering with an empty plan")
             path = self._encode_plan(EMPTY_PLAN, stamp)
         self._plan.publish(path)

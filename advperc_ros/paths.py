@@ -27,6 +27,8 @@ def check_output(output: Path, kind: str = "output folder") -> None:
     if len(os.fsencode(longest)) > name_max:  # before any look at the path, which fails on such a name
         raise ParamsError(f"{str(output)[:60]}...: cannot create the {kind}: a name in its path is longer than the "
                           f"file system allows ({name_max} bytes)")
+    if output.name in ("", ".."):  # '..' names a folder that exists (or will, once the ones before it are made)
+        raise ParamsError(f"{output}: the {kind} must be named by its own name, not by '..' or a root")
     if output.is_symlink():
         raise ParamsError(f"{output}: the {kind} is a symbolic link; name the place it should be itself")
     try:

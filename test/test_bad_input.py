@@ -353,6 +353,10 @@ def _cases() -> list[Case]:
         Case("advperc make-bags SCENARIO --output-dir", "output folder a file", lambda f: (f / "file").write_text("x") and ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "file")], "is not a folder", "file"),
         Case("advperc make-bags SCENARIO --output-dir", "output folder a symbolic link to nothing", lambda f: _link(f / "bags", "nowhere") or ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "bags")], "symbolic link to nothing", "bags"),
         Case("advperc make-bags SCENARIO --force", "`--force` onto a folder of the user's that is not a bag", lambda f: (f / "bags" / "idm_lane_following").mkdir(parents=True) or ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "bags"), "--force"], "not a rosbag2 bag", "idm_lane_following"),
+        Case("advperc campaign FILE", "`thresholds.nds` .nan (a gate that could never fail)", campaign_file(thresholds={"nds": float("nan")}), "field 'thresholds.nds'"),
+        Case("advperc campaign FILE", "`thresholds.nds_t` .inf", campaign_file(thresholds={"nds_t": float("inf")}), "field 'thresholds.nds_t'"),
+        Case("advperc campaign FILE", "`thresholds.nds` 5.0 (above any score)", campaign_file(thresholds={"nds": 5.0}), "field 'thresholds.nds'"),
+        Case("advperc campaign FILE", "`output` a folder of the user's files (it wrote among them and deleted one)", lambda f: (f / "mine").mkdir() or (f / "mine" / ".x.partial").mkdir() or campaign_file(output=str(f / "mine"))(f), "did not make", "c.yaml"),
         Case("advperc campaign FILE --output", "output a symbolic link to nothing", lambda f: _link(f / "out", "nowhere") or ["campaign", str(REPO / "examples" / "campaign.yaml"), "--output", str(f / "out")], "is a symbolic link", "out"),
         Case("advperc pem fit BAG --output", "output under a symbolic link loop", lambda f: _link(f / "loop", "loop") or ["pem", "fit", str(GOOD_BAG), "--output", str(f / "loop" / "m.json")], "symbolic link loop", "loop"),
         Case("advperc make-bags SCENARIO", "scenario not YAML", lambda f: (f / "s.yaml").write_text("a: [") and ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "s.yaml", "s.yaml"),
@@ -377,6 +381,16 @@ def _drive_log(folder: Path, odometry: bool = True, frames: int = 5) -> list[str
         topics[ODOMETRY] = ("nav_msgs/msg/Odometry", [(t, msgs.ego_to_cdr(EgoState(0.5 * k, 0.0, 0.0, 5.0), t))
                                                        for k, t in enumerate(stamps)])
     return ["import-bag", str(write_log(folder / "log", topics))]
+
+
+def campaign_file(**fields) -> Callable[[Path], list[str]]:
+    """`advperc campaign` of a small valid campaign file, changed by `fields`."""
+    def build(folder: Path) -> list[str]:
+        document = {"name": "small", "output": str(folder / "campaign"), "scenarios": [_params(folder)],
+                    "objectives": ["nds_t"], "seeds": [0], "executor": "serial", **fields}
+        (folder / "c.yaml").write_text(yaml.safe_dump(document))
+        return ["campaign", str(folder / "c.yaml"), "--quiet"]
+    return build
 
 
 def _disk_with_one_mib_free(monkeypatch: pytest.MonkeyPatch) -> None:

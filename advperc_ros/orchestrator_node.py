@@ -63,7 +63,9 @@ def main(args: list[str] | None = None) -> int:
                               f"only with '{OUTPUT}' (the folder of the attack to finish)")
         source = params_source(argv, flat.get("bag"))
         params = parse_params({NODE: {"ros__parameters": nest(flat)}}, str(source or f"node '{NODE}' parameters"), source)
-        node.get_logger().info(f"attacking {params.bag} ({params.planner}, objective {params.objective})")
+        node.get_logger().info(f"attacking {params.bag} (objective {params.objective}, {params.rollout_backend} backend"
+                               + (f", planner {params.planner})" if params.rollout_backend == "embedded" else
+                                  "; the graph says which planner once it is up)"))
         transport = RclpyTransport(node)  # the graph's nodes are reached, or started as rclpy nodes, through it
         try:
             folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport,

@@ -238,8 +238,12 @@ class AttackParams:
         """What determines the results: every value but the EXECUTION ones, and the planner's."""
         return {name: value for name, value in self.values().items() if name not in EXECUTION}
 
-    def config_hash(self) -> str:
-        return hashlib.sha256(json.dumps(self.canonical(), sort_keys=True).encode()).hexdigest()[:16]
+    def config_hash(self, **external_nodes: str | None) -> str:
+        """16 hex digits of what determines the results: the canonical params, and the team's nodes that
+        were attacked instead of ours (`planner_node=`, `tracker_node=`: their names as the middleware
+        gives them), so that attacks of three external planners are not one configuration."""
+        identity = {**self.canonical(), **{key: node for key, node in sorted(external_nodes.items()) if node is not None}}
+        return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def _schema(cls: type, prefix: str = "") -> dict[str, Param]:

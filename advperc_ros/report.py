@@ -96,7 +96,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         rollouts=len(outcome.log),
         inconclusive_rollouts=sum(1 for row in outcome.log if row.inconclusive),
         wall_time_s=outcome.wall_time_s,
-        config_hash=params.config_hash(),
+        config_hash=params.config_hash(planner_node=outcome.planner_node, tracker_node=outcome.tracker_node),
         params=params.canonical(),
         versions=versions(),
     )

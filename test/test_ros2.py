@@ -308,6 +308,34 @@ def test_ros2_bag_info_lists_every_topic_of_our_bags(tmp_path, ros_domain):
     assert listed["/localization/kinematic_state"] == listed[topics.ODOMETRY]
 
 
+def test_a_silent_frame_names_who_the_ros_graph_shows_for_it(ros_domain):
+    """silence_suspects over rclpy's graph API: the tracker publishing, nobody publishing plans, and
+    our planner node, which announced itself, gone from the graph."""
+    import rclpy
+    from rclpy.node import Node
+
+    from advperc_ros.backends.graph.rollouts import silence_suspects
+    from advperc_ros.ros.interfaces.registry import load_profile
+    from advperc_ros.ros.transport import RclpyTransport
+
+    profile = load_profile("advperc")
+    rclpy.init(domain_id=ros_domain)
+    try:
+        probe, tracker = Node("advperc_suspects_probe"), Node("advperc_suspects_tracker")
+        RclpyTransport(tracker).publisher(profile.tracks.topic, profile.tracks.msgtype)
+        transport = RclpyTransport(probe)
+        expected = (f"no node publishes plans on {profile.plan.topic}; tracked objects on {profile.tracks.topic} come "
+                    "from /advperc_suspects_tracker; gone since they announced themselves on /attack/nodes: planner")
+        deadline = time.monotonic() + 30
+        while (said := silence_suspects(transport, {"planner": 1, "advperc_suspects_tracker": 2}, profile)) != expected:
+            assert time.monotonic() < deadline, said
+            time.sleep(0.1)
+        tracker.destroy_node()
+        probe.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
 def test_ros2_bag_play_feeds_ground_truth_the_graph_accepts(ros_domain):
     need_program("ros2")
     import rclpy

@@ -307,9 +307,13 @@ class DdsTransport:
             if delivered or not woke or not remaining:  # else only writer-gone notices were taken
                 return delivered
 
-    def publishers_of(self, topic: str) -> tuple[str, ...]:
+    def publishers_of(self, topic: str) -> None:
         """Node names are a ROS layer above DDS (rmw's ros_discovery_info), not read here."""
-        return ()
+        return None
+
+    def node_names(self) -> None:
+        """As `publishers_of`: no node names over bare DDS."""
+        return None
 
     def close(self) -> None:
         """Delete the participant and everything in it now (idempotent)."""

@@ -48,9 +48,12 @@ class Transport(Protocol):
     def spin_once(self, timeout: float) -> int:
         """Deliver pending messages to callbacks, waiting up to `timeout` s for the first."""
 
-    def publishers_of(self, topic: str) -> tuple[str, ...]:
+    def publishers_of(self, topic: str) -> tuple[str, ...] | None:
         """Full names of the ROS nodes publishing `topic`, where the middleware says (rclpy's graph
-        API); bare DDS carries no node names, so () there."""
+        API); None over bare DDS, which carries no node names (so "cannot tell" is not "nobody")."""
+
+    def node_names(self) -> tuple[str, ...] | None:
+        """Full names of the ROS nodes in the graph now; None over bare DDS, as for `publishers_of`."""
 
 
 def _message_class(msgtype: str) -> Any:
@@ -109,6 +112,10 @@ class RclpyTransport:
     def publishers_of(self, topic: str) -> tuple[str, ...]:
         return tuple(sorted({f"{info.node_namespace.rstrip('/')}/{info.node_name}"
                              for info in self._node.get_publishers_info_by_topic(topic)}))
+
+    def node_names(self) -> tuple[str, ...]:
+        return tuple(sorted(f"{namespace.rstrip('/')}/{name}"
+                            for name, namespace in self._node.get_node_names_and_namespaces()))
 
     def spin_once(self, timeout: float) -> int:
         before = self._delivered

@@ -48,9 +48,10 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import GraphError, RolloutFault
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 from advperc_ros.params import AttackParams
+from advperc_ros.ros.interfaces.base import Profile
 from advperc_ros.ros.interfaces.registry import load_profile
 from advperc_ros.ros.lockstep import Status
-from advperc_ros.ros.topics import ERRORS
+from advperc_ros.ros.topics import ERRORS, PRESENCE
 from advperc_ros.ros.transport import Transport
 
 PLANNER_NODE = "planner"
@@ -96,6 +97,21 @@ class GraphRollouts:
         except BaseException:
             self.close()
             raise
+        log.info(self._attacking())
+
+    def _attacking(self) -> str:
+        """What the rollouts go through, said once the graph is up: a team's planner (or tracker) is
+        not the params' own, and the params' planner and planner_params then do not apply."""
+        attacked = self.attacked_planner
+        if attacked.node is None:
+            said = f"attacking our planner node ({self.params.planner})"
+        else:
+            said = (f"attacking the external planner {attacked.node or '(bare DDS names no nodes)'} on "
+                    f"{self.profile.plan.topic}; the params' planner '{self.params.planner}' and its planner_params "
+                    "do not apply to it")
+        if attacked.tracker_node is not None:
+            said += f"; tracks from the external tracker {attacked.tracker_node or '(unnamed)'}"
+        return said
 
     # -- lifecycle -------------------------------------------------------------------------------
 
@@ -173,11 +189,14 @@ class GraphRollouts:
         configures it from the same params), else an external node, named where the middleware
         tells who publishes the plans; the same for the tracker whose tracks it read."""
         ours = self.params.graph.spawn_nodes
-        publishers = self.client.transport.publishers_of
-        tracker = None if ours or TRACKER_NODE in self.client.present else ", ".join(publishers(self.profile.tracks.topic))
+
+        def publishers(topic: str) -> str:
+            return ", ".join(self.client.transport.publishers_of(topic) or ())
+
+        tracker = None if ours or TRACKER_NODE in self.client.present else publishers(self.profile.tracks.topic)
         if ours or PLANNER_NODE in self.client.present:
             return AttackedPlanner(self.params.planner, tracker_node=tracker)
-        return AttackedPlanner(EXTERNAL, ", ".join(publishers(self.profile.plan.topic)), tracker)
+        return AttackedPlanner(EXTERNAL, publishers(self.profile.plan.topic), tracker)
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
@@ -196,8 +215,13 @@ class GraphRollouts:
                 log.info(f"warm-up rollout {rollout} inconclusive ({done.reason}); sending another")
             except RolloutFault as fault:
                 if self.processes.dead() is not None or time.monotonic() > deadline:
-                    raise GraphError(f"the graph did not complete a warm-up rollout: {fault}") from None
+                    raise GraphError(f"the graph did not complete a warm-up rollout: {self._named(fault)}") from None
             stall *= 2
+
+    def _named(self, fault: RolloutFault) -> str:
+        """A fault's text with who the graph shows for what the frame waited on (`silence_suspects`)."""
+        suspects = silence_suspects(self.client.transport, self.client.present, self.profile)
+        return f"{fault} ({suspects})" if suspects else str(fault)
 
     def _restart(self) -> None:
         """Fresh node processes and a fresh participant (the old latched /attack/errors goes with
@@ -235,7 +259,8 @@ class GraphRollouts:
         rollout = client.send(errors)
         try:
             done = client.collect(rollout, self.params.graph.timeout + GRACE, record, self.processes.dead)
-        except RolloutFault as fault:
+        except RolloutFault as raised:
+            fault = self._named(raised)
             log.error(f"rollout {rollout} inconclusive: {fault}; "
                       + ("restarting the graph nodes" if self.params.graph.spawn_nodes
                          else "going on with the running nodes"))
@@ -255,3 +280,23 @@ class GraphRollouts:
         """The result of what the graph published, judged as the embedded rollout judges its own."""
         result = assemble(received, self._stamps, self._slots, frames, inconclusive, recorded, self.client.plan)
         return judge(result, self.scenario.agents, self._config)
+
+
+def silence_suspects(transport: Transport, present: dict[str, int], profile: Profile) -> str:
+    """Who should have answered a frame that timed out, as the ROS graph shows them: the nodes
+    publishing the plans and the tracked objects (or that none does: a planner that died at start,
+    or was never started), and the nodes that announced themselves on /attack/nodes but have left
+    the graph since. "" over bare DDS, which names no nodes; the nodes we start there are watched as
+    processes, and their deaths named by those."""
+    nodes = transport.node_names()
+    if nodes is None:
+        return ""
+    said = []
+    for what, topic in (("plans", profile.plan.topic), ("tracked objects", profile.tracks.topic)):
+        publishers = transport.publishers_of(topic) or ()
+        said.append(f"{what} on {topic} come from {', '.join(publishers)}" if publishers
+                    else f"no node publishes {what} on {topic}")
+    gone = sorted(name for name in present if not any(node.rsplit("/", 1)[-1] == name for node in nodes))
+    if gone:
+        said.append(f"gone since they announced themselves on {PRESENCE}: {', '.join(gone)}")
+    return "; ".join(said)

@@ -1,0 +1,55 @@
+"""A frame that timed out names who should have answered it, and a report names the external nodes
+it attacked in its config hash: the failures of issue 32 that named no node, and the three external
+planners whose reports could not be told apart."""
+
+from advperc_ros.backends.graph.rollouts import silence_suspects
+from advperc_ros.params import load_params
+from advperc_ros.ros.interfaces.registry import load_profile
+from conftest import REPO
+
+
+class SeenGraph:
+    """A transport as the ROS graph API answers (rclpy's), made up: who publishes what, who is there."""
+
+    def __init__(self, nodes: tuple[str, ...] | None, publishers: dict[str, tuple[str, ...]]) -> None:
+        self._nodes = nodes
+        self._publishers = publishers
+
+    def node_names(self):
+        return self._nodes
+
+    def publishers_of(self, topic):
+        return None if self._nodes is None else self._publishers.get(topic, ())
+
+
+def test_a_planner_that_never_started_is_named_by_the_topic_nobody_publishes():
+    profile = load_profile("autoware")
+    graph = SeenGraph(("/error_injector", "/orchestrator", "/scenario_player", "/tracker", "/rule_monitor"),
+                      {profile.tracks.topic: ("/tracker",)})
+    said = silence_suspects(graph, {"tracker": 11, "error_injector": 12, "scenario_player": 13, "rule_monitor": 14},
+                            profile)
+    assert said == (f"no node publishes plans on {profile.plan.topic}; "
+                    f"tracked objects on {profile.tracks.topic} come from /tracker")
+
+
+def test_a_node_that_announced_itself_and_died_is_named_gone():
+    profile = load_profile("advperc")
+    graph = SeenGraph(("/orchestrator", "/scenario_player", "/tracker"),
+                      {profile.tracks.topic: ("/tracker",), profile.plan.topic: ("/my_planner",)})
+    said = silence_suspects(graph, {"tracker": 1, "scenario_player": 2, "planner": 3}, profile)
+    assert said.endswith("gone since they announced themselves on /attack/nodes: planner"), said
+    assert f"plans on {profile.plan.topic} come from /my_planner" in said
+
+
+def test_bare_dds_names_no_one_rather_than_blaming_nobody():
+    """Bare DDS has no node names: no "no node publishes" (it cannot know), the processes say who died."""
+    assert silence_suspects(SeenGraph(None, {}), {"planner": 3}, load_profile("advperc")) == ""
+
+
+def test_three_external_planners_have_three_config_hashes_and_ours_keeps_its_own():
+    params = load_params(REPO / "config" / "idm_lane_following.yaml")
+    ours = params.config_hash()
+    assert params.config_hash(planner_node=None, tracker_node=None) == ours  # a campaign's cells keep their hashes
+    external = {params.config_hash(planner_node=node) for node in ("/a_planner", "/b_planner", "/c_planner")}
+    assert len(external) == 3 and ours not in external
+    assert params.config_hash(planner_node="/a_planner", tracker_node="/t") != params.config_hash(planner_node="/a_planner")

@@ -14,7 +14,7 @@ setup(
     package_data={PACKAGE: ["py.typed", "data/*.json"]},
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
-        (f"share/{PACKAGE}", ["package.xml"]),
+        (f"share/{PACKAGE}", ["package.xml", "rosdep.yaml"]),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.json")),
         (f"share/{PACKAGE}/scenarios", glob("scenarios/*.yaml")),
@@ -46,7 +46,8 @@ setup(
         "docs": ["sphinx>=7.2", "myst-parser>=2.0"],
         # the CI gates on the package's code: pinned, so that a new release's rules cannot fail an unchanged tree
         "lint": ["ruff==0.17.6", "mypy==2.4.1", "types-PyYAML"],
-        "test": ["pytest>=7", "pytest-xdist>=3.5", "hypothesis>=6", "shapely>=2.0", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3"],
+        "test": ["pytest>=7", "pytest-xdist>=3.5", "hypothesis>=6", "shapely>=2.0", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3",
+                 "rosdep>=0.25"],  # test_rosdep resolves package.xml's keys with rosdep itself
     },
     zip_safe=True,
     maintainer="advperc_ros developers",

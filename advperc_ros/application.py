@@ -2,6 +2,7 @@
 orchestrator node both call, so both choose the same output folder, check it before any work,
 run the same search and write the same report."""
 
+import math
 import sys
 import time
 from collections.abc import Callable
@@ -45,8 +46,12 @@ class RolloutProgress:
     random step can end early; `close` ends the bar at the count."""
 
     def __init__(self, name: str, config: SearchConfig, num_agents: int, best: Callable[[], Evaluation | None],
-                 enabled: bool = True) -> None:
+                 enabled: bool = True, say: Callable[[str], None] | None = None, objective: str = "metric") -> None:
         self.name, self.config, self.num_agents, self.best = name, config, num_agents, best
+        self.say, self.objective = say, objective  # a line per rollout, for a log that is not a terminal
+        self.collisions = 0
+        self.run = 0  # rollouts counted so far (the bar's own count stays 0 when the bar is off)
+        self.total = 1 + num_agents  # the estimate the bar shows
         self.method = search_method(config)
         self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
         self.bisections_owed = 0  # bisections run plus those the influential agents' drops still owe
@@ -79,28 +84,41 @@ class RolloutProgress:
         best = self.best()
         if phase != Phase.REFINE and best is not None:  # refine bisects the runs of the best before it
             self.refine_runs = len(dropped_runs(best.errors.fn[: best.rollout.num_frames]))
-        self.bar.total = self.bar.n + 1 + self._still_to_run(phase)
+        self.total = self.bar.total = self.run + 1 + self._still_to_run(phase)
         name = "heuristic" if phase.heuristic else self.method.phases.get(phase, str(phase))
         self.bar.set_description(f"{self.name} ({name})", refresh=False)
         self.bar.set_postfix(best="none yet" if best is None else f"{best.metric:.4f}", refresh=False)
         self.bar.update()
+        self.run += 1
+        self.collisions += row.collided and not row.inconclusive
+        if self.say is not None:
+            self.say(self.line(row))
+
+    def line(self, row: LogRow) -> str:
+        """The rollout just run, as a person reads it in a log (ros2 launch's): the count against the
+        total the bar shows, its verdict, the best attack so far and the collisions found."""
+        verdict = (f"inconclusive ({row.inconclusive})" if row.inconclusive
+                   else "collision" if row.collided else "no collision")
+        best = "no attack yet" if math.isnan(row.best_metric) else f"best {self.objective} {row.best_metric:.4f}"
+        return (f"rollout {self.run} of about {self.total}: {verdict}; {best}; "
+                f"{self.collisions} collision{'s' * (self.collisions != 1)} so far")
 
     def _still_to_run(self, phase: Phase) -> int:
-        left = budget(self.config, self.num_agents, self.joint, self.approach) - self.bar.n - 1
+        left = budget(self.config, self.num_agents, self.joint, self.approach) - self.run - 1
         if phase in self.method.phases:
             if self.began is None:
-                self.began = self.bar.n
+                self.began = self.run
             return min(left, self.method.still_owed(phase, self._progress()))
         bisections = max(0, self.bisections_owed - self.bisections)
         tail = self.method.still_owed(None, self._progress()) if self.influential else 0
         return min(left, self.num_agents - self.drops + bisections + tail)
 
     def _progress(self) -> Progress:
-        return Progress(run=self.bar.n, began=self.began, random=self.random, refined=self.refined,
+        return Progress(run=self.run, began=self.began, random=self.random, refined=self.refined,
                         refine_runs=self.refine_runs)
 
     def close(self) -> None:
-        self.bar.total = self.bar.n
+        self.bar.total = self.run
         self.bar.close()
 
 
@@ -115,9 +133,11 @@ def check_budget(params: AttackParams, scenario: Scenario) -> None:
 
 
 def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
-               rollouts: Rollouts | None = None, configs: CoreConfigs | None = None) -> AttackOutcome:
+               rollouts: Rollouts | None = None, configs: CoreConfigs | None = None,
+               say: Callable[[str], None] | None = None) -> AttackOutcome:
     """The whole search over `rollouts` (default: embedded), then the best attack recorded.
-    `configs`: the params' core configs, when the caller built them."""
+    `configs`: the params' core configs, when the caller built them; `say`: where a line per rollout
+    goes (a node's logger), besides or instead of the progress bar."""
     started = time.perf_counter()
     check_budget(params, scenario)
     configs = configs if configs is not None else core_configs(params)
@@ -133,7 +153,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     def best() -> Evaluation | None:
         return problem.best if problem is not None else None
 
-    counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], best, progress)
+    counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], best, progress, say, params.objective)
     problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter,
                             run_rollouts=getattr(backend, "rollout_many", None))
     try:
@@ -191,7 +211,8 @@ def output_lock(output: Path) -> Path:
 
 
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,
-                     transport: Any = None, resume: bool = False) -> tuple[Path, dict]:
+                     transport: Any = None, resume: bool = False,
+                     say: Callable[[str], None] | None = None) -> tuple[Path, dict]:
     """Run the attack the params describe and write its results folder; (folder, report). Every
     rollout is checkpointed as it completes (advperc_ros.backends.resumed); `resume` finishes an attack
     that was killed, with the report it would have written. The output is locked first, before
@@ -207,11 +228,12 @@ def attack_to_folder(params: AttackParams, output: Path | None, progress: bool =
     with exclusive(output_lock(output), f"{output}: another attack is running on this output; let it finish or "
                                         "stop it first"):
         check_output(output)  # again: an attack that held the lock until now may have finished into it
-        return output, _checkpointed_attack(params, scenario, bag_path, output, progress, transport, resume, configs)
+        return output, _checkpointed_attack(params, scenario, bag_path, output, progress, transport, resume, configs,
+                                            say)
 
 
 def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Path, output: Path, progress: bool,
-                         transport: Any, resume: bool, configs: CoreConfigs) -> dict:
+                         transport: Any, resume: bool, configs: CoreConfigs, say: Callable[[str], None] | None) -> dict:
     """The attack with its checkpoint, its report written into `output`; the caller holds the output's
     lock. A disk that fills on the way ends it in one line, the checkpoint kept for --resume."""
     source = params.source or "PARAMS"
@@ -221,8 +243,8 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
                                 f"--resume {output}"):
         try:
             with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
-                outcome = run_attack(scenario, params, progress=progress, configs=configs, rollouts=ResumedRollouts(
-                    rollouts, checkpoint, scenario.agents, configs.rollout))
+                outcome = run_attack(scenario, params, progress=progress, configs=configs, say=say,
+                                     rollouts=ResumedRollouts(rollouts, checkpoint, scenario.agents, configs.rollout))
             report = write_results(output, outcome, bag_path)
             finished = True
         except (InconclusiveSearch, GroundTruthFails):

@@ -69,7 +69,7 @@ def main(args: list[str] | None = None) -> int:
         transport = RclpyTransport(node)  # the graph's nodes are reached, or started as rclpy nodes, through it
         try:
             folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport,
-                                              resume=resume)
+                                              resume=resume, say=node.get_logger().info)
         except Interrupted as exc:  # the checkpoint is kept; say how to finish it the ROS way
             raise Interrupted(f"{exc.output}: the attack stopped with its checkpoint kept; finish it with the same "
                               f"command and -p {OUTPUT}:={exc.output} -p {RESUME}:=true (launch: output:={exc.output} "

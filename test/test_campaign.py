@@ -2,6 +2,7 @@
 not run again; a killed cell or campaign restarts cleanly), the JUnit verdicts, replay campaigns, the
 HTML page, refusals before any work; and the attack's progress bar, which ends at the rollouts run."""
 
+import csv
 import json
 import os
 import shutil
@@ -316,6 +317,27 @@ def test_the_attack_progress_bar_ends_at_the_rollouts_run(repo, tmp_path, capsys
     rollouts = json.loads(captured.out)["rollouts"]
     last = captured.err.replace("\r", "\n").strip().splitlines()[-2]  # the line before "results written to"
     assert "100%" in last and f" {rollouts}/{rollouts} " in last and "best=" in last, last
+
+
+def test_a_log_gets_a_line_per_rollout_a_person_can_read(repo, tmp_path):
+    """What the orchestrator node logs under ros2 launch (no terminal for a bar): each rollout's count
+    against the bar's total, its verdict, the best attack so far and the collisions found."""
+    from advperc_ros.application import attack_to_folder
+    from advperc_ros.params import load_params
+
+    lines: list[str] = []
+    folder, report = attack_to_folder(load_params(write_params(tmp_path / "p.yaml", repo, **SHORT)), tmp_path / "out",
+                                      say=lines.append)
+    rows = list(csv.DictReader((folder / "search_log.csv").open()))
+    assert len(lines) == len(rows) == report["rollouts"]
+    collided = 0
+    for k, (line, row) in enumerate(zip(lines, rows), start=1):
+        collided += row["collided"] == "True" and not row["inconclusive"]
+        verdict = "collision" if row["collided"] == "True" else "no collision"
+        assert line.startswith(f"rollout {k} of about ") and f": {verdict};" in line, line
+        assert line.endswith(f"; {collided} collision{'s' * (collided != 1)} so far"), line
+    assert lines[-1].startswith(f"rollout {len(rows)} of about {len(rows)}: ")
+    assert f"best {report['objective']} {float(rows[-1]['best_metric']):.4f}" in lines[-1]
 
 
 def test_the_docs_document_every_campaign_field(repo):

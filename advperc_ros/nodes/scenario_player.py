@@ -167,7 +167,7 @@ class ScenarioPlayer:
             return
         k = run.frame
         if violates(run.rule, self._stop_at_collision):
-            self._finish(Status.OK)
+            self._finish(Status.OK, collided=True)
             return
         following = after_plan(run.plan, k, self.scenario.times)
         if following.inconclusive is not None:
@@ -187,10 +187,11 @@ class ScenarioPlayer:
         self._finish(Status.INCONCLUSIVE, f"frame {run.frame}: no {missing} stamped {self._stamp(run.frame)} within "
                                    f"{self._timeout:g} s (a node is dead or silent)", timeout=True)
 
-    def _finish(self, status: Status, reason: str = "", timeout: bool = False) -> None:
+    def _finish(self, status: Status, reason: str = "", timeout: bool = False, collided: bool = False) -> None:
         run = self._running()
         done = RolloutDone(run.rollout, run.frame + 1, status, reason, timeout)
-        line = f"rollout {run.rollout}: {done.frames} frames, {status}" + (f": {reason}" if reason else "")
+        ended = "stopped at a collision" if collided else "driven to its end" if status == Status.OK else str(status)
+        line = f"rollout {run.rollout}: {done.frames} frames, {ended}" + (f": {reason}" if reason else "")
         # one call site per severity: rclpy's logger raises when a call site changes its severity
         if status == Status.OK:
             self._log.info(line)

@@ -222,3 +222,12 @@ def test_diagnostics_are_rosbags_bytes_and_read_in_either_byte_order():
         assert cdr.decode_diagnostics(data, "test") == (T0, expected)
     with pytest.raises(cdr.MessageError, match="where: a DiagnosticArray cut short"):
         cdr.decode_diagnostics(bytes(TS.serialize_cdr(msg, cdr.DIAGNOSTICS))[:-9], "where")
+
+
+def test_the_ego_footprint_is_its_box_around_the_reference_point():
+    """/ego/footprint, which a planner reads for the ego's size: the box's corners around the
+    odometry's pose, in the odometry's child frame, as rosbags decodes the standard type."""
+    message = msgs.TYPESTORE.deserialize_cdr(msgs.footprint_cdr(4.6, 1.9, 1_500_000_000), "geometry_msgs/msg/PolygonStamped")
+    assert message.header.frame_id == cdr.CHILD_FRAME_ID and msgs.stamp_ns(message.header.stamp) == 1_500_000_000
+    corners = [value for p in message.polygon.points for value in (p.x, p.y, p.z)]  # Point32: float32
+    assert corners == pytest.approx([2.3, 0.95, 0, -2.3, 0.95, 0, -2.3, -0.95, 0, 2.3, -0.95, 0], abs=1e-6)

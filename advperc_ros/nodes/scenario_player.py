@@ -19,7 +19,8 @@ On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lo
 4. publish /attack/done. If the rule value or plan of a frame does not come within `graph.timeout`
    seconds the rollout is inconclusive (`timeout: true`), never a pass or a failure.
 
-The latched /map/lanes and /ego/route are the bag's own messages, published at start.
+The latched /map/lanes and /ego/route are the bag's own messages, published at start, with the
+latched /ego/footprint: the ego's box (`ego.length` x `ego.width`) around its reference point.
 """
 
 import dataclasses
@@ -42,6 +43,7 @@ from advperc_ros.ros.topics import (
     CLOCK,
     CONTROL_TYPE,
     DONE,
+    FOOTPRINT,
     GROUND_TRUTH,
     LANES,
     LATCHED,
@@ -67,7 +69,7 @@ class _Run:
 
 class ScenarioPlayer:
     def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, profile: Profile,
-                 by_clock: bool, logger: Logger) -> None:
+                 by_clock: bool, logger: Logger, ego_size: tuple[float, float]) -> None:
         self.scenario = read_scenario(bag)
         self._plan_layer = profile.plan
         self._tracks_layer = profile.tracks
@@ -84,7 +86,8 @@ class ScenarioPlayer:
         self._start = cdr.payload(restamped, TOPIC_TYPES[ODOMETRY])
         self._run: _Run | None = None
         self._pub = {topic: transport.publisher(topic, TOPIC_TYPES[topic], latched=topic in LATCHED)
-                     for topic in (CLOCK, GROUND_TRUTH, ODOMETRY, LANES, ROUTE)}
+                     for topic in (CLOCK, GROUND_TRUTH, ODOMETRY, LANES, ROUTE, FOOTPRINT)}
+        self._pub[FOOTPRINT].publish(msgs.footprint_cdr(*ego_size, int(self.scenario.stamps_ns[0])))
         # the rule monitor reads /ego/odometry; a stack reads its own topic, where the same message goes too
         self._ego = [self._pub[ODOMETRY]] + ([transport.publisher(profile.ego_topic, TOPIC_TYPES[ODOMETRY])]
                                              if profile.ego_topic != ODOMETRY else [])
@@ -203,11 +206,12 @@ class ScenarioPlayer:
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> ScenarioPlayer:
     return ScenarioPlayer(transport, values["bag"], values["stop_at_collision"], values["graph.timeout"],
-                          load_profile(values["graph.interface"]), values["graph.drive"] == "clock", logger)
+                          load_profile(values["graph.interface"]), values["graph.drive"] == "clock", logger,
+                          (values["ego.length"], values["ego.width"]))
 
 
-SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout", "graph.interface", "graph.drive"),
-                _build)
+SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout", "graph.interface", "graph.drive",
+                                    "ego.length", "ego.width"), _build)
 
 
 def main(args: list[str] | None = None) -> int:

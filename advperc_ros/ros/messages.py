@@ -93,6 +93,16 @@ def ego_from_cdr(data: cdr.Cdr, where: str) -> tuple[int, EgoState]:
     return stamp, EgoState(*state)
 
 
+def footprint_cdr(length: float, width: float, ns_time: int) -> bytes:
+    """The ego's box as a geometry_msgs/PolygonStamped's CDR, in the odometry's child frame: its
+    corners around the reference point (the odometry's pose, the box's centre), counter-clockwise
+    from the front left; a planner reads the ego's size here instead of being told it."""
+    corners = [(length / 2, width / 2), (-length / 2, width / 2), (-length / 2, -width / 2), (length / 2, -width / 2)]
+    polygon = T["geometry_msgs/msg/Polygon"](points=[T["geometry_msgs/msg/Point32"](x=x, y=y, z=0.0) for x, y in corners])
+    message = T["geometry_msgs/msg/PolygonStamped"](header=header(ns_time, cdr.CHILD_FRAME_ID), polygon=polygon)
+    return cdr.payload(message, "geometry_msgs/msg/PolygonStamped")
+
+
 def odometry(ego: EgoState, ns_time: int):
     return TYPESTORE.deserialize_cdr(ego_to_cdr(ego, ns_time), ODOMETRY)
 

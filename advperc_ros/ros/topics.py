@@ -15,6 +15,7 @@ RULE = "/rules/collision"
 RULE_DIAGNOSTICS = "/rules/diagnostics"
 LANES = "/map/lanes"
 ROUTE = "/ego/route"
+FOOTPRINT = "/ego/footprint"  # the ego's box around its reference point (the odometry's pose)
 SUMMARY = "/attack/summary"  # attack bags only
 
 # lockstep control (advperc_ros.ros.lockstep): std_msgs/String holding JSON
@@ -35,11 +36,12 @@ TOPIC_TYPES = {
     RULE_DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
     LANES: "visualization_msgs/msg/MarkerArray",
     ROUTE: "nav_msgs/msg/Path",
+    FOOTPRINT: "geometry_msgs/msg/PolygonStamped",
     SUMMARY: "std_msgs/msg/String",
 }
 """The data topics: what bags hold and the graph's nodes exchange per frame."""
 CONTROL_TOPICS = (ERRORS, READY, DONE, PRESENCE)
-LATCHED = frozenset({LANES, ROUTE, SUMMARY, ERRORS, PRESENCE})
+LATCHED = frozenset({LANES, ROUTE, FOOTPRINT, SUMMARY, ERRORS, PRESENCE})
 
 DEPTH = 1000
 LATCHED_DEPTH = 1

@@ -237,3 +237,50 @@ def test_the_docs_profile_table_is_the_registry_s():
         assert tracks == [profile.tracks.topic, profile.tracks.msgtype], name
         assert plan == [profile.plan.topic, profile.plan.msgtype], name
         assert ego == [profile.ego_topic], name
+
+
+class _Recorder:
+    """A transport that keeps what is published per topic and hands out the subscriptions' callbacks."""
+
+    def __init__(self) -> None:
+        self.published: dict[str, list] = {}
+        self.callbacks: dict[str, object] = {}
+
+    def publisher(self, topic, msgtype, latched=False):
+        sent = self.published.setdefault(topic, [])
+        return type("Publisher", (), {"publish": staticmethod(sent.append)})()
+
+    def subscriber(self, topic, msgtype, latched=False, callback=None, raw=False, wake=True):
+        self.callbacks[topic] = callback
+
+
+def test_under_autoware_the_player_publishes_the_ego_s_acceleration_as_its_speed_changes():
+    """/localization/acceleration, which Autoware's planners read: the change of the ego's speed over
+    each frame, 0 at the start, stamped with the frame, in the odometry's child frame."""
+    from advperc_ros.nodes.scenario_player import ScenarioPlayer
+    from advperc_ros.ros.lockstep import ready_message, rule_diagnostics
+    from advperc_ros.ros.topics import READY, RULE_DIAGNOSTICS
+
+    bag = Path(__file__).resolve().parent.parent / "bags" / "idm_lane_following"
+    transport = _Recorder()
+    profile = load_profile("autoware")
+    logger = type("Log", (), {"info": print, "warning": print})()
+    player = ScenarioPlayer(transport, bag, True, 10.0, profile, False, logger, (4.6, 1.9))
+    stamps = [int(s) for s in player.scenario.stamps_ns]
+    start = player.scenario.ego_start
+    transport.callbacks[READY](ready_message(1))
+    for k, speed in enumerate([start.v + 0.5, start.v + 0.5, start.v - 1.0]):  # the ego speeds up, holds, brakes
+        t = np.array([0.0, 0.1, 0.2, 2.0]) + (stamps[k] - stamps[0]) * 1e-9
+        x = start.x + speed * (t - t[0]) + k
+        plan = Trajectory(t=t, x=x, y=np.full(4, start.y), yaw=np.zeros(4))
+        transport.callbacks[RULE_DIAGNOSTICS](rule_diagnostics(stamps[k], np.array([1]), np.array([9.0])))
+        transport.callbacks[profile.plan.topic](profile.plan.encode(plan, stamps[k]))
+    sent = [msgs.TYPESTORE.deserialize_cdr(data, msgs.ACCELERATION) for data in transport.published[autoware.ACCELERATION_TOPIC]]
+    speeds = [msgs.ego_from_cdr(data, "odometry")[1].v for data in transport.published["/ego/odometry"]]
+    assert [msgs.stamp_ns(m.header.stamp) for m in sent] == stamps[:len(sent)] and len(sent) == len(speeds) >= 3
+    expected = [0.0] + [(b - a) / ((t1 - t0) * 1e-9) for a, b, t0, t1 in zip(speeds, speeds[1:], stamps, stamps[1:])]
+    assert [m.accel.accel.linear.x for m in sent] == pytest.approx(expected, abs=1e-12)
+    assert all(m.header.frame_id == cdr.CHILD_FRAME_ID for m in sent) and any(abs(a) > 0.1 for a in expected)
+    quiet = _Recorder()  # our own profile has no acceleration topic
+    ScenarioPlayer(quiet, bag, True, 10.0, load_profile("advperc"), False, logger, (4.6, 1.9))
+    assert autoware.ACCELERATION_TOPIC not in quiet.published

@@ -62,6 +62,7 @@ class _Run:
     frame: int
     deadline: float
     ego_xy: tuple[float, float] = (0.0, 0.0)  # where the ego is at this frame (a plan without times is timed from it)
+    speed: float = 0.0  # the ego's speed at this frame (its change is the acceleration a stack may read)
     clocked: bool = True  # /clock shows this frame's time (drive: clock sets it once the frame's tracks are out)
     rule: float | None = None
     plan: Trajectory | None = None
@@ -91,6 +92,8 @@ class ScenarioPlayer:
         # the rule monitor reads /ego/odometry; a stack reads its own topic, where the same message goes too
         self._ego = [self._pub[ODOMETRY]] + ([transport.publisher(profile.ego_topic, TOPIC_TYPES[ODOMETRY])]
                                              if profile.ego_topic != ODOMETRY else [])
+        self._acceleration = (transport.publisher(profile.acceleration_topic, msgs.ACCELERATION)
+                              if profile.acceleration_topic is not None else None)
         self._done = transport.publisher(DONE, CONTROL_TYPE)
         for topic in (LANES, ROUTE):
             if topics[topic]:
@@ -120,9 +123,13 @@ class ScenarioPlayer:
         for publisher in self._ego:
             publisher.publish(odometry)
         run = self._running()
+        ego = msgs.ego_from_cdr(odometry, ODOMETRY)[1]
+        if self._acceleration is not None:  # the speed's change over the last frame (0 at the start)
+            rate = 0.0 if frame == 0 else (ego.v - run.speed) / ((stamp - self._stamp(frame - 1)) * 1e-9)
+            self._acceleration.publish(msgs.acceleration_cdr(rate, stamp))
+        run.speed = ego.v
         run.frame = frame
         run.clocked = not self._by_clock
-        ego = msgs.ego_from_cdr(odometry, ODOMETRY)[1]
         run.ego_xy = (ego.x, ego.y)
         run.rule = run.plan = None
         run.deadline = time.monotonic() + self._timeout

@@ -103,6 +103,20 @@ def footprint_cdr(length: float, width: float, ns_time: int) -> bytes:
     return cdr.payload(message, "geometry_msgs/msg/PolygonStamped")
 
 
+ACCELERATION = "geometry_msgs/msg/AccelWithCovarianceStamped"
+
+
+def acceleration_cdr(longitudinal: float, ns_time: int) -> bytes:
+    """The ego's acceleration along its heading (m/s^2) as a geometry_msgs/AccelWithCovarianceStamped's
+    CDR in the odometry's child frame, as Autoware's localization publishes it; covariance zero."""
+    vector = T["geometry_msgs/msg/Vector3"]
+    accel = T["geometry_msgs/msg/Accel"](linear=vector(x=float(longitudinal), y=0.0, z=0.0),
+                                         angular=vector(x=0.0, y=0.0, z=0.0))
+    message = T[ACCELERATION](header=header(ns_time, cdr.CHILD_FRAME_ID), accel=T["geometry_msgs/msg/AccelWithCovariance"](
+        accel=accel, covariance=np.zeros(36)))
+    return cdr.payload(message, ACCELERATION)
+
+
 def odometry(ego: EgoState, ns_time: int):
     return TYPESTORE.deserialize_cdr(ego_to_cdr(ego, ns_time), ODOMETRY)
 

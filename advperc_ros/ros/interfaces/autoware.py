@@ -48,6 +48,7 @@ OBJECTS_TOPIC = "/perception/object_recognition/objects"
 TRACKED_TOPIC = "/perception/object_recognition/tracking/objects"
 TRAJECTORY_TOPIC = "/planning/scenario_planning/trajectory"
 KINEMATIC_STATE_TOPIC = "/localization/kinematic_state"
+ACCELERATION_TOPIC = "/localization/acceleration"  # geometry_msgs/AccelWithCovarianceStamped, in base_link
 
 PREDICTION_HORIZON = 8.0  # s
 PREDICTION_STEP = 0.5  # s
@@ -302,6 +303,7 @@ PROFILE = Profile(
     tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted),
     plan=PlanLayer(TRAJECTORY_TOPIC, TRAJECTORY, encode_trajectory, decode_trajectory),
     ego_topic=KINEMATIC_STATE_TOPIC,
+    acceleration_topic=ACCELERATION_TOPIC,
 )
 
 TRACKED_PROFILE = Profile(
@@ -312,4 +314,5 @@ TRACKED_PROFILE = Profile(
     tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked),
     plan=PROFILE.plan,
     ego_topic=KINEMATIC_STATE_TOPIC,
+    acceleration_topic=ACCELERATION_TOPIC,
 )

@@ -67,8 +67,8 @@ class PlanLayer:
 class Profile:
     """The types and topic names of one stack: what the injector publishes as detections, what the
     tracker reads and publishes, what a planner reads (tracks and the ego's odometry, always
-    nav_msgs/Odometry) and publishes. Topic names are the stack's own, so a team's node runs
-    unchanged (ROS remapping covers the rest)."""
+    nav_msgs/Odometry, and its acceleration where the stack has a topic for it) and publishes.
+    Topic names are the stack's own, so a team's node runs unchanged (ROS remapping covers the rest)."""
 
     name: str
     description: str
@@ -76,3 +76,4 @@ class Profile:
     tracks: ObjectsLayer
     plan: PlanLayer
     ego_topic: str
+    acceleration_topic: str | None = None  # where the stack reads the ego's acceleration, if it does

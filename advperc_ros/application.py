@@ -171,7 +171,8 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         params = replace(params, planner=EXTERNAL, planner_params={})
     return AttackOutcome(scenario=scenario, params=params, heuristic_best=result.heuristic, best=result.best,
                          recorded=recorded, log=problem.log, wall_time_s=time.perf_counter() - started,
-                         planner_node=attacked.node, tracker_node=attacked.tracker_node, joint=result.joint,
+                         planner_node=attacked.node, tracker_node=attacked.tracker_node,
+                         planner_version=attacked.version, joint=result.joint,
                          approach=result.approach)
 
 

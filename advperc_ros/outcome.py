@@ -24,6 +24,7 @@ class AttackOutcome:
     wall_time_s: float
     planner_node: str | None = None  # the external planner node, when one planned
     tracker_node: str | None = None  # the external tracker node, when one tracked
+    planner_version: str | None = None  # what the external planner node announced as its version, if it did
     # when no single drop collided: the joint drops, with the ego's rollout with every vehicle hidden
     # (the most any drop can take away) and the agents of the failure mode they found, if any
     joint: Joint | None = None

@@ -241,7 +241,8 @@ class AttackParams:
     def config_hash(self, **external_nodes: str | None) -> str:
         """16 hex digits of what determines the results: the canonical params, and the team's nodes that
         were attacked instead of ours (`planner_node=`, `tracker_node=`: their names as the middleware
-        gives them), so that attacks of three external planners are not one configuration."""
+        gives them; `planner_version=`: what the planner announced of itself), so that attacks of three
+        external planners, or of two builds of one, are not one configuration."""
         identity = {**self.canonical(), **{key: node for key, node in sorted(external_nodes.items()) if node is not None}}
         return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
 

@@ -72,6 +72,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     }
     if outcome.planner_node is not None:
         report["planner_node"] = outcome.planner_node
+    if outcome.planner_version is not None:
+        report["planner_version"] = outcome.planner_version
     if outcome.tracker_node is not None:  # a team's tracker made the tracks: ours and its parameters did not
         report["tracker_node"] = outcome.tracker_node
     if best is not None:
@@ -96,7 +98,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         rollouts=len(outcome.log),
         inconclusive_rollouts=sum(1 for row in outcome.log if row.inconclusive),
         wall_time_s=outcome.wall_time_s,
-        config_hash=params.config_hash(planner_node=outcome.planner_node, tracker_node=outcome.tracker_node),
+        config_hash=params.config_hash(planner_node=outcome.planner_node, tracker_node=outcome.tracker_node,
+                                       planner_version=outcome.planner_version),
         params=params.canonical(),
         versions=versions(),
     )
@@ -109,7 +112,8 @@ def _fmt(value, digits: int = 2) -> str:
 
 def _planner_label(report: dict) -> str:
     node = report.get("planner_node")
-    label = report["planner"] if node is None else f"{report['planner']} ({node or 'node name unknown'})"
+    version = f" version {report['planner_version']}" if "planner_version" in report else ""
+    label = report["planner"] if node is None else f"{report['planner']} ({node or 'node name unknown'}{version})"
     tracker = report.get("tracker_node")
     return label if tracker is None else f"{label} on the tracks of external tracker {tracker or '(node name unknown)'}"
 

@@ -12,7 +12,8 @@ ego's box, not Autoware's rear axle) and the route as a latched nav_msgs/Path on
 graph has no Lanelet2 map). Output: autoware_planning_msgs/Trajectory on
 /planning/scenario_planning/trajectory, sampled every metre along the route from 2 m behind the
 ego, `time_from_start` left 0 as Autoware's planners leave it, the speed in
-`longitudinal_velocity_mps`.
+`longitudinal_velocity_mps`. It announces its build on the latched /attack/nodes (optional), so the
+attack's report says which version of it was attacked.
 
 What makes a timer-driven node work under the graph's clock (docs/stacks.md, "Driving the planner"):
 plan on every tick, stamp the trajectory with the clock's time, and take a jump of the clock back as
@@ -25,7 +26,9 @@ The planning itself is a placeholder, an adaptive cruise control along the route
 speed limit, follow the nearest predicted object ahead within the lane at a time gap.
 """
 
+import json
 import math
+import os
 
 import numpy as np
 import rclpy
@@ -38,7 +41,9 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from std_msgs.msg import String
 
+VERSION = "acc-0.3"  # this build: the attack's report names it and its config_hash covers it
 PERIOD_S = 0.1
 HORIZON_S = 8.0
 SAMPLE_M = 1.0
@@ -99,6 +104,9 @@ class AutowareStylePlanner(Node):
         self.create_subscription(Odometry, "/localization/kinematic_state", self.on_odometry, RELIABLE)
         self.create_subscription(PredictedObjects, "/perception/object_recognition/objects", self.on_objects, RELIABLE)
         self.create_timer(PERIOD_S, self.on_timer)
+        # optional: say which build this is (the latched /attack/nodes, depth 1000 for its readers)
+        self.presence = self.create_publisher(String, "/attack/nodes", LATCHED)
+        self.presence.publish(String(data=json.dumps({"node": self.get_name(), "pid": os.getpid(), "version": VERSION})))
         # a jump of the clock back is a new rollout: timers do not fire on it, so plan at once
         self.jump = self.get_clock().create_jump_callback(
             JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1), on_clock_change=False),

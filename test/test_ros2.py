@@ -558,6 +558,7 @@ def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_thro
     assert report["collision"] is True and report["inconclusive_rollouts"] == 0, report
     assert report["reproduced"] is True  # the timer-driven node, driven by the clock, replays its attack
     assert report["planner"] == "external" and report["planner_node"] == "/autoware_style_planner"
+    assert report["planner_version"] == "acc-0.3"  # announced on /attack/nodes, covered by config_hash
     assert report["params"]["planner"] == "external" and report["params"]["planner_params"] == {}  # not ours: no IDM
     assert "external (/autoware_style_planner) planner" in (output / "report.md").read_text()
 

@@ -53,3 +53,22 @@ def test_three_external_planners_have_three_config_hashes_and_ours_keeps_its_own
     external = {params.config_hash(planner_node=node) for node in ("/a_planner", "/b_planner", "/c_planner")}
     assert len(external) == 3 and ours not in external
     assert params.config_hash(planner_node="/a_planner", tracker_node="/t") != params.config_hash(planner_node="/a_planner")
+
+
+def test_a_team_s_node_may_announce_its_version_and_two_builds_are_two_configurations():
+    import json
+
+    import pytest
+
+    from advperc_ros.exceptions import MessageError
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros.lockstep import parse_presence, presence_message
+
+    assert parse_presence(presence_message("tracker", 42)) == ("tracker", 42, None)
+    announced = msgs.string(json.dumps({"node": "my_planner", "pid": 7, "version": "v2.1-3-gabc"}))
+    assert parse_presence(announced) == ("my_planner", 7, "v2.1-3-gabc")
+    with pytest.raises(MessageError, match="'version' must be str"):
+        parse_presence(msgs.string(json.dumps({"node": "my_planner", "pid": 7, "version": 2})))
+    params = load_params(REPO / "config" / "idm_lane_following.yaml")
+    builds = {params.config_hash(planner_node="/my_planner", planner_version=v) for v in ("v2.1", "v2.2", None)}
+    assert len(builds) == 3

@@ -24,6 +24,7 @@ class AttackedPlanner:
     name: str
     node: str | None = None
     tracker_node: str | None = None
+    version: str | None = None  # what the external planner node announced of itself on /attack/nodes, if it did
 
 
 class Rollouts(Protocol):

@@ -144,9 +144,12 @@ def presence_message(node: str, pid: int):
     return msgs.string(json.dumps({"node": node, "pid": pid}))
 
 
-def parse_presence(msg) -> tuple[str, int]:
+def parse_presence(msg) -> tuple[str, int, str | None]:
+    """(node name, process id, the version it announces or None). A team's node may announce itself
+    too, with a `version` (a release, a commit): the report names it and config_hash covers it."""
     data = _json_object(msg, PRESENCE)
-    return _field(data, PRESENCE, "node", str), _field(data, PRESENCE, "pid", int)
+    version = _field(data, PRESENCE, "version", str) if "version" in data else None
+    return _field(data, PRESENCE, "node", str), _field(data, PRESENCE, "pid", int), version
 
 
 def done_message(done: RolloutDone):

@@ -50,6 +50,7 @@ class LockstepClient:
         self._layers: dict[str, ObjectsLayer | PlanLayer] = {TRACKING: profile.tracks, PLAN: profile.plan}
         self.present: dict[str, int] = {}  # node name -> pid, from /attack/nodes
         self.announced: dict[str, set[int]] = {}  # node name -> every pid announced under it (two graphs: two)
+        self.versions: dict[str, str] = {}  # node name -> the version it announced (a team's node may)
         self.received: dict[str, dict[int, Any]] = {}  # topic -> stamp -> decoded value
         self._agent_ids = agent_ids
         self._stamps_ns = stamps_ns
@@ -74,8 +75,10 @@ class LockstepClient:
             self._subscribe(topic)
 
     def _on_presence(self, msg: Any) -> None:
-        name, pid = parse_presence(msg)
+        name, pid, version = parse_presence(msg)
         self.present[name] = pid
+        if version is not None:
+            self.versions[name] = version
         self.announced.setdefault(name, set()).add(pid)
 
     def _subscribe(self, topic: str) -> None:

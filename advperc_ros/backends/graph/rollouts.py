@@ -106,7 +106,8 @@ class GraphRollouts:
         if attacked.node is None:
             said = f"attacking our planner node ({self.params.planner})"
         else:
-            said = (f"attacking the external planner {attacked.node or '(bare DDS names no nodes)'} on "
+            version = f" version {attacked.version}" if attacked.version is not None else ""
+            said = (f"attacking the external planner {attacked.node or '(bare DDS names no nodes)'}{version} on "
                     f"{self.profile.plan.topic}; the params' planner '{self.params.planner}' and its planner_params "
                     "do not apply to it")
         if attacked.tracker_node is not None:
@@ -196,7 +197,8 @@ class GraphRollouts:
         tracker = None if ours or TRACKER_NODE in self.client.present else publishers(self.profile.tracks.topic)
         if ours or PLANNER_NODE in self.client.present:
             return AttackedPlanner(self.params.planner, tracker_node=tracker)
-        return AttackedPlanner(EXTERNAL, publishers(self.profile.plan.topic), tracker)
+        node = publishers(self.profile.plan.topic)
+        return AttackedPlanner(EXTERNAL, node, tracker, self.client.versions.get(node.rsplit("/", 1)[-1]))
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall

@@ -124,6 +124,9 @@ BROKEN = {
     "no route": (dict(route=None), [topics.ROUTE, "missing"]),
     "route of one point": (dict(route=[(0.0, 0.0), (0.0, 0.0)]), [topics.ROUTE, "'poses'", "two distinct points"]),
     "nan route": (dict(route=[(0.0, 0.0), (np.nan, 1.0)]), [topics.ROUTE, "'poses'", "finite"]),
+    "lane at 1e300 (its length overflowed, with a warning before the line)": (
+        dict(lanes=[([(0.0, 0.0), (1e300, 0.0)], 3.5)]), [topics.LANES, "lane0", "beyond"]),
+    "route at 1e300": (dict(route=[(0.0, 0.0), (1e300, 1.0)]), [topics.ROUTE, "'poses'", "beyond"]),
     "lane of one point": (dict(lanes=[([(1.0, 1.0)], 3.5)]), [topics.LANES, "lane0", "two distinct points"]),
     "negative lane width": (dict(lanes=[([(0.0, 0.0), (9.0, 0.0)], -3.5)]), ["'width'", "lane0", "positive"]),
     "ground truth of another type": (dict(wrong_type=topics.GROUND_TRUTH), [topics.GROUND_TRUTH, "std_msgs/msg/String"]),

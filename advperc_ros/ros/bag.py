@@ -275,9 +275,10 @@ def read_objects(path: Path, topic: str) -> tuple[np.ndarray, BoxSequence]:
 
 
 def _polyline(points: np.ndarray, where: str) -> Polyline:
-    """A route or lane centreline: at least two distinct points, all finite."""
-    if not np.all(np.isfinite(points)):
-        raise BagError(f"{where} is not finite")
+    """A route or lane centreline: at least two distinct points, all finite and within the bound every
+    coordinate has (beyond it, the segment lengths overflow before any check could name the field)."""
+    if not np.all(np.abs(points) <= MAGNITUDE_BOUND):
+        raise BagError(f"{where} is not finite (or beyond {MAGNITUDE_BOUND:g} m)")
     try:
         return Polyline(points)
     except ValueError:

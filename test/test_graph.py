@@ -167,7 +167,8 @@ def test_each_node_gets_exactly_its_parameters(tmp_path):
     assert by_node["tracker"] == {"tracker.gate": 2.0, "tracker.max_age": 1.0, "attacked_layer": "detections",
                                   "graph.interface": "advperc"}
     assert by_node["scenario_player"] == {"bag": str(BAG), "stop_at_collision": True, "graph.timeout": 10.0,
-                                          "graph.interface": "advperc", "graph.drive": "messages"}
+                                          "graph.interface": "advperc", "graph.drive": "messages", "ego.length": 4.6,
+                                          "ego.width": 1.9}
     assert by_node["planner"]["planner_params.target_speed"] == 14.0
     assert by_node["planner"]["planner"] == "idm" and by_node["rule_monitor"] == {"ego.length": 4.6, "ego.width": 1.9}
     for spec in SPECS:  # what the launch file hands a node is what the node accepts, unchanged

@@ -63,6 +63,8 @@ def contract_messages() -> list[tuple[str, str, object]]:
         ("/ego/odometry", "nav_msgs/msg/Odometry", msgs.odometry(EgoState(x=1.5, y=-2.0, yaw=0.7, v=8.25), T0)),
         ("/planning/trajectory", "nav_msgs/msg/Path", msgs.trajectory_to_path(plan, T0)),
         ("/clock", "rosgraph_msgs/msg/Clock", msgs.clock(T0)),
+        ("/ego/footprint", "geometry_msgs/msg/PolygonStamped",
+         msgs.TYPESTORE.deserialize_cdr(msgs.footprint_cdr(4.6, 1.9, T0), "geometry_msgs/msg/PolygonStamped")),
         ("/rules/collision", "std_msgs/msg/Float64", msgs.float64(-1.625)),
         ("/attack/summary", "std_msgs/msg/String", msgs.string("rollout 3: collision at t=4.2 s, ünïcode")),
         (
@@ -97,7 +99,9 @@ def edge_values_message() -> object:
 
 
 CASES = contract_messages()
-WIRE_CASES = [*CASES, ("/tracking/objects", TOPIC_TYPES[TRACKING], edge_values_message())]
+WIRE_CASES = [*CASES, ("/tracking/objects", TOPIC_TYPES[TRACKING], edge_values_message()),
+              ("/localization/acceleration", msgs.ACCELERATION,  # the Autoware profiles' (not a contract topic)
+               msgs.TYPESTORE.deserialize_cdr(msgs.acceleration_cdr(-2.5, T0), msgs.ACCELERATION))]
 
 
 def test_contract_covers_every_topic_type():
@@ -141,7 +145,7 @@ def assert_same(a: object, b: object, where: str = "msg") -> None:
         assert type(a) is type(b) and a == b, f"{where}: {a!r} != {b!r}"
 
 
-@pytest.mark.parametrize(("topic", "msgtype", "msg"), WIRE_CASES, ids=[*_ids(CASES), "MarkerArray-edge-values"])
+@pytest.mark.parametrize(("topic", "msgtype", "msg"), WIRE_CASES, ids=[*_ids(CASES), "MarkerArray-edge-values", "AccelWithCovarianceStamped"])
 def test_idl_serialisation_equals_rosbags_cdr(topic, msgtype, msg):
     """The wire-compatibility proof: Cyclone's CDR of the generated type is rosbags' (= ROS 2's)."""
     expected = bytes(msgs.TYPESTORE.serialize_cdr(msg, msgtype))

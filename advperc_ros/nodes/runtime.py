@@ -238,11 +238,17 @@ def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int], int
             raise
         return 0  # the context shut down (Ctrl-C, `ros2 launch` ending) while a spin was waiting: a normal stop
     finally:
-        for signum, handler in handlers.items():
-            signal.signal(signum, handler)
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
+        # the stop itself cannot be broken into: under `ros2 launch` a terminal's Ctrl-C reaches every node
+        # twice (from the terminal and from launch), and the second came as a KeyboardInterrupt traceback
+        # out of destroy_node in graph nodes too; the handlers of before this call come back after it
+        during_stop = {signum: signal.signal(signum, signal.SIG_IGN) for signum in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            if node is not None:
+                node.destroy_node()
+            rclpy.try_shutdown()
+        finally:
+            for signum, handler in {**during_stop, **handlers}.items():
+                signal.signal(signum, handler)
 
 
 def _declare_defaults(node: Any, spec: NodeSpec, given: dict[str, Any]) -> None:

@@ -456,12 +456,14 @@ def test_ctrl_c_stops_the_attack_in_seconds_with_130_and_it_resumes_to_the_unint
     assert code == 130, log[-3000:]
     assert time.monotonic() - stopped < 30, log[-3000:]
     assert sum("interrupted: " in text for text in log.splitlines()) == 1, log[-3000:]
-    assert any(re.search(r"rollout 1 of about \d+: (no collision|collision|inconclusive .*); (best \S+ [\d.]+|no attack "
-                         r"yet); \d+ collisions? so far", text) for text in log.splitlines()), _orchestrator_lines(log)
     assert (tmp_path / ".attack.checkpoint" / "rollouts.jsonl").is_file() and not output.exists()
     resume = (f"{command} resume:=true" if way == "launch" else f"{command} -p resume:=true")
     code, log = _ended(_in_workspace(workspace, resume, ros_domain))
     assert code == 0, log[-3000:]
+    progress = [text for text in log.splitlines() if re.search(
+        r"\[orchestrator\]: rollout \d+ of about \d+: (no collision|collision|inconclusive .*); (best \S+ [\d.]+|no attack "
+        r"yet); \d+ collisions? so far$", text)]  # a line per rollout, those the checkpoint answered too
+    assert len(progress) == _report(output)["rollouts"], _orchestrator_lines(log)
     cli = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params), "--output",
                           str(tmp_path / "cli"), "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT)
     assert cli.returncode == 0, cli.stderr
@@ -560,7 +562,7 @@ def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_thro
     assert report["planner"] == "external" and report["planner_node"] == "/autoware_style_planner"
     assert report["planner_version"] == "acc-0.3"  # announced on /attack/nodes, covered by config_hash
     assert report["params"]["planner"] == "external" and report["params"]["planner_params"] == {}  # not ours: no IDM
-    assert "external (/autoware_style_planner) planner" in (output / "report.md").read_text()
+    assert "external (/autoware_style_planner version acc-0.3) planner" in (output / "report.md").read_text()
 
 
 def test_a_team_s_own_tracker_on_vision_msgs_detections_is_attacked_with_our_planner(workspace, ros_domain, tmp_path):

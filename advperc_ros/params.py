@@ -22,6 +22,7 @@ from typing import Any, cast
 
 import yaml
 
+from advperc_ros.core.inputs import read_input_text
 from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.ros.interfaces.registry import BUNDLED as INTERFACES
@@ -375,7 +376,6 @@ def parse_params(document: Any, where: str, source: Path | None = None) -> Attac
     return params_from_values(_flatten(node["ros__parameters"]), source, where)
 
 
-YAML_MAX_BYTES = 16 * 1024 * 1024  # a params, campaign or scenario file is kilobytes; /dev/zero is endless
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -406,16 +406,12 @@ def read_yaml(path: Path, kind: str) -> Any:
     """A YAML document, or one line naming the file: missing, not a regular file (a FIFO would block, a
     device never end), too large, unreadable, not UTF-8, not YAML, a key twice or a recursive alias."""
     try:
-        if not path.is_file() and path.exists():
-            raise ParamsError(f"{path}: cannot read {kind}: not a regular file")
-        with path.open("rb") as handle:
-            data = handle.read(YAML_MAX_BYTES + 1)
-        if len(data) > YAML_MAX_BYTES:
-            raise ParamsError(f"{path}: cannot read {kind}: larger than {YAML_MAX_BYTES // 2**20} MiB")
-        document = yaml.load(data.decode("utf-8"), Loader=_StrictLoader)
+        document = yaml.load(read_input_text(path), Loader=_StrictLoader)
     except FileNotFoundError:
         raise ParamsError(f"{path}: no such {kind}") from None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
+    except OSError as exc:  # not a regular file, too large, unreadable
+        raise ParamsError(f"{path}: cannot read {kind}: {exc.strerror}") from None
+    except (UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
         raise ParamsError(f"{path}: cannot read {kind}: {exc}".replace("\n", " ")) from exc
     _refuse_cycles(document, path, kind)
     return document

@@ -325,6 +325,7 @@ def _cases() -> list[Case]:
         Case("advperc check-typical P.yaml", "`--samples 0`", typical("--samples", "0"), "--samples", None),
         Case("advperc check-typical P.yaml", "`--samples -3`", typical("--samples", "-3"), "--samples", None),
         Case("advperc check-typical P.yaml --model", "model file missing", typical("--samples", "1", "--model", "none.json"), "none.json", "none.json"),
+        Case("advperc check-typical P.yaml --model", "model file a FIFO (it blocked forever)", lambda f: os.mkfifo(f / "pem.json") or ["check-typical", _params(f), "--samples", "1", "--model", str(f / "pem.json")], "not a regular file", "pem.json"),
         Case("advperc check-typical P.yaml --model", "model not JSON", model("{not json"), "pem.json", "pem.json"),
         Case("advperc check-typical P.yaml --model", "model JSON a list", model("[1, 2]"), "pem.json", "pem.json"),
         Case("advperc check-typical P.yaml --model", "model missing a field", model('{"source": "x"}'), "pem.json", "pem.json"),
@@ -359,6 +360,7 @@ def _cases() -> list[Case]:
         Case("advperc campaign FILE", "`output` a folder of the user's files (it wrote among them and deleted one)", lambda f: (f / "mine").mkdir() or (f / "mine" / ".x.partial").mkdir() or campaign_file(output=str(f / "mine"))(f), "did not make", "c.yaml"),
         Case("advperc campaign FILE --output", "output a symbolic link to nothing", lambda f: _link(f / "out", "nowhere") or ["campaign", str(REPO / "examples" / "campaign.yaml"), "--output", str(f / "out")], "is a symbolic link", "out"),
         Case("advperc pem fit BAG --output", "output under a symbolic link loop", lambda f: _link(f / "loop", "loop") or ["pem", "fit", str(GOOD_BAG), "--output", str(f / "loop" / "m.json")], "symbolic link loop", "loop"),
+        Case("advperc make-bags SCENARIO", "scenario file a FIFO (it blocked forever)", lambda f: os.mkfifo(f / "s.yaml") or ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "not a regular file", "s.yaml"),
         Case("advperc make-bags SCENARIO", "scenario not YAML", lambda f: (f / "s.yaml").write_text("a: [") and ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "s.yaml", "s.yaml"),
     ]
     return cases

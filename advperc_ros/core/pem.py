@@ -28,6 +28,7 @@ from scipy.special import expit, gammaln, log_expit
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import wrap_angle
+from advperc_ros.core.inputs import read_input_text
 from advperc_ros.core.occlusion import occlusion
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.exceptions import PEMError
@@ -151,7 +152,7 @@ class PEM:
     @classmethod
     def load(cls, path: Path) -> "PEM":
         try:
-            text = Path(path).read_text()
+            text = read_input_text(Path(path))
         except (OSError, UnicodeDecodeError) as exc:
             raise PEMError(f"{path}: cannot read the model: {exc}") from None
         return cls.from_json(text, str(path))

@@ -13,6 +13,7 @@ import yaml
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
+from advperc_ros.core.inputs import read_input_text
 from advperc_ros.core.scenario import EgoState, Lane, Scenario, ScenarioError
 
 
@@ -141,7 +142,7 @@ def load_scenario_spec(path: str | Path) -> Scenario:
     line naming the file for whatever is wrong."""
     path = Path(path)
     try:
-        spec = yaml.safe_load(path.read_text())
+        spec = yaml.safe_load(read_input_text(path))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
         raise ScenarioError(f"{path}: cannot read scenario description: {exc}") from exc
     if not isinstance(spec, dict):

@@ -142,8 +142,9 @@ def pytest_configure(config):
 # ----- CI's second run, with ROS 2 sourced -----------------------------------------------------------------
 # The first run (the README's command) runs every test; those that need ROS skip. The second, with the kit
 # sourced and ADVPERC_ROS_RERUN=1, runs again what may behave otherwise with ROS 2 in the environment: every
-# test that skipped in the first run (recorded in pytest's cache), and every DDS and ROS module whole (the kit's
-# CYCLONEDDS_URI and ROS_DOMAIN_ID change what bare Cyclone does). Nothing may skip there.
+# test that skipped in the first run (recorded in pytest's cache) and the ROS modules whole. Nothing may skip
+# there. The bare-DDS tests are not run again: with `dds.localhost_only` (every test's) our participants
+# ignore the kit's CYCLONEDDS_URI, and their domain ids come from the params, not ROS_DOMAIN_ID.
 SKIPPED_KEY = "advperc/skipped"
 RERUN = os.environ.get("ADVPERC_ROS_RERUN") == "1"
 
@@ -167,7 +168,7 @@ def pytest_sessionfinish(session):
 
 def _rerun(item, skipped: set[str]) -> bool:
     module = item.module.__name__.rpartition(".")[2]
-    return item.nodeid in skipped or module in DDS_MODULES | ROS_MODULES or "fresh_domain" in item.fixturenames
+    return item.nodeid in skipped or module in ROS_MODULES or "fresh_domain" in item.fixturenames
 
 
 @pytest.hookimpl(tryfirst=True)  # before xdist's own hook, which reads the marks into the groups

@@ -427,6 +427,20 @@ def test_a_launch_refused_before_any_node_starts_exits_2_with_one_line(workspace
     assert "process started" not in output, output[-3000:]
 
 
+def test_a_launch_whose_planner_never_answers_exits_4_naming_who_is_silent(workspace, ros_domain, tmp_path):
+    """`planner:=external` with no planner running (one that died at start, or was never started):
+    the launch ends with exit code 4 and one line that says no node publishes the plans, not after
+    minutes of retries with a line naming no one; nothing written."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
+    launch = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} planner:=external "
+                                      f"output:={tmp_path / 'attack'}", ros_domain)
+    code, output = _ended(launch, timeout=TIMEOUT)
+    errors = [text for text in output.splitlines() if "[ERROR]" in text and "[orchestrator]" in text]
+    assert code == 4 and len(errors) == 1, _orchestrator_lines(output)
+    assert "no node publishes plans on /planning/trajectory" in errors[0], errors[0]
+    assert sorted(path.name for path in tmp_path.iterdir()) == [params.name]
+
+
 def _wait_for_rollouts(checkpoint: Path, launch: subprocess.Popen, count: int) -> None:
     deadline = time.monotonic() + TIMEOUT
     while sum(1 for _ in (checkpoint / "rollouts.jsonl").open()) < count if (checkpoint / "rollouts.jsonl").is_file() \

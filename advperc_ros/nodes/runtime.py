@@ -192,6 +192,25 @@ def _interrupt(signum: int, frame: Any) -> None:
     raise KeyboardInterrupt
 
 
+def stop_on_signal(node: Any) -> None:
+    """SIGINT and SIGTERM end the node's spin at a callback's boundary: the signal only triggers a guard
+    condition, whose callback (run by the executor) shuts rclpy down. rclpy's own handler chained to
+    Python's, whose KeyboardInterrupt could land inside the executor's making of a Task, and the
+    half-made Task printed a traceback at exit (in a launch's scenario player). Later signals are
+    ignored: the first one's stop is under way."""
+    import rclpy
+
+    stop = node.create_guard_condition(rclpy.try_shutdown)
+
+    def on_signal(signum: int, frame: Any) -> None:
+        for each in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(each, signal.SIG_IGN)
+        stop.trigger()
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, on_signal)
+
+
 def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int], interruptible: bool = False) -> int:
     """The Jazzy main idiom for every node of this package: init, a node named `name` holding every
     parameter it was given, `body(node)` (which declares, validates, spins), shutdown. Each expected
@@ -214,12 +233,15 @@ def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int], int
         print(f"{name}: error: {refused}", file=sys.stderr)
         return EXIT_INPUT
     try:
-        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO if interruptible else None)
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)  # ours: `_interrupt`, `stop_on_signal`
     except rclpy_implementation.RCLError as exc:
         print(f"{name}: error: {ros_arguments_error(str(exc))}", file=sys.stderr)
         return EXIT_INPUT
-    handlers = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)
-                if interruptible}
+    # the handlers of before this call, back at its end (None: one not set from Python, the default)
+    handlers = {signum: signal.getsignal(signum) or signal.SIG_DFL for signum in (signal.SIGINT, signal.SIGTERM)}
+    if interruptible:
+        for signum in handlers:
+            signal.signal(signum, _interrupt)
     node = None
     try:
         node = Node(name, automatically_declare_parameters_from_overrides=True)
@@ -241,13 +263,14 @@ def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int], int
         # the stop itself cannot be broken into: under `ros2 launch` a terminal's Ctrl-C reaches every node
         # twice (from the terminal and from launch), and the second came as a KeyboardInterrupt traceback
         # out of destroy_node in graph nodes too; the handlers of before this call come back after it
-        during_stop = {signum: signal.signal(signum, signal.SIG_IGN) for signum in (signal.SIGINT, signal.SIGTERM)}
+        for signum in handlers:
+            signal.signal(signum, signal.SIG_IGN)
         try:
             if node is not None:
                 node.destroy_node()
             rclpy.try_shutdown()
         finally:
-            for signum, handler in {**during_stop, **handlers}.items():
+            for signum, handler in handlers.items():
                 signal.signal(signum, handler)
 
 
@@ -277,6 +300,7 @@ def _run_rclpy(spec: NodeSpec, args: list[str] | None) -> int:
         poll = getattr(logic, "poll", None)
         if poll is not None:
             node.create_timer(POLL_PERIOD, poll)
+        stop_on_signal(node)
         rclpy.spin(node)
         return 0
 

@@ -27,7 +27,7 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.params import AttackParams, ParamsError, load_params
 from advperc_ros.ros.bag import read_scenario
 
-FUZZ = settings(max_examples=60, deadline=5000, suppress_health_check=[HealthCheck.too_slow])  # deadline: hang guard
+FUZZ = settings(max_examples=40, deadline=5000, suppress_health_check=[HealthCheck.too_slow])  # deadline: hang guard
 
 scalars = st.none() | st.booleans() | st.integers(-2**70, 2**70) | st.floats() | st.text(max_size=8)
 json_values = st.recursive(scalars, lambda inner: st.lists(inner, max_size=3)

@@ -17,7 +17,7 @@ from faulty_planners import FAULTS, WRONG_PLANS
 from test_cli import write_params
 
 # a handful of whole (short) attacks: each example runs the ground truth and a few rollouts
-FUZZ = settings(max_examples=12, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+FUZZ = settings(max_examples=8, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 PLANNER = "faulty_planners:FaultAt"
 
 

@@ -41,6 +41,7 @@ from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.staging import staging_path
 from advperc_ros.params import AttackParams, ParamsError
 
 PARAMS = "params.json"
@@ -221,7 +222,7 @@ class Checkpoint:
 
 def _replace(path: Path, data: bytes) -> None:
     """`path` holding `data`, whole or not at all: a kill mid-write leaves the old file."""
-    staging = path.with_name(f".{path.name}.partial")
+    staging = staging_path(path)
     with staging.open("wb") as handle:
         handle.write(data)
         handle.flush()

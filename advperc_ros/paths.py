@@ -29,6 +29,11 @@ def check_output(output: Path, kind: str = "output folder") -> None:
                           f"file system allows ({name_max} bytes)")
     if output.name in ("", ".."):  # '..' names a folder that exists (or will, once the ones before it are made)
         raise ParamsError(f"{output}: the {kind} must be named by its own name, not by '..' or a root")
+    for climb in (index for index, part in enumerate(output.parts) if part == ".."):
+        before = Path(*output.parts[:climb])
+        if not before.is_dir():  # the writer's making of `before` would make the output's name before it
+            raise ParamsError(f"{output}: the {kind}'s path climbs with '..' out of {before}, which is not a folder "
+                              f"yet; name the place without '..'")
     if output.is_symlink():
         raise ParamsError(f"{output}: the {kind} is a symbolic link; name the place it should be itself")
     try:

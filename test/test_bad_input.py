@@ -272,6 +272,7 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml --output", "output under a symbolic link loop", lambda f: _link(f / "loop", "loop") or ["attack", _params(f), "--output", str(f / "loop" / "out")], "symbolic link loop", "loop"),
         Case("advperc attack P.yaml --output", "output under a symbolic link to nothing", lambda f: _link(f / "gone", "nowhere") or ["attack", _params(f), "--output", str(f / "gone" / "out")], "symbolic link to nothing", "gone"),
         Case("advperc attack P.yaml --output", "output named by `..` (a folder that exists once its parent is made)", lambda f: ["attack", _params(f), "--output", str(f / "new" / "..")], "not by '..'", None),
+        Case("advperc attack P.yaml --output", "output climbing with `..` out of a folder still to be made (`new/../new`)", lambda f: ["attack", _params(f), "--output", str(f / "new" / ".." / "new")], "climbs with '..'", None),
         Case("advperc attack P.yaml --output", "output name over 255 bytes", lambda f: ["attack", _params(f), "--output", str(f / ("o" * 300))], "longer than the file system allows", None),
         Case("advperc attack P.yaml --output", "output on a disk without room for the run's estimate", attack_flags(), "MiB free", "out",
              setup=_disk_with_one_mib_free),

@@ -8,7 +8,7 @@ import os
 import shutil
 from pathlib import Path
 
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mutations import one_line_naming
 
@@ -59,6 +59,8 @@ def _tree(root: Path) -> dict[str, tuple]:
 
 @given(steps=st.lists(st.tuples(NAMES, st.sampled_from(KINDS)), min_size=1, max_size=4),
        kind=st.sampled_from(["output folder", "bag folder", "model file"]))
+@example(steps=[("a", "missing"), ("..", "folder"), ("a", "folder")], kind="output folder")  # a/../a, a missing:
+@example(steps=[("a", "missing"), ("..", "folder"), ("a", "folder")], kind="model file")  # making a/ made a/../a
 @FUZZ
 def test_the_gate_refuses_in_one_line_or_the_output_can_be_made(steps, kind, tmp_path_factory):
     root = tmp_path_factory.mktemp("gate")

@@ -13,6 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from advperc_ros.core.perception_errors import ErrorSpace, parse_error_kinds
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.rollout import RolloutConfig
 from advperc_ros.core.scenario import Scenario
@@ -33,10 +34,12 @@ SEARCH = {"heuristic_iterations": "search.heuristic.iterations", "joint_max_agen
           "approach_steps": "search.approach.steps", "approach_patience": "search.approach.patience",
           "refine_iterations": "search.refine.iterations", "seed": "seed", "method": "search.method",
           "budget": "search.budget"}
+ERRORS = {"max_speed_error": "errors.max_speed_error", "min_scale": "errors.min_scale", "max_scale": "errors.max_scale",
+          "max_latency": "errors.max_latency", "ghosts": "errors.ghosts"}  # and `kinds`, parsed from errors.kinds
 EGO = {"ego_length": "ego.length", "ego_width": "ego.width"}  # of PlanningContext, whose other fields are the scenario's
 TABLES: tuple[tuple[type, Mapping[str, str]], ...] = (
     (RolloutConfig, ROLLOUT), (TrackerConfig, TRACKER), (RandomSearchConfig, RANDOM), (GuidedConfig, GUIDED),
-    (SearchConfig, SEARCH))
+    (SearchConfig, SEARCH), (ErrorSpace, ERRORS))
 """Every (core config, table) pair whose defaults must be the schema's."""
 
 
@@ -65,8 +68,9 @@ def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningC
 def search_config(values: Mapping[str, Any]) -> SearchConfig:
     """The whole search's settings, from dotted values."""
     random = RandomSearchConfig(**_fields(RANDOM, values))
+    errors = ErrorSpace(kinds=parse_error_kinds(values["errors.kinds"]), **_fields(ERRORS, values))
     return SearchConfig(**_fields(SEARCH, values), random=random,
-                        guided=GuidedConfig(**_fields(GUIDED, values), random=random))
+                        guided=GuidedConfig(**_fields(GUIDED, values), random=random), errors=errors)
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import hashlib
 import json
 import math
 import sys
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
@@ -23,6 +23,7 @@ from typing import Any, cast
 import yaml
 
 from advperc_ros.core.inputs import read_input_text
+from advperc_ros.core.perception_errors import ERROR_KINDS, parse_error_kinds
 from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.ros.interfaces.registry import BUNDLED as INTERFACES
@@ -45,6 +46,7 @@ class Param:
     low: float | None = None  # smallest value allowed
     positive: bool = False  # strictly above `low` (0 when positive)
     high: float | None = None
+    parse: Callable[[Any], Any] | None = None  # the value's own rule beyond type and bounds (a ValueError says why)
 
     def check(self, name: str, value: Any) -> Any:
         """`value` if it fits, else a ParamsError naming `name` (no file: the caller adds it)."""
@@ -56,6 +58,11 @@ class Param:
                               f"got {type(value).__name__} {value!r}")
         if self.choices and value not in self.choices:
             raise ParamsError(f"parameter '{name}' must be one of {', '.join(self.choices)}, got {value!r}")
+        if self.parse is not None:
+            try:
+                self.parse(value)
+            except ValueError as exc:
+                raise ParamsError(f"parameter '{name}': {exc}") from None
         if expected not in (int, float):
             return value
         number = cast(float, value)  # an int or a float, checked above
@@ -139,6 +146,21 @@ class GuidedParams:
 
 
 @dataclass(frozen=True)
+class ErrorsParams:
+    kinds: str = _param("paper", "error kinds the search may use: paper (position, yaw and drop, the paper's: its "
+                        "results bit for bit), all, or a comma-separated list of " + ", ".join(ERROR_KINDS)
+                        + " (docs/errors.md)", parse=parse_error_kinds)
+    max_speed_error: float = _param(5.0, "velocity kind: the largest error of a detection's velocity (m/s)",
+                                    positive=True, high=100.0)
+    min_scale: float = _param(0.5, "size kind: the smallest factor on a detection's length and width", positive=True,
+                              high=1.0)
+    max_scale: float = _param(2.0, "size kind: the largest factor on a detection's length and width", low=1.0,
+                              high=10.0)
+    max_latency: int = _param(5, "latency kind: the most frames a detection may lag behind its car", low=1, high=100)
+    ghosts: int = _param(2, "ghost kind: ghost detections per frame at most", low=1, high=64)
+
+
+@dataclass(frozen=True)
 class SearchParams:
     method: str = _param("guided", "guided: heuristic, then rounds that score many candidates and roll out the "
                          "most promising (README Search); paper: heuristic, random search, refine, as the paper",
@@ -191,6 +213,7 @@ class AttackParams:
     rule: RuleParams = RuleParams()
     ego: EgoParams = EgoParams()
     tracker: TrackerParams = TrackerParams()
+    errors: ErrorsParams = ErrorsParams()
     search: SearchParams = SearchParams()
     workers: int = _param(1, "embedded backend: processes that run a guided round's rollouts at once; the attack "
                           "is the same whatever the number", low=1, high=256)

@@ -153,8 +153,7 @@ def write_errors(path: Path, outcome: AttackOutcome) -> None:
     agents = outcome.scenario.agents
     slot_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]
     np.savez_compressed(
-        path, dx=errors.dx, dy=errors.dy, dyaw=errors.dyaw, fn=errors.fn, agent_ids=slot_ids,
-        stamps_ns=outcome.scenario.stamps_ns,
+        path, **errors.arrays(), agent_ids=slot_ids, stamps_ns=outcome.scenario.stamps_ns,  # type: ignore[arg-type]
     )
 
 
@@ -162,12 +161,13 @@ def load_errors(path: Path) -> PerceptionErrors:
     """The error tensor of a results folder; one BagError line if the file is not one."""
     try:
         with np.load(path) as data:
-            errors = PerceptionErrors(dx=data["dx"], dy=data["dy"], dyaw=data["dyaw"], fn=data["fn"].astype(bool))
+            arrays = {name: data[name] for name in data.files if name not in ("agent_ids", "stamps_ns")}
     except (OSError, ValueError, KeyError, EOFError) as exc:
         raise BagError(f"{path}: not an error tensor (npz with dx, dy, dyaw, fn): {exc}") from None
-    if not all(array.shape == errors.fn.shape and array.ndim == 2 for array in (errors.dx, errors.dy, errors.dyaw)):
-        raise BagError(f"{path}: fields 'dx', 'dy', 'dyaw', 'fn' must be frames x agents arrays of one shape")
-    return errors
+    try:
+        return PerceptionErrors.from_arrays(arrays)
+    except ValueError as exc:
+        raise BagError(f"{path}: {exc}") from None
 
 
 def read_attack(results: Path) -> tuple[AttackParams, Path, PerceptionErrors]:

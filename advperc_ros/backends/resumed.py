@@ -38,7 +38,7 @@ import numpy as np
 
 from advperc_ros.backends.base import AttackedPlanner, Rollouts
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.perception_errors import PAPER_ARRAYS, PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.staging import staging_path
@@ -64,7 +64,9 @@ class Stored:
 
 def _digest(errors: PerceptionErrors) -> str:
     sha = hashlib.sha256()
-    for array in (errors.dx, errors.dy, errors.dyaw, errors.fn):
+    for name, array in errors.arrays().items():  # the paper's four alone as ever: their digests stay valid
+        if name not in PAPER_ARRAYS:
+            sha.update(name.encode())
         sha.update(np.ascontiguousarray(array).tobytes())
     return sha.hexdigest()
 

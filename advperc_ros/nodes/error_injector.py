@@ -3,9 +3,10 @@
 It holds the error tensor of the current rollout (latched /attack/errors, acknowledged on
 /attack/ready so the player starts frame 0 only once the tensor is here) and turns each
 /ground_truth/objects frame into /perception/objects with the same stamp: offsets added, dropped
-agents removed, confidences from the fixed scheme of `core.perception_errors` (so the values are those of
-`core.perception_errors.inject`, float for float: `core.perception_errors.inject_frame`). Stateless between
-frames: nothing to reset.
+agents removed, ghosts added, confidences from the fixed scheme of `core.perception_errors` (so the values
+are those of `core.perception_errors.inject`, float for float: `core.perception_errors.inject_frame`). It
+keeps the rollout's ground truth so far, as a late detection shows an agent as it was frames ago; a new
+tensor starts a new history.
 """
 
 import sys
@@ -13,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from advperc_ros.core.boxes import BOX_FIELDS, BoxSequence
 from advperc_ros.core.perception_errors import inject_frame
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros.interfaces.base import ObjectsLayer
@@ -29,6 +31,7 @@ class ErrorInjector:
         self._rollout: RolloutErrors | None = None
         self._slots: dict[int, int] = {}
         self._frames: dict[int, int] = {}
+        self._history = BoxSequence.empty(0, 0)  # the rollout's ground truth so far, in the tensor's slots
         self._perception = transport.publisher(detections.topic, detections.msgtype)
         self._ready = transport.publisher(READY, CONTROL_TYPE)
         transport.subscriber(ERRORS, CONTROL_TYPE, latched=True, callback=self.on_errors)
@@ -39,6 +42,8 @@ class ErrorInjector:
         self._rollout = rollout
         self._slots = {int(agent): j for j, agent in enumerate(rollout.agent_ids)}
         self._frames = {int(stamp): k for k, stamp in enumerate(rollout.stamps_ns)}
+        self._history = BoxSequence.empty(*rollout.errors.shape)
+        self._history.ids[:] = rollout.agent_ids
         self._ready.publish(ready_message(rollout.rollout))
 
     def on_ground_truth(self, data: bytes) -> None:
@@ -52,7 +57,12 @@ class ErrorInjector:
             self._log.error(f"{GROUND_TRUTH}: agents {unknown} at stamp {stamp} are not in the error tensor; frame dropped")
             return
         slots = np.array([self._slots[int(i)] for i in truth["ids"]], dtype=np.int64)
-        perceived = inject_frame(truth, self._frames[stamp], slots, self._rollout.errors)
+        frame = self._frames[stamp]
+        self._history.valid[frame] = False
+        self._history.valid[frame, slots] = True
+        for name in BOX_FIELDS[:-1]:
+            getattr(self._history, name)[frame, slots] = truth[name]
+        perceived = inject_frame(self._history, frame, self._rollout.errors)
         self._perception.publish(self._detections.encode(perceived, stamp, "perception"))
 
 

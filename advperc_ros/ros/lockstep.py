@@ -5,7 +5,7 @@ written with `repr` by the json module and so round-trip exactly):
 
 | topic | QoS | from -> to | JSON |
 |---|---|---|---|
-| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn"} |
+| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn"}, and the arrays of each extended error kind on (`core.perception_errors.EXTENDED_KINDS`) |
 | /attack/ready | volatile | injector -> player | {"rollout"}: the injector holds that rollout's errors |
 | /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout"} |
 | /attack/nodes | latched | every graph node -> orchestrator | {"node", "pid"}: the node is up, its topics created |
@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.perception_errors import EXTENDED_KINDS, NEUTRAL, PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
@@ -77,7 +77,7 @@ def errors_message(item: RolloutErrors):
         "rollout": item.rollout,
         "agent_ids": item.agent_ids.tolist(),
         "stamps_ns": item.stamps_ns.tolist(),
-        "dx": e.dx.tolist(), "dy": e.dy.tolist(), "dyaw": e.dyaw.tolist(), "fn": e.fn.tolist(),
+        **{name: array.tolist() for name, array in e.arrays().items()},
     }))
 
 
@@ -127,8 +127,18 @@ def parse_errors(msg) -> RolloutErrors:
     stamps = _array(data, ERRORS, "stamps_ns", None, "i").astype(np.int64)
     agent_ids = _array(data, ERRORS, "agent_ids", None, "i").astype(np.int64)
     shape = (len(stamps), len(agent_ids))
-    arrays = {name: _array(data, ERRORS, name, shape, "f").astype(float) for name in ("dx", "dy", "dyaw")}
-    errors = PerceptionErrors(fn=_array(data, ERRORS, "fn", shape, "b").astype(bool), **arrays)
+    arrays = {name: _array(data, ERRORS, name, shape, "f") for name in ("dx", "dy", "dyaw")}
+    arrays["fn"] = _array(data, ERRORS, "fn", shape, "b")
+    ghosts = data.get("ghost_on")
+    ghost_shape = (len(stamps), len(ghosts[0]) if isinstance(ghosts, list) and ghosts and isinstance(ghosts[0], list) else 0)
+    for kind, names in EXTENDED_KINDS.items():
+        for name in names if any(name in data for name in names) else ():
+            element = "b" if NEUTRAL[name][1] is np.bool_ else "i" if name == "latency" else "f"
+            arrays[name] = _array(data, ERRORS, name, ghost_shape if kind == "ghost" else shape, element)
+    try:
+        errors = PerceptionErrors.from_arrays(arrays)
+    except ValueError as exc:
+        raise MessageError(f"{ERRORS}: {exc}") from None
     return RolloutErrors(_field(data, ERRORS, "rollout", int), errors, agent_ids, stamps)
 
 

@@ -7,6 +7,7 @@ adds its own section here only if it has parameters of its own.
 
 from dataclasses import dataclass
 
+from advperc_ros.core.perception_errors import ErrorSpace
 from advperc_ros.core.search import approach as approach_phase
 from advperc_ros.core.search.joint import worst_case
 from advperc_ros.core.search.random_search import RandomSearchConfig
@@ -35,6 +36,7 @@ class SearchConfig:
     seed: int = 0  # of the search's random draws
     method: str = "guided"  # guided: heuristic, guided search; paper: heuristic, random search, refine
     guided: GuidedConfig = GuidedConfig()
+    errors: ErrorSpace = ErrorSpace()  # the kinds of error the search may make, and their bounds
     # rollouts at most; 0: `bound`, what the search can use at most (a method may spend less: `SearchMethod.tail_budget`)
     budget: int = 0
 

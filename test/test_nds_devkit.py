@@ -1,7 +1,9 @@
 """Our NDS against nuscenes-devkit 1.2.0 itself, on committed randomised cases.
 
 The devkit pins numpy<2, so it cannot share this environment: test/fixtures/nds/make_devkit_fixtures.py
-runs it from its own venv (see that script's docstring) and stored its answers in devkit_cases.json.
+runs it from its own venv (see that script's docstring) and stored its answers in devkit_cases.json
+(the paper's detector errors: centre and heading offsets, drops) and devkit_cases_kinds.json (the
+kinds beyond them: ghosts, size, velocity and heading-flip errors, and all of them mixed).
 """
 
 import json
@@ -14,7 +16,10 @@ import pytest
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, greedy_match, nds
 
-CASES = json.loads((Path(__file__).parent / "fixtures" / "nds" / "devkit_cases.json").read_text())
+FIXTURES = Path(__file__).parent / "fixtures" / "nds"
+CASES = json.loads((FIXTURES / "devkit_cases.json").read_text())
+KIND_CASES = json.loads((FIXTURES / "devkit_cases_kinds.json").read_text())
+GHOST = -1  # agent id of a prediction no agent explains
 COLUMNS = ("ids", "x", "y", "yaw", "length", "width", "height", "vx", "vy")
 
 
@@ -43,7 +48,105 @@ def test_fixtures_cover_the_required_variety():
     assert len({round(c["devkit"]["nds"], 6) for c in CASES}) >= 20
 
 
-@pytest.mark.parametrize("case", CASES, ids=[c["name"] for c in CASES])
+def _family(case: dict) -> str:
+    return case["name"].split("_")[0]
+
+
+def _ghosts(case: dict) -> tuple[list[tuple[list[float], list[float]]], list[float]]:
+    """The ghosts of a case as (frame ego, row), and the scores of the agents' own detections."""
+    ghosts = [(f["ego"], p) for f in case["frames"] for p in f["pred"] if p[0] == GHOST]
+    agent_scores = [p[-1] for f in case["frames"] for p in f["pred"] if p[0] != GHOST]
+    return ghosts, agent_scores
+
+
+def _error_kinds(case: dict) -> set[str]:
+    """The kinds of detector error a case holds, read off its rows (a prediction's agent id names
+    the gt it was made from)."""
+    kinds = set()
+    for f in case["frames"]:
+        gt = {g[0]: g for g in f["gt"]}
+        if set(gt) - {p[0] for p in f["pred"]}:
+            kinds.add("drop")
+        for p in f["pred"]:
+            if p[0] == GHOST:
+                kinds.add("ghost")
+                continue
+            g = gt[p[0]]
+            heading_error = abs((p[3] - g[3] + math.pi) % (2 * math.pi) - math.pi)
+            if p[1:3] != g[1:3]:
+                kinds.add("centre")
+            if p[4:7] != g[4:7]:
+                kinds.add("size")
+            if heading_error > 2.5:
+                kinds.add("flip")
+            elif heading_error > 0.0:
+                kinds.add("heading")
+            if p[7:9] != g[7:9]:
+                kinds.add("velocity of a gt standing still" if g[7] == g[8] == 0.0 else "velocity")
+    return kinds
+
+
+def test_kind_fixtures_cover_the_detector_errors_beyond_the_paper():
+    """Each family is there and does what its name says, in the devkit's own numbers: a test that
+    passes because a family lost its errors would prove nothing about that kind."""
+    names = [c["name"] for c in KIND_CASES]
+    assert len(set(names)) == len(names)
+    families = {family: [c for c in KIND_CASES if _family(c) == family]
+                for family in ("ghost", "size", "vel", "flip", "mixed")}
+    assert {family: len(cases) >= 3 for family, cases in families.items()} == dict.fromkeys(families, True)
+    assert len(KIND_CASES) == sum(len(cases) for cases in families.values())
+
+    every_kind = {"drop", "ghost", "centre", "size", "flip", "heading", "velocity of a gt standing still"}
+    for case in families["mixed"]:
+        assert every_kind <= _error_kinds(case), case["name"]
+    for family, kind in (("ghost", "ghost"), ("size", "size"), ("flip", "flip")):
+        assert all(kind in _error_kinds(case) for case in families[family]), family
+    assert all({"velocity", "velocity of a gt standing still"} & _error_kinds(c) for c in families["vel"])
+
+    def most(family, error):
+        return max(c["devkit"]["tp_errors"][error] for c in families[family])
+
+    assert most("size", "scale_err") > 0.3
+    assert most("vel", "vel_err") > 1.0
+    assert most("flip", "orient_err") > 3.0  # close to pi: nearly every detection flipped
+    for error, floor in (("scale_err", 0.05), ("vel_err", 0.1), ("orient_err", 1.0)):
+        assert most("mixed", error) > floor, error
+
+    # flips of gt headings 0, +-pi and pi/2
+    flips = next(c for c in families["flip"] if c["name"] == "flip_exact_yaws")
+    gt_yaws = {g[3] for f in flips["frames"] for g in f["gt"]}
+    assert {0.0, math.pi, -math.pi, math.pi / 2} <= gt_yaws
+
+    # ghosts ranked above, between and below every detection of an agent
+    by_name = {c["name"]: c for c in KIND_CASES}
+    ghosts, agents = _ghosts(by_name["ghost_ranked_above_every_detection"])
+    assert min(p[-1] for _, p in ghosts) > max(agents)
+    ghosts, agents = _ghosts(by_name["ghost_ranked_below_every_detection"])
+    assert max(p[-1] for _, p in ghosts) < min(agents)
+    ghosts, agents = _ghosts(by_name["ghost_ranked_between_every_detection"])
+    assert all(min(agents) < p[-1] < max(agents) for _, p in ghosts)
+    # a ghost at exactly 50 m, which the strict < 50 range filter drops
+    ghosts, _ = _ghosts(by_name["ghost_at_exactly_50m"])
+    assert any(math.hypot(p[1] - ego[0], p[2] - ego[1]) == 50.0 for ego, p in ghosts)
+    # only ghosts: with gt all out of range, and with no gt at all
+    for name in ("ghost_only_gt_out_of_range", "ghost_only_no_gt"):
+        ghosts, agents = _ghosts(by_name[name])
+        assert ghosts and not agents, name
+    assert not any(f["gt"] for f in by_name["ghost_only_no_gt"]["frames"])
+
+    # ghosts both taking a gt (true positives) and left over (false positives), at every threshold;
+    # the matchings are ours, which test_nds_equals_devkit holds to the devkit's numbers
+    ghost_matched = {th: [] for th in DIST_THRESHOLDS}
+    for case in families["ghost"] + families["mixed"]:
+        gt, pred, ego = case_inputs(case)
+        result = nds(gt, pred, ego)
+        is_ghost = result.pred_in_range & (pred.ids == GHOST)
+        for th in DIST_THRESHOLDS:
+            ghost_matched[th].extend(result.matchings[th].pred_gt[is_ghost] >= 0)
+    assert {th: any(m) and not all(m) for th, m in ghost_matched.items()} == dict.fromkeys(DIST_THRESHOLDS, True)
+
+
+@pytest.mark.parametrize("case", CASES + KIND_CASES, ids=[c["name"] for c in CASES + KIND_CASES])
 def test_nds_equals_devkit(case):
     gt, pred, ego = case_inputs(case)
     ours = nds(gt, pred, ego)

@@ -16,6 +16,7 @@ from typing import NoReturn
 import numpy as np
 
 from advperc_ros.core.feasibility import ScenarioRejected
+from advperc_ros.core.perception_errors import ERROR_KINDS
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import Scenario, ScenarioError
 from advperc_ros.core.search.problem import OBJECTIVES
@@ -29,14 +30,9 @@ def cmd_attack(args: argparse.Namespace) -> int:
     from advperc_ros.application import attack_to_folder, summary
 
     params = load_params(args.params)
-    if args.seed is not None:
-        params = params.with_values(seed=args.seed)
-    if args.backend is not None:
-        params = params.with_values(rollout_backend=args.backend)
-    if args.objective is not None:
-        params = params.with_values(objective=args.objective)
-    if args.method is not None:
-        params = params.with_values(**{"search.method": args.method})
+    overrides = {"seed": args.seed, "rollout_backend": args.backend, "objective": args.objective,
+                 "search.method": args.method, "errors.kinds": args.errors}
+    params = params.with_values(**{name: value for name, value in overrides.items() if value is not None})
     if args.resume is not None and args.output is not None and Path(args.resume) != Path(args.output):
         raise ParamsError(f"--resume {args.resume} and --output {args.output}: give the folder once")
     output = args.resume or args.output
@@ -321,6 +317,8 @@ def build_parser() -> argparse.ArgumentParser:
     attack.add_argument("--output", type=_path, help="results folder to create (default results/<params>-seed<N>)")
     attack.add_argument("--seed", type=int, help="override the params file's seed")
     attack.add_argument("--objective", choices=OBJECTIVES, help="override the params file's objective")
+    attack.add_argument("--errors", metavar="KINDS", help="override the params file's errors.kinds: paper, all, or a "
+                        "comma-separated list of " + ", ".join(ERROR_KINDS))
     attack.add_argument("--method", choices=SEARCH_METHODS, help="override the params file's search.method (paper: the "
                         "paper's Algorithms 1 and 2, for reproducing it)")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")

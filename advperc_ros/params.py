@@ -23,7 +23,7 @@ from typing import Any, cast
 import yaml
 
 from advperc_ros.core.inputs import read_input_text
-from advperc_ros.core.perception_errors import ERROR_KINDS, parse_error_kinds
+from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.ros.interfaces.registry import BUNDLED as INTERFACES
@@ -148,8 +148,8 @@ class GuidedParams:
 @dataclass(frozen=True)
 class ErrorsParams:
     kinds: str = _param("paper", "error kinds the search may use: paper (position, yaw and drop, the paper's: its "
-                        "results bit for bit), all, or a comma-separated list of " + ", ".join(ERROR_KINDS)
-                        + " (docs/errors.md)", parse=parse_error_kinds)
+                        "results bit for bit), all, or a comma-separated list of the kinds added to the paper's: "
+                        + ", ".join(ERROR_KINDS[len(PAPER_KINDS):]) + " (docs/errors.md)", parse=parse_error_kinds)
     max_speed_error: float = _param(5.0, "velocity kind: the largest error of a detection's velocity (m/s)",
                                     positive=True, high=100.0)
     min_scale: float = _param(0.5, "size kind: the smallest factor on a detection's length and width", positive=True,
@@ -233,6 +233,9 @@ class AttackParams:
                 param.check(name, self.get(name))
             except ParamsError as exc:
                 raise ParamsError(f"{where}: {exc}") from None
+        if self.search.method == "paper" and parse_error_kinds(self.errors.kinds) != PAPER_KINDS:
+            raise ParamsError(f"{where}: parameter 'errors.kinds' must be paper with search.method paper (the "
+                              f"paper's search makes the paper's errors only); the guided method searches any kinds")
         object.__setattr__(self, PLANNER_PARAMS, MappingProxyType(_check_planner_params(where, self.planner_params)))
 
     def get(self, name: str) -> Any:

@@ -11,8 +11,9 @@ from importlib import metadata
 from pathlib import Path
 
 from advperc_ros import __version__
+from advperc_ros.core.perception_errors import parse_error_kinds
 from advperc_ros.core.search.diagnosis import listed_ids, why_no_collision
-from advperc_ros.core.search.problem import Evaluation
+from advperc_ros.core.search.problem import Evaluation, kind_costs
 from advperc_ros.outcome import AttackOutcome
 from advperc_ros.ros import bag as bags
 
@@ -57,13 +58,14 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     """report.json's fields: the attack found (Table 1's row) or why none was, and what it ran with."""
     params = outcome.params
     best = outcome.best
-    report = {
+    report: dict = {
         "scenario": outcome.scenario.name,
         "bag": params.bag,
         "bag_sha256": bags.digest(bag_path),
         "planner": params.planner,
         "objective": params.objective,
         "attacked_layer": params.attacked_layer,
+        "error_kinds": {"enabled": list(parse_error_kinds(params.errors.kinds))},
         "seed": params.seed,
         "collision": best is not None,
         "min_signed_distance": None,
@@ -86,6 +88,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
             **report_scores(best),
         )
+        costs = kind_costs(outcome.scenario, best, params.objective)
+        report["error_kinds"].update(used=list(costs), cost={kind: _finite_or_none(cost) for kind, cost in costs.items()})
     else:
         report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,
                                        outcome.approach, partial(rounded, "min_signed_distance")))

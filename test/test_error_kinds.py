@@ -82,7 +82,8 @@ def _same(a: BoxSequence, b: BoxSequence) -> None:
 def test_parse_error_kinds():
     assert parse_error_kinds("paper") == PAPER_KINDS == ("position", "yaw", "drop")
     assert parse_error_kinds("all") == ERROR_KINDS
-    assert parse_error_kinds(" ghost,drop ") == ("drop", "ghost")  # in the one order, whatever the user's
+    assert parse_error_kinds(" ghost,latency ") == (*PAPER_KINDS, "latency", "ghost")  # the one order, not the user's
+    assert parse_error_kinds("drop") == PAPER_KINDS  # the paper's are always on: the search finds failures with them
     for bad in ("", "drop,", "ghosts", "paper,ghost"):
         with pytest.raises(ValueError, match="unknown error kind"):
             parse_error_kinds(bad)

@@ -48,7 +48,9 @@ GHOST_CONFIDENCE_QUANTILE = 0.5
 
 def parse_error_kinds(text: str) -> tuple[str, ...]:
     """The kinds `errors.kinds` names: `paper`, `all`, or a comma-separated list of kind names, in
-    `ERROR_KINDS` order; a ValueError naming what is wrong otherwise."""
+    `ERROR_KINDS` order; a ValueError naming what is wrong otherwise. The paper's kinds are always on:
+    the search finds its failure mode with drops (Algorithm 1) and moves by offsets, so a list names
+    the extended kinds added to them (naming a paper kind too is allowed and changes nothing)."""
     if text == "paper":
         return PAPER_KINDS
     if text == "all":
@@ -58,7 +60,7 @@ def parse_error_kinds(text: str) -> tuple[str, ...]:
     if unknown or not text.strip():
         raise ValueError(f"unknown error kind {unknown[0] if unknown else text!r}: 'paper', 'all' or a comma-separated "
                          f"list of {', '.join(ERROR_KINDS)}")
-    return tuple(kind for kind in ERROR_KINDS if kind in names)
+    return tuple(kind for kind in ERROR_KINDS if kind in names or kind in PAPER_KINDS)
 
 
 @dataclass(frozen=True)
@@ -178,6 +180,57 @@ class PerceptionErrors:
         """These errors plus agent `agent` dropped on frames start..end inclusive."""
         out = self.copy()
         out.fn[start : end + 1, agent] = True
+        return out
+
+    def perceive_perfectly(self, first: int, last: int, slot: int) -> None:
+        """In place: agent `slot` detected without any error on frames first..last inclusive."""
+        rows = slice(first, last + 1)
+        self.fn[rows, slot] = False
+        self.dx[rows, slot] = self.dy[rows, slot] = self.dyaw[rows, slot] = 0.0
+        for kind, names in EXTENDED_KINDS.items():
+            for name in names if kind != "ghost" else ():
+                array = getattr(self, name)
+                if array is not None:
+                    array[rows, slot] = NEUTRAL[name][0]
+
+    def attacked(self) -> np.ndarray:
+        """(frames x agents) the object-frames shown other than they are: dropped, displaced, turned,
+        lagging, resized or wrongly fast (a yaw error alone is noise, as the paper's proposals add it)."""
+        out = self.fn | (self.dx != 0) | (self.dy != 0)
+        for kind, names in EXTENDED_KINDS.items():
+            for name in names if kind != "ghost" else ():
+                array = getattr(self, name)
+                if array is not None:
+                    out |= array != NEUTRAL[name][0]
+        return out
+
+    def used_kinds(self, frames: int) -> tuple[str, ...]:
+        """The kinds whose errors show in the first `frames` frames (a dropped detection shows no other)."""
+        rows = slice(0, frames)
+        shown = ~self.fn[rows]
+        used = {"position": bool(((self.dx[rows] != 0) | (self.dy[rows] != 0))[shown].any()),
+                "yaw": bool((self.dyaw[rows] != 0)[shown].any()), "drop": bool(self.fn[rows].any()),
+                "ghost": self.ghost_on is not None and bool(self.ghost_on[rows].any())}
+        for kind, names in EXTENDED_KINDS.items():
+            arrays = [getattr(self, name) for name in names]
+            if kind != "ghost" and arrays[0] is not None:
+                used[kind] = any(bool((array[rows] != NEUTRAL[name][0])[shown].any()) for name, array in zip(names, arrays))
+        return tuple(kind for kind in ERROR_KINDS if used.get(kind))
+
+    def without(self, kind: str) -> "PerceptionErrors":
+        """A copy with no error of `kind` (a dropped detection shown again, without an offset)."""
+        out = self.copy()
+        if kind == "position":
+            out.dx[:] = out.dy[:] = 0.0
+        elif kind == "yaw":
+            out.dyaw[:] = 0.0
+        elif kind == "drop":
+            out.fn[:] = False
+        else:
+            for name in EXTENDED_KINDS[kind]:
+                array = getattr(out, name)
+                if array is not None:
+                    array[:] = NEUTRAL[name][0]
         return out
 
     def equals(self, other: "PerceptionErrors") -> bool:

@@ -20,7 +20,9 @@ keep the collision), so where the failure boundary hugs the best attack the step
 few that keep it (as the paper's uniform proposals sometimes do
 by chance), but not below what re-rolling alone changes a metric by; the first candidate stays the
 model's choice. A round's rollouts are independent, so a backend may run them at once; the batch
-size is a param, so the attack does not depend on how many workers ran it.
+size is a param, so the attack does not depend on how many workers ran it. With error kinds beyond
+the paper's on (`errors.kinds`), each kind's moves (`extended.MOVES_OF_KIND`) join the draw, and the
+collision model learns them as it learns the paper's.
 """
 
 from typing import ClassVar
@@ -28,20 +30,16 @@ from typing import ClassVar
 import numpy as np
 
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
-from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig, after_failure_bound
+from advperc_ros.core.search.extended import MOVES_OF_KIND, MoveContext
 from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.search.random_search import propose
-from advperc_ros.core.search.refine import dropped_runs, refine_drops
+from advperc_ros.core.search.refine import attacked_runs, refine_drops
 
 # m: pushes just inside each match threshold (a true positive at that threshold and every looser one)
 PUSHES = 0.95 * np.asarray(DIST_THRESHOLDS, dtype=float)
-
-
-def attacked_runs(errors: PerceptionErrors, frames: int) -> list[tuple[int, int, int]]:
-    """(slot, first, last) of every run of attacked (dropped or displaced) frames."""
-    return dropped_runs((errors.fn | (errors.dx != 0) | (errors.dy != 0))[:frames])
 
 
 def shrink(errors: PerceptionErrors, frames: int, rng: np.random.Generator) -> PerceptionErrors | None:
@@ -67,12 +65,21 @@ def restore(errors: PerceptionErrors, frames: int, rng: np.random.Generator) -> 
     k = int(rng.integers(1, max(1, (last - first + 1) // 2) + 1))
     a, b = (first, first + k - 1) if rng.integers(2) else (last - k + 1, last)
     out = errors.copy()
-    out.fn[a : b + 1, j] = False
-    out.dx[a : b + 1, j] = out.dy[a : b + 1, j] = out.dyaw[a : b + 1, j] = 0.0
+    out.perceive_perfectly(a, b, j)
     return out
 
 
+# the paper's kinds' moves; the extended kinds' (`extended.MOVES_OF_KIND`) go before `merge`, which is never drawn
 MOVES = ("flip", "push_ahead", "push_behind", "push_left", "push_right", "shrink", "restore", "merge")
+
+
+def moves_of(kinds: tuple[str, ...]) -> tuple[str, ...]:
+    """The guided search's moves when `kinds` are on: the paper's, then each extended kind's, then merge."""
+    extended = tuple(name for kind in kinds for name, _ in MOVES_OF_KIND.get(kind, ()))
+    return (*MOVES[:-1], *extended, MOVES[-1])
+
+
+EXTENDED_MOVES = {name: move for moves in MOVES_OF_KIND.values() for name, move in moves}
 AXES = ((1, 0), (-1, 0), (0, 1), (0, -1))  # (along, beside) the car's heading of each push move, in order
 
 
@@ -102,50 +109,95 @@ def push(
     return out
 
 
-def candidate(errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: GuidedConfig, yaw: np.ndarray):
-    """(move index, candidate) by a move chosen uniformly; the candidate is None when that move has
-    nothing to act on (flip: the paper's proposal, which needs a dropped frame). Merges are not
-    drawn: they come from a round's other collisions."""
-    move = int(rng.integers(len(MOVES) - 1))
+def candidate(errors: PerceptionErrors, frames: int, rng: np.random.Generator, cfg: GuidedConfig, yaw: np.ndarray,
+              moves: tuple[str, ...] = MOVES, context: MoveContext | None = None):
+    """(move index, candidate) by a move of `moves` chosen uniformly; the candidate is None when that
+    move has nothing to act on (flip: the paper's proposal, which needs a dropped frame). Merges are
+    not drawn: they come from a round's other collisions. The extended kinds' moves need `context`."""
+    move = int(rng.integers(len(moves) - 1))
     if move == 0:
         return move, propose(errors, frames, rng, cfg.random)
     if 1 <= move <= 4:
         return move, push(errors, frames, rng, yaw, move - 1)
-    return move, (shrink if move == 5 else restore)(errors, frames, rng)
+    if move <= 6:
+        return move, (shrink if move == 5 else restore)(errors, frames, rng)
+    if context is None:
+        raise ValueError(f"move '{moves[move]}' needs the move context")
+    return move, EXTENDED_MOVES[moves[move]](errors, frames, rng, context)
 
 
-FIELDS = ("fn", "dx", "dy", "dyaw")
+def _aligned(*tensors: PerceptionErrors) -> list[PerceptionErrors]:
+    """The tensors with the arrays of each other's kinds (neutral where one had none), ghost slots alike."""
+    ghosts = max(errors.ghost_slots for errors in tensors)
+    kinds = {kind for errors in tensors for kind in errors.kinds}
+    aligned = []
+    for errors in tensors:
+        for kind in sorted(kinds):
+            errors = errors.with_kind(kind, ghosts)
+        aligned.append(errors)
+    return aligned
+
+
+def _agent_arrays(errors: PerceptionErrors) -> dict[str, np.ndarray]:
+    return {name: array for name, array in errors.arrays().items() if not name.startswith("ghost_")}
+
+
+def _ghost_arrays(errors: PerceptionErrors) -> dict[str, np.ndarray]:
+    return {name: array for name, array in errors.arrays().items() if name.startswith("ghost_")}
 
 
 def changed_cells(errors: PerceptionErrors, parent: PerceptionErrors) -> np.ndarray:
     """(frames x slots) mask of the object-frames whose errors differ from the parent's."""
-    return np.logical_or.reduce([getattr(errors, name) != getattr(parent, name) for name in FIELDS])
+    errors, parent = _aligned(errors, parent)
+    mine, theirs = _agent_arrays(errors), _agent_arrays(parent)
+    return np.logical_or.reduce([mine[name] != theirs[name] for name in mine])
+
+
+def _changed_ghosts(errors: PerceptionErrors, parent: PerceptionErrors) -> np.ndarray:
+    """(frames x ghost slots) mask of the ghost cells that differ from the parent's (both with ghosts)."""
+    mine, theirs = _ghost_arrays(errors), _ghost_arrays(parent)
+    return np.logical_or.reduce([mine[name] != theirs[name] for name in mine])
 
 
 def merge(best: PerceptionErrors, sibling: PerceptionErrors, parent: PerceptionErrors) -> PerceptionErrors | None:
     """The best attack with what a sibling (another collision of the round that made it) changed in
     their parent: both changes kept the collision alone, so together they are a likely larger step."""
+    best, sibling, parent = _aligned(best, sibling, parent)
     changed = changed_cells(sibling, parent)
-    if not changed.any():
+    ghosts = _changed_ghosts(sibling, parent) if sibling.ghost_on is not None else np.zeros((0, 0), dtype=bool)
+    if not changed.any() and not ghosts.any():
         return None
     out = best.copy()
-    for name in FIELDS:
-        getattr(out, name)[changed] = getattr(sibling, name)[changed]
+    theirs = sibling.arrays()
+    for name, array in out.arrays().items():
+        cells = ghosts if name.startswith("ghost_") else changed
+        array[cells] = theirs[name][cells]
     return out
 
 
 def _key(errors: PerceptionErrors) -> bytes:
-    return b"".join(np.ascontiguousarray(a).tobytes() for a in (errors.dx, errors.dy, errors.dyaw, errors.fn))
+    return b"".join(name.encode() + np.ascontiguousarray(a).tobytes() for name, a in errors.arrays().items())
 
 
-def wrongness(errors: PerceptionErrors) -> np.ndarray:
+def wrongness(errors: PerceptionErrors, space: ErrorSpace = ErrorSpace()) -> np.ndarray:
     """(frames x slots) how wrong each object-frame is shown, in [0, 1]: its offset over the loosest
-    match threshold, a drop counting as 1."""
+    match threshold, a drop counting as 1; of the extended kinds the largest share of its bound (a
+    turned car counts as 1, as its heading is as wrong as it can be)."""
     offset = np.minimum(np.hypot(errors.dx, errors.dy) / max(DIST_THRESHOLDS), 1.0)
+    if errors.dvx is not None and errors.dvy is not None:
+        offset = np.maximum(offset, np.minimum(np.hypot(errors.dvx, errors.dvy) / space.max_speed_error, 1.0))
+    if errors.length_scale is not None and errors.width_scale is not None:
+        widest = np.log(space.max_scale / space.min_scale)
+        offset = np.maximum(offset, np.minimum(np.abs(np.log(errors.length_scale * errors.width_scale)) / widest, 1.0))
+    if errors.flip is not None:
+        offset = np.maximum(offset, errors.flip.astype(float))
+    if errors.latency is not None:
+        offset = np.maximum(offset, np.minimum(errors.latency / space.max_latency, 1.0))
     return np.where(errors.fn, 1.0, offset)
 
 
-def shown(c: PerceptionErrors, parent: PerceptionErrors, before: np.ndarray) -> tuple[float, float]:
+def shown(c: PerceptionErrors, parent: PerceptionErrors, before: np.ndarray,
+          space: ErrorSpace = ErrorSpace()) -> tuple[float, float]:
     """What the collision model reads of a candidate besides its move and gain (`before`: the
     parent's wrongness, the same for a whole round):
     - falsity, how wrong it shows what it changes in its parent: the mean wrongness of its changed
@@ -153,25 +205,27 @@ def shown(c: PerceptionErrors, parent: PerceptionErrors, before: np.ndarray) -> 
     - the share of its parent's wrongness it takes back, negative when it shows things more wrongly
       (restoring one frame of a long drop reveals little; a car shown 0.5 m off where it was hidden
       reveals most of it)."""
-    after = wrongness(c)
+    after = wrongness(c, space)
     changed = changed_cells(c, parent)
     falsity = float(after[changed].mean()) if changed.any() else 0.0
     return falsity, float((before - after).sum() / max(before.sum(), 1e-12))
 
 
-def _features(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray) -> np.ndarray:
-    """A common intercept, one per move (its departure from the common one), the gain (as a
-    fraction of the round's largest), and the falsity and share revealed (`seen`, a row each). A
-    move of index -1 has no move term (the prior's rows)."""
-    onehot = np.zeros((len(moves), len(MOVES)))
+def _features(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray, count: int = len(MOVES)) -> np.ndarray:
+    """A common intercept, one per move of the `count` (its departure from the common one), the gain
+    (as a fraction of the round's largest), and the falsity and share revealed (`seen`, a row each).
+    A move of index -1 has no move term (the prior's rows)."""
+    onehot = np.zeros((len(moves), count))
     known = moves >= 0
     onehot[np.flatnonzero(known), moves[known]] = 1.0
     return np.column_stack([np.ones(len(moves)), onehot, gains, seen])
 
 
-# L2 penalties of the model's weights: the common intercept and the gain slope are learnt from few
-# rollouts, a move's departure from the common intercept only once that move has evidence of its own
-PENALTY = np.array([0.1, *[1.0] * len(MOVES), 0.1, 0.1, 0.1])
+def penalty(count: int = len(MOVES)) -> np.ndarray:
+    """L2 penalties of the model's weights with `count` moves: the common intercept and the gain slope
+    are learnt from few rollouts, a move's departure from the common intercept only once that move has
+    evidence of its own."""
+    return np.array([0.1, *[1.0] * count, 0.1, 0.1, 0.1])
 
 
 # rollouts' worth of each of the prior's two rows: until this search's own rollouts outweigh it, a
@@ -181,20 +235,22 @@ PENALTY = np.array([0.1, *[1.0] * len(MOVES), 0.1, 0.1, 0.1])
 PRIOR_WEIGHT = 8.0
 
 
-def fit_still_fails(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray, failed: np.ndarray) -> np.ndarray:
+def fit_still_fails(moves: np.ndarray, gains: np.ndarray, seen: np.ndarray, failed: np.ndarray,
+                    count: int = len(MOVES)) -> np.ndarray:
     """Weights of P(collides) = sigmoid(features . w), by weighted maximum likelihood with a prior
     that no gain keeps the verdict and the round's largest gain loses it (PRIOR_WEIGHT rollouts
     each). Every rollout informs the common intercept, so a few failures of any moves make the next
     round more careful."""
     x = _features(np.concatenate([moves, [-1, -1]]).astype(int), np.concatenate([gains, [0.0, 1.0]]),
-                  np.concatenate([seen.reshape(-1, 2), [[0.5, 0.5], [0.5, 0.5]]]))
+                  np.concatenate([seen.reshape(-1, 2), [[0.5, 0.5], [0.5, 0.5]]]), count)
     y = np.concatenate([failed.astype(float), [1.0, 0.0]])
     weight = np.concatenate([np.ones(len(moves)), [PRIOR_WEIGHT, PRIOR_WEIGHT]])
     w = np.zeros(x.shape[1])
+    l2 = penalty(count)
     for _ in range(100):  # Newton on an L2-regularised, weighted logistic regression
         p = 1.0 / (1.0 + np.exp(-x @ w))
-        grad = x.T @ (weight * (y - p)) - PENALTY * w
-        hess = -(x.T * (weight * p * (1.0 - p))) @ x - np.diag(PENALTY)
+        grad = x.T @ (weight * (y - p)) - l2 * w
+        hess = -(x.T * (weight * p * (1.0 - p))) @ x - np.diag(l2)
         delta = np.linalg.solve(hess, grad)
         w -= delta
         if np.abs(delta).max() < 1e-9:
@@ -260,7 +316,8 @@ def trust_region(gain: np.ndarray, radius: float, slips: list[float]) -> np.ndar
 
 
 def guided_search(
-    problem: AttackProblem, rng: np.random.Generator, cfg: GuidedConfig, budget: int, refine_iterations: int = 0
+    problem: AttackProblem, rng: np.random.Generator, cfg: GuidedConfig, budget: int, refine_iterations: int = 0,
+    space: ErrorSpace = ErrorSpace(),
 ) -> Evaluation:
     """Rounds from the problem's best attack until it has logged `budget` rollouts; the best attack.
 
@@ -277,6 +334,7 @@ def guided_search(
     siblings: list[PerceptionErrors] = []  # the last round's collisions that did not become the best
     grandparent: PerceptionErrors | None = None  # the parent of the last round
     yaw = problem.scenario.agents.yaw
+    names = moves_of(space.kinds)
     refined = refine_iterations == 0
     radius = np.inf  # the largest gain the batch's second candidate may try (`next_radius`)
     slips: list[float] = []  # of every colliding guided rollout: how far its metric is from its score
@@ -291,9 +349,10 @@ def guided_search(
         for sibling in siblings:  # siblings come with their grandparent
             c = merge(parent.errors, sibling, grandparent) if grandparent is not None else None
             if c is not None and _key(c) not in tried:
-                pool.setdefault(_key(c), (MOVES.index("merge"), c))
+                pool.setdefault(_key(c), (names.index("merge"), c))
+        context = MoveContext(problem.scenario.agents, parent.rollout.ego, space, problem.scenario.dt)
         for _ in range(cfg.candidates):  # distinct candidates never rolled out, in the order drawn
-            move, c = candidate(parent.errors, frames, rng, cfg, yaw)
+            move, c = candidate(parent.errors, frames, rng, cfg, yaw, names, context)
             if c is not None and _key(c) not in tried:
                 pool.setdefault(_key(c), (move, c))
         scored = [(problem.metric(c, parent.rollout) - parent.metric, move, c) for move, c in pool.values()]
@@ -307,11 +366,11 @@ def guided_search(
         gain = np.array([g for g, _, _ in scored])
         relative = gain / gain.max()
         move = np.array([m for _, m, _ in scored])
-        before = wrongness(parent.errors)
-        seen = np.array([shown(c, parent.errors, before) for _, _, c in scored])
+        before = wrongness(parent.errors, space)
+        seen = np.array([shown(c, parent.errors, before, space) for _, _, c in scored])
         w = fit_still_fails(np.array(moves, dtype=int), np.array(gains), np.array(shows).reshape(-1, 2),
-                            np.array(failed, dtype=bool))
-        chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen) @ w))
+                            np.array(failed, dtype=bool), len(names))
+        chance = 1.0 / (1.0 + np.exp(-_features(move, relative, seen, len(names)) @ w))
         within = trust_region(gain, radius, slips)
         chosen = pick_batch(gain, chance, min(cfg.batch, budget - len(problem.log)), within)
         batch = [scored[i][2] for i in chosen]
@@ -353,7 +412,8 @@ class GuidedMethod:
         return self.config.budget or used + after_failure_bound(self.config)
 
     def run(self, problem: AttackProblem, heuristic: Evaluation, rng: np.random.Generator) -> None:
-        guided_search(problem, rng, self.config.guided, problem.rollouts_allowed, self.config.refine_iterations)
+        guided_search(problem, rng, self.config.guided, problem.rollouts_allowed, self.config.refine_iterations,
+                      self.config.errors)
 
     def still_owed(self, phase: Phase | None, progress: Progress) -> int:
         """Before its rounds, `after_failure_bound`; once they began, the rest of its budget, which it spends."""

@@ -72,6 +72,25 @@ class LogRow:
     best_metric: float  # best metric of an adversarial rollout so far (nan before the first)
 
 
+def perception_scores(scenario: Scenario, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray,
+                      phi: np.ndarray | None = None) -> PerceptionScores:
+    """m(I(y, e), y) over the first `frames` frames of a rollout of `scenario` whose ego was at ego_xy."""
+    agents = scenario.agents
+    # inject over the whole scenario first: a detection's confidence depends on its frame and
+    # agent only, never on where this rollout stopped
+    return score(agents.frames(frames), inject(agents, errors).frames(frames), ego_xy, phi=phi)
+
+
+def kind_costs(scenario: Scenario, evaluation: Evaluation, objective: str) -> dict[str, float]:
+    """Per error kind the attack uses, what it costs the objective: the objective on the attack's rollout
+    with that kind's errors taken out, less the attack's own (a drop taken out shows the car, perfectly
+    unless another kind's error is on it)."""
+    rollout = evaluation.rollout
+    return {kind: getattr(perception_scores(scenario, evaluation.errors.without(kind), rollout.num_frames,
+                                            rollout.ego_xy), objective) - evaluation.metric
+            for kind in evaluation.errors.used_kinds(rollout.num_frames)}
+
+
 @dataclass
 class AttackProblem:
     """Binds a scenario, a rollout function and an objective; counts and logs every rollout."""
@@ -108,10 +127,7 @@ class AttackProblem:
 
     def scores(self, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray, phi=None) -> PerceptionScores:
         """m(I(y, e), y) over the first `frames` frames of a rollout whose ego was at ego_xy."""
-        agents = self.scenario.agents
-        # inject over the whole scenario first: a detection's confidence depends on its frame and
-        # agent only, never on where this rollout stopped
-        return score(agents.frames(frames), inject(agents, errors).frames(frames), ego_xy, phi=phi)
+        return perception_scores(self.scenario, errors, frames, ego_xy, phi)
 
     def metric(self, errors: PerceptionErrors, reference: RolloutResult) -> float:
         """The objective of errors judged on a previous rollout's ground truth (Algorithm 2)."""

@@ -10,6 +10,7 @@ where the remaining gains are.
 
 import numpy as np
 
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.search.heuristic import bisect
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 
@@ -23,6 +24,11 @@ def dropped_runs(fn: np.ndarray) -> list[tuple[int, int, int]]:
     return runs
 
 
+def attacked_runs(errors: PerceptionErrors, frames: int) -> list[tuple[int, int, int]]:
+    """(slot, first, last) of every run of attacked object-frames (`PerceptionErrors.attacked`)."""
+    return dropped_runs(errors.attacked()[:frames])
+
+
 def refine_drops(problem: AttackProblem, best: Evaluation, iterations: int = 4) -> Evaluation:
     """The refined attack (the problem tracks the best metric, as in the other phases)."""
     agents = problem.scenario.agents
@@ -32,9 +38,7 @@ def refine_drops(problem: AttackProblem, best: Evaluation, iterations: int = 4) 
 
         def restored(count: int, base=base, j=j, first=first):
             out = base.copy()
-            out.fn[first : first + count, j] = False
-            out.dx[first : first + count, j] = out.dy[first : first + count, j] = 0.0
-            out.dyaw[first : first + count, j] = 0.0
+            out.perceive_perfectly(first, first + count - 1, j)
             return out
 
         count, failing = bisect(problem, 0, last - first + 1, restored, Phase.REFINE, agent, iterations, best)

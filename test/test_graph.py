@@ -25,7 +25,7 @@ from conftest import bare_dds_domains, need_ros  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
-from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
+from advperc_ros.core.perception_errors import ERROR_KINDS, PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
@@ -243,8 +243,29 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
         for got, want in zip(result.plans, embedded.plans):
             np.testing.assert_allclose(got.t, want.t, rtol=0, atol=TOLERANCE)
             np.testing.assert_allclose(np.stack([got.x, got.y]), np.stack([want.x, want.y]), rtol=0, atol=TOLERANCE)
+        every_kind = _every_kind(attack, scenario)
+        result = graph.rollout(every_kind, record=True)
+        embedded = stack.rollout(every_kind, record=True)
+        assert_same_rollout(result, embedded)  # the injector node keeps the history latency reads, ghosts travel
+        assert any(len(got["ids"]) != len(want["ids"]) for got, want in zip(result.tracks, stack.rollout(attack, record=True).tracks))
         processes = list(graph.processes.running.values())
     assert all(p.poll() is not None for p in processes)  # shut down on exit
+
+
+def _every_kind(errors: PerceptionErrors, scenario) -> PerceptionErrors:
+    """`errors` with an error of every extended kind on a few frames: late, turned, resized and wrongly fast
+    cars, and a ghost beside the road for a second."""
+    out = PerceptionErrors.none(*errors.shape, ERROR_KINDS, 2)
+    for name in ("dx", "dy", "dyaw", "fn"):
+        getattr(out, name)[:] = getattr(errors, name)
+    out.latency[5:25, :] = 3
+    out.flip[10:14, 1:] = True
+    out.length_scale[:, 1:] = 1.4
+    out.dvx[20:30, :] = -2.0
+    out.ghost_on[8:18, 1] = True
+    agents = scenario.agents
+    out.ghost_x[8:18, 1], out.ghost_y[8:18, 1] = agents.x[8:18, 0] + 8.0, agents.y[8:18, 0] + 4.0
+    return out
 
 
 @pytest.mark.parametrize("interface, drive, layer", [("autoware", "clock", "detections"),

@@ -36,16 +36,20 @@ PAPER = {  # Table 1 of the paper
 }
 
 
-def attack(name: str, objective: str, seed: int, method: str, budget: int = 0, workers: int = 1) -> dict:
+def attack(name: str, objective: str, seed: int, method: str, budget: int = 0, workers: int = 1,
+           errors: str = "paper") -> dict:
     """One search; its best attack's scores, its rollouts and the best metric after each rollout."""
     params = load_params(REPO / "config" / f"{name}.yaml").with_values(
-        objective=objective, seed=seed, **{"search.method": method, "search.budget": budget, "workers": workers})
+        objective=objective, seed=seed, **{"search.method": method, "search.budget": budget, "workers": workers,
+                                           "errors.kinds": errors})
     started = time.perf_counter()
     outcome = run_attack(read_scenario(REPO / "bags" / name), params, progress=False)
     wall = time.perf_counter() - started
     best = outcome.best
     curve = [row.best_metric for row in outcome.log]
+    kinds = best.errors.used_kinds(best.rollout.num_frames) if best else ()
     return {"scenario": name, "objective": objective, "seed": seed, "method": method, "rollouts": len(outcome.log),
+            "kinds": kinds, "collisions": sum(row.collided for row in outcome.log),
             "metric": best.metric if best else float("nan"), "nds": best.scores.nds if best else float("nan"),
             "nds_t": best.scores.nds_t if best else float("nan"), "pem_ll": best.scores.pem_ll if best else float("nan"),
             "curve": curve, "wall_s": wall}

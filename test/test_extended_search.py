@@ -68,7 +68,7 @@ def test_each_move_changes_its_kind_only_within_its_bounds(lane_following, conte
         c = extended.ghost_ahead(parent, shape[0], rng, context)
         assert _changed(c, parent) <= {name for name in c.arrays() if name.startswith("ghost_")} and c.ghost_on.any()
         k, g = np.argwhere(c.ghost_on)[0]
-        assert abs(c.ghost_y[k, g]) < 1e-9 and c.ghost_x[k, g] >= context.ego[k, 0]  # on the ego's path, ahead
+        assert abs(c.ghost_y[k, g]) <= extended.GHOST_ASIDE and c.ghost_x[k, g] >= context.ego[k, 0]  # in its way
         gone = extended.ghost_gone(c, shape[0], rng, context)
         assert 0 < gone.ghost_on.sum() < c.ghost_on.sum() or c.ghost_on.sum() == 1 and not gone.ghost_on.any()
         PerceptionErrors.from_arrays(c.arrays())  # every candidate is a tensor a file or message may hold
@@ -106,3 +106,16 @@ def test_every_kind_gives_one_attack_on_any_number_of_workers_and_says_what_each
     assert kinds["enabled"] == list(ERROR_KINDS) and kinds["used"]
     assert set(kinds["used"]) <= set(errors_one.used_kinds(scenario.num_frames))  # what shows before the rollout ended
     assert set(kinds["cost"]) == set(kinds["used"]) and all(np.isfinite(cost) for cost in kinds["cost"].values())
+
+
+def test_the_approach_phase_keeps_the_cars_it_bisects_to_with_all_their_kinds_and_every_ghost():
+    from advperc_ros.core.search.approach import only
+
+    errors = PerceptionErrors.none(6, 3, ERROR_KINDS, 2)
+    errors.latency[:, 1] = 2
+    errors.flip[:, 2] = True
+    errors.dx[:, 2] = 1.0
+    errors.ghost_on[2:4, 0] = True
+    kept = only(errors, np.array([2]))
+    assert not kept.latency.any() and kept.flip[:, 2].all() and (kept.dx[:, 2] == 1.0).all()
+    assert np.array_equal(kept.ghost_on, errors.ghost_on) and kept.kinds == errors.kinds

@@ -27,7 +27,8 @@ from functools import cmp_to_key
 
 import numpy as np
 
-from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors
+from advperc_ros.core.search.extended import MOVES_OF_KIND, MoveContext
 from advperc_ros.core.search.heuristic import bisect
 from advperc_ros.core.search.joint import relevance
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
@@ -79,10 +80,14 @@ def nearer(trial: Evaluation, current: Evaluation) -> bool:
 
 
 def only(errors: PerceptionErrors, slots: np.ndarray) -> PerceptionErrors:
-    """`errors` on `slots`, every other car perceived perfectly."""
-    out = PerceptionErrors.none(*errors.fn.shape)
-    for name in ("fn", "dx", "dy", "dyaw"):
-        getattr(out, name)[:, slots] = getattr(errors, name)[:, slots]
+    """`errors` on `slots`, every other car perceived perfectly (ghosts are no car: they all stay)."""
+    out = PerceptionErrors.none(*errors.shape, errors.kinds, errors.ghost_slots)
+    kept = out.arrays()
+    for name, array in errors.arrays().items():
+        if name.startswith("ghost_"):
+            kept[name][:] = array
+        else:
+            kept[name][:, slots] = array[:, slots]
     return out
 
 
@@ -122,10 +127,12 @@ def hide(errors: PerceptionErrors, rng: np.random.Generator, where: np.ndarray) 
 
 
 def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Generator, cfg: RandomSearchConfig,
-             steps: int, patience: int) -> Approach:
+             steps: int, patience: int, space: ErrorSpace = ErrorSpace()) -> Approach:
     """The phase from the rollouts `seen` (the ground truth first): it stops at a collision, after
     `patience` rollouts in a row that bring the ego no nearer, after `steps` rollouts, or at the
-    problem's budget."""
+    problem's budget. With extended kinds on (`space`), each kind's moves join the paper's three at
+    even odds, acting on the same nearest cars (ghosts: on the ego's path ahead)."""
+    extended = [move for kind in space.kinds for _, move in MOVES_OF_KIND.get(kind, ())]
     truth = seen[0]
     def order(a: Evaluation, b: Evaluation) -> int:
         return -1 if nearer(a, b) else int(nearer(b, a))
@@ -144,13 +151,18 @@ def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Gene
         where = np.zeros((frames, valid.shape[1]), dtype=bool)
         slots = nearest(truth, current)
         where[:, slots] = valid[:frames, slots]
-        move = rng.integers(3)
+        move = rng.integers(3 + len(extended))
         if move == 0:
             candidate = propose(current.errors, frames, rng, cfg, where)
         elif move == 1:
             candidate = into_path(current.errors, frames, rng, cfg, where, agents_xy, current.rollout.ego_xy)
-        else:
+        elif move == 2:
             candidate = hide(current.errors, rng, where)
+        else:
+            context = MoveContext(problem.scenario.agents, current.rollout.ego, space, problem.scenario.dt, where)
+            candidate = extended[move - 3](current.errors, frames, rng, context)
+            if candidate is None:  # that move had nothing to act on (a ghost to take away): another draw
+                continue
         if candidate is None:  # no car near the ego is present
             break
         trial = problem.evaluate(candidate, Phase.APPROACH)
@@ -169,7 +181,9 @@ def fewest(problem: AttackProblem, truth: Evaluation, collision: Evaluation) -> 
     AP ignores recall below 10 %: with most cars hidden every score is 0, and no single flip back
     raises it)."""
     order = relevance(truth, collision)
-    attacked = [i for i, j in enumerate(order) if collision.errors.fn[:, j].any() or collision.errors.dx[:, j].any()
-                or collision.errors.dy[:, j].any() or collision.errors.dyaw[:, j].any()]
+    wrong = collision.errors.attacked() | (collision.errors.dyaw != 0)
+    attacked = [i for i, j in enumerate(order) if wrong[:, j].any()]
+    if not attacked:  # ghosts alone: no car's errors to do without
+        return collision
     return bisect(problem, attacked[-1] + 1, 0, lambda n: only(collision.errors, np.asarray(order[:n], dtype=int)),
                   Phase.APPROACH, -1, math.ceil(math.log2(max(len(order), 1))), collision)[1]

@@ -23,6 +23,7 @@ from advperc_ros.core.search.refine import attacked_runs, dropped_runs
 
 GHOST_LEAD = (5, 40)  # frames ahead on the ego's own path where a ghost may stand
 GHOST_FRAMES = 30  # frames a ghost stays on at most
+GHOST_ASIDE = 1.5  # m a ghost may stand beside the ego's path: in its lane, or half in it
 
 
 @dataclass(frozen=True)
@@ -33,6 +34,7 @@ class MoveContext:
     ego: np.ndarray  # (K, 4) x, y, yaw, v of the parent's rollout
     space: ErrorSpace
     dt: float  # s between frames
+    cars: np.ndarray | None = None  # (frames x slots) the object-frames the car moves may act on; None: any near
 
 
 Move = Callable[[PerceptionErrors, int, np.random.Generator, MoveContext], PerceptionErrors | None]
@@ -41,9 +43,9 @@ Move = Callable[[PerceptionErrors, int, np.random.Generator, MoveContext], Perce
 def _car_run(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
              context: MoveContext) -> tuple[int, int, int] | None:
     """(slot, first, last): a uniform sub-run of an attacked run, or half the time (or when nothing is
-    attacked yet) of a run of a car present within range of the ego."""
-    runs = attacked_runs(errors, frames)
-    if not runs or rng.integers(2):
+    attacked yet) of a run of a car present within range of the ego; of a run of `context.cars` if given."""
+    runs = attacked_runs(errors, frames) if context.cars is None else dropped_runs(context.cars[:frames])
+    if context.cars is None and (not runs or rng.integers(2)):
         ego = context.ego[:frames, :2]
         near = context.truth.valid[:frames] & (np.hypot(context.truth.x[:frames] - ego[:, :1],
                                                         context.truth.y[:frames] - ego[:, 1:]) < CLASS_RANGE)
@@ -116,8 +118,9 @@ def late(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
 
 def ghost_ahead(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
                 context: MoveContext) -> PerceptionErrors | None:
-    """A ghost car on the ego's own path some frames ahead of it, for a run of frames, standing or
-    driving the ego's way slower than the ego; in a ghost slot free over that run if there is one."""
+    """A ghost car on the ego's own path some frames ahead of it (up to `GHOST_ASIDE` beside it), for a
+    run of frames, standing or driving the ego's way slower than the ego; in a ghost slot free over that
+    run if there is one."""
     if frames < 1:
         return None
     out = errors.with_kind("ghost", context.space.ghosts).copy()
@@ -130,6 +133,8 @@ def ghost_ahead(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
     ego = context.ego
     x, y, yaw, v = ego[min(a + int(rng.integers(*GHOST_LEAD)), len(ego) - 1)]
     speed = rng.uniform(0.0, max(float(v), 0.0)) * rng.integers(2)  # half the ghosts stand still
+    aside = rng.uniform(-GHOST_ASIDE, GHOST_ASIDE)
+    x, y = x - aside * np.sin(yaw), y + aside * np.cos(yaw)
     t = np.arange(b - a + 1) * context.dt
     out.ghost_on[a : b + 1, g] = True
     out.ghost_x[a : b + 1, g] = x + speed * np.cos(yaw) * t

@@ -47,7 +47,7 @@ def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
             problem.budget = budget(config, num_agents, joint=True, approach=True)
             seen = [found.truth, *found.drops, *([joint.blind] if joint is not None else [])]
             approached = approach_phase.approach(problem, seen, rng, config.random, config.approach_steps,
-                                                 config.approach_patience)
+                                                 config.approach_patience, config.errors)
             heuristic = approached.collision
         if heuristic is None:
             return SearchResult(None, None, joint, approached)

@@ -19,7 +19,7 @@ import numpy as np
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.metrics.nds import CLASS_RANGE
 from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors
-from advperc_ros.core.search.refine import attacked_runs, dropped_runs
+from advperc_ros.core.search.refine import attacked_runs, dropped_runs, run_edge
 
 GHOST_LEAD = (5, 40)  # frames ahead on the ego's own path where a ghost may stand
 GHOST_FRAMES = 30  # frames a ghost stays on at most
@@ -57,63 +57,58 @@ def _car_run(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
     return j, int(a), int(b)
 
 
-def faster_or_slower(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
-                     context: MoveContext) -> PerceptionErrors | None:
+def _car_move(kind: str, change: Callable[[PerceptionErrors, int, slice, np.random.Generator, MoveContext], None]) -> Move:
+    """The move that shows a car's run (`_car_run`; no longer dropped there) with `kind`'s error that
+    `change` makes in place on (errors with `kind`'s arrays, slot, frames); None when there is no run."""
+
+    def move(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
+             context: MoveContext) -> PerceptionErrors | None:
+        run = _car_run(errors, frames, rng, context)
+        if run is None:
+            return None
+        j, a, b = run
+        out = errors.with_kind(kind).copy()
+        out.fn[a : b + 1, j] = False
+        change(out, j, slice(a, b + 1), rng, context)
+        return out
+
+    move.__doc__ = change.__doc__
+    return move
+
+
+def _wrong_velocity(out: PerceptionErrors, j: int, rows: slice, rng: np.random.Generator, context: MoveContext) -> None:
     """A run of a car shown with its velocity along its heading wrong by U(-max, max)."""
-    run = _car_run(errors, frames, rng, context)
-    if run is None:
-        return None
-    j, a, b = run
-    out = errors.with_kind("velocity").copy()
     assert out.dvx is not None and out.dvy is not None
     speed = rng.uniform(-context.space.max_speed_error, context.space.max_speed_error)
-    yaw = context.truth.yaw[a : b + 1, j]
-    out.fn[a : b + 1, j] = False
-    out.dvx[a : b + 1, j], out.dvy[a : b + 1, j] = speed * np.cos(yaw), speed * np.sin(yaw)
-    return out
+    yaw = context.truth.yaw[rows, j]
+    out.dvx[rows, j], out.dvy[rows, j] = speed * np.cos(yaw), speed * np.sin(yaw)
 
 
-def resized(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
-            context: MoveContext) -> PerceptionErrors | None:
+def _wrong_size(out: PerceptionErrors, j: int, rows: slice, rng: np.random.Generator, context: MoveContext) -> None:
     """A run of a car shown with its length and width each scaled by a factor uniform in the bounds."""
-    run = _car_run(errors, frames, rng, context)
-    if run is None:
-        return None
-    j, a, b = run
-    out = errors.with_kind("size").copy()
     assert out.length_scale is not None and out.width_scale is not None
-    low, high = context.space.min_scale, context.space.max_scale
-    out.fn[a : b + 1, j] = False
-    out.length_scale[a : b + 1, j], out.width_scale[a : b + 1, j] = rng.uniform(low, high, size=2)
-    return out
+    out.length_scale[rows, j], out.width_scale[rows, j] = rng.uniform(context.space.min_scale, context.space.max_scale,
+                                                                      size=2)
 
 
-def turned_around(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
-                  context: MoveContext) -> PerceptionErrors | None:
+def _heading_flipped(out: PerceptionErrors, j: int, rows: slice, rng: np.random.Generator, context: MoveContext) -> None:
     """A run of a car shown heading the other way."""
-    run = _car_run(errors, frames, rng, context)
-    if run is None:
-        return None
-    j, a, b = run
-    out = errors.with_kind("flip").copy()
     assert out.flip is not None
-    out.fn[a : b + 1, j] = False
-    out.flip[a : b + 1, j] = True
-    return out
+    out.flip[rows, j] = True
 
 
-def late(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
-         context: MoveContext) -> PerceptionErrors | None:
-    """A run of a car shown as it was 1..max_latency frames before (a drop becomes a late detection)."""
-    run = _car_run(errors, frames, rng, context)
-    if run is None:
-        return None
-    j, a, b = run
-    out = errors.with_kind("latency").copy()
+def _lagging(out: PerceptionErrors, j: int, rows: slice, rng: np.random.Generator, context: MoveContext) -> None:
+    """A run of a car shown as it was 1..max_latency frames before (a drop becomes a late detection,
+    the lag its only error there)."""
     assert out.latency is not None
-    out.perceive_perfectly(a, b, j)
-    out.latency[a : b + 1, j] = rng.integers(1, context.space.max_latency + 1)
-    return out
+    out.perceive_perfectly(rows.start, rows.stop - 1, j)
+    out.latency[rows, j] = rng.integers(1, context.space.max_latency + 1)
+
+
+faster_or_slower = _car_move("velocity", _wrong_velocity)
+resized = _car_move("size", _wrong_size)
+turned_around = _car_move("flip", _heading_flipped)
+late = _car_move("latency", _lagging)
 
 
 def ghost_ahead(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
@@ -154,8 +149,7 @@ def ghost_gone(errors: PerceptionErrors, frames: int, rng: np.random.Generator,
     if not runs:
         return None
     g, first, last = runs[rng.integers(len(runs))]
-    k = int(rng.integers(1, max(1, (last - first + 1) // 2) + 1))
-    a, b = (first, first + k - 1) if rng.integers(2) else (last - k + 1, last)
+    a, b = run_edge(first, last, rng)
     out = errors.copy()
     assert out.ghost_on is not None
     out.ghost_on[a : b + 1, g] = False

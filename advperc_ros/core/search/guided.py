@@ -36,7 +36,7 @@ from advperc_ros.core.search.extended import MOVES_OF_KIND, MoveContext
 from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.search.random_search import propose
-from advperc_ros.core.search.refine import attacked_runs, refine_drops
+from advperc_ros.core.search.refine import attacked_runs, refine_drops, run_edge
 
 # m: pushes just inside each match threshold (a true positive at that threshold and every looser one)
 PUSHES = 0.95 * np.asarray(DIST_THRESHOLDS, dtype=float)
@@ -62,8 +62,7 @@ def restore(errors: PerceptionErrors, frames: int, rng: np.random.Generator) -> 
     if not runs:
         return None
     j, first, last = runs[rng.integers(len(runs))]
-    k = int(rng.integers(1, max(1, (last - first + 1) // 2) + 1))
-    a, b = (first, first + k - 1) if rng.integers(2) else (last - k + 1, last)
+    a, b = run_edge(first, last, rng)
     out = errors.copy()
     out.perceive_perfectly(a, b, j)
     return out

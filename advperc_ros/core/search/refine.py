@@ -24,6 +24,13 @@ def dropped_runs(fn: np.ndarray) -> list[tuple[int, int, int]]:
     return runs
 
 
+def run_edge(first: int, last: int, rng: np.random.Generator) -> tuple[int, int]:
+    """(a, b): the first or last k frames of the run first..last, k uniform up to half the run: the
+    frames a move towards no error takes back."""
+    k = int(rng.integers(1, max(1, (last - first + 1) // 2) + 1))
+    return (first, first + k - 1) if rng.integers(2) else (last - k + 1, last)
+
+
 def attacked_runs(errors: PerceptionErrors, frames: int) -> list[tuple[int, int, int]]:
     """(slot, first, last) of every run of attacked object-frames (`PerceptionErrors.attacked`)."""
     return dropped_runs(errors.attacked()[:frames])

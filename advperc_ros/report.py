@@ -158,8 +158,17 @@ def _table(report: dict) -> list[str]:
         f"min signed distance {report['min_signed_distance']:.3f} m",
         *([] if report["reproduced"] else [NOT_REPRODUCED]),
         *([f"- no single agent's drop collided: agents {listed_ids(joint)} dropped jointly"] if joint else []),
+        _kinds_line(report),
         "- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
     ]
+
+
+def _kinds_line(report: dict) -> str:
+    """Which error kinds the attack uses of those enabled, and what each costs the objective."""
+    kinds = report["error_kinds"]
+    costs = ", ".join(f"{kind} {_fmt(cost, 4)}" for kind, cost in kinds["cost"].items())
+    return (f"- error kinds used: {', '.join(kinds['used']) or 'none'} (of {', '.join(kinds['enabled'])}); "
+            f"{report['objective']} each costs: {costs or 'nothing'}")
 
 
 def _no_collision(report: dict) -> list[str]:

@@ -101,11 +101,17 @@ def test_every_executor_gives_the_same_table(serial, campaign, executor, capsys)
     assert _records(output) == _records(serial)
 
 
+def _memory(output: Path) -> list[float | None]:
+    return [row["worker_peak_rss_mib"] for row in json.loads((output / "summary.json").read_text())["cells"]]
+
+
 def test_a_finished_campaign_runs_no_cell_again(serial, campaign, capsys):
-    before = _mtimes(serial)
+    """...and its summary keeps the workers' peak memory that the run which ran the cells measured."""
+    before, memory = _mtimes(serial), _memory(serial)
     summary = run(campaign, capsys=capsys)
     assert (summary["ran"], summary["finished_before"]) == (0, 2)
     assert _mtimes(serial) == before
+    assert _memory(serial) == memory and all(mib > 50 for mib in memory)
 
 
 def assert_resumes_the_second_cell_only(campaign, output, serial, capsys) -> None:

@@ -14,8 +14,8 @@ runs use --ray-python (ray and commonroad-io cannot share one environment: CI ke
 When the CommonRoad recordings are there (../shared/data/commonroad), the largest (by file size) is
 imported once with `advperc import-commonroad` and attacked with IDM and ObP as two more scenarios.
 
-Printed per run: wall time, the CPU time of the campaign and its workers, and the load average
-before and after (on a shared machine the speed-up moves with it); then each executor's speed-up
+Printed per run: wall time, the CPU time of the campaign and its workers (a Ray run's: the campaign's
+own only, as Ray's workers are not reaped through it), and the load average before and after (on a shared machine the speed-up moves with it); then each executor's speed-up
 over process:1 (else the first run) and whether its summary.md (the table, which holds no timings)
 is the same as the first run's; then per scenario and planner the peak resident memory of a worker
 running one of its cells (summary.json's worker_peak_rss_mib: Python, imports and the cell; the

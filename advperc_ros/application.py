@@ -213,13 +213,15 @@ def output_lock(output: Path) -> Path:
 
 def attack_to_folder(params: AttackParams, output: Path | None, progress: bool = False,
                      transport: Any = None, resume: bool = False,
-                     say: Callable[[str], None] | None = None) -> tuple[Path, dict]:
+                     say: Callable[[str], None] | None = None, bag_path: Path | None = None) -> tuple[Path, dict]:
     """Run the attack the params describe and write its results folder; (folder, report). Every
     rollout is checkpointed as it completes (advperc_ros.backends.resumed); `resume` finishes an attack
     that was killed, with the report it would have written. The output is locked first, before
     anything is made or removed, so only one attack at a time has it. `transport`: an rclpy node's
-    transport, to reach graph nodes already running."""
-    bag_path = resolve_bag(params)
+    transport, to reach graph nodes already running. `bag_path`: where the bag the params name is
+    when it is not where they name it (a campaign's Ray worker holds a copy of its own, and the
+    params, their `bag` in the report and config hash included, stay the campaign's)."""
+    bag_path = bag_path if bag_path is not None else resolve_bag(params)
     scenario = read_scenario(bag_path)
     output = output if output is not None else default_output(params, scenario.name)
     check_output(output)

@@ -90,10 +90,11 @@ def replay_params(attack: FoundAttack, other: AttackParams | None) -> AttackPara
     return attack.params if other is None else other.with_values(objective=attack.params.objective)
 
 
-def replay(attack: FoundAttack, params: AttackParams) -> Replay:
-    """Roll out the ground truth and then the attack's errors under `params`."""
+def replay(attack: FoundAttack, params: AttackParams, bag_path: Path | None = None) -> Replay:
+    """Roll out the ground truth and then the attack's errors under `params`; `bag_path`, as for
+    `attack_to_folder`: where the bag they name is, when not where they name it."""
     started = time.perf_counter()
-    bag_path = resolve_bag(params)
+    bag_path = bag_path if bag_path is not None else resolve_bag(params)
     digest = bags.digest(bag_path)
     if digest != attack.report["bag_sha256"]:
         raise ParamsError(f"{params.source or 'params'}: parameter 'bag' names {bag_path}, not the scenario the attack "

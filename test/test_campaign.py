@@ -56,7 +56,7 @@ def serial(campaign) -> Path:
 
 
 def _records(output: Path) -> list[dict]:
-    return [{k: v for k, v in row.items() if k != "wall_time_s"}
+    return [{k: v for k, v in row.items() if k not in ("wall_time_s", "worker_peak_rss_mib")}
             for row in json.loads((output / "summary.json").read_text())["cells"]]
 
 
@@ -81,24 +81,37 @@ def test_every_cell_has_its_folder_and_its_row(serial):
     assert not list(serial.glob(".*partial"))
 
 
-@pytest.mark.parametrize("executor", ["process", "ray"])
-def test_every_executor_gives_the_same_table(serial, campaign, executor, capsys):
-    if executor == "ray" and find_spec("ray") is None:  # not imported: the campaign sets Ray's environment first
-        if os.environ.get("ADVPERC_REQUIRE_RAY") == "1":  # CI's Ray venv
+def need_ray() -> None:
+    """Skip where the ray extra is missing, but fail in CI's Ray venv (ADVPERC_REQUIRE_RAY=1). Ray is not
+    imported here: a campaign sets Ray's environment before it imports it."""
+    if find_spec("ray") is None:
+        if os.environ.get("ADVPERC_REQUIRE_RAY") == "1":
             pytest.fail("ray cannot be imported though ADVPERC_REQUIRE_RAY=1")
         pytest.skip("the ray extra is not installed (pip install '.[ray]'; it cannot share an environment with "
                     "commonroad-io, so CI runs this in a venv of its own)")
+
+
+@pytest.mark.parametrize("executor", ["process", "ray"])
+def test_every_executor_gives_the_same_table(serial, campaign, executor, capsys):
+    if executor == "ray":
+        need_ray()
     output = campaign.parent / executor
     assert run(campaign, "--executor", executor, "--workers", "2", "--output", str(output), capsys=capsys)["ran"] == 2
     assert (output / "summary.md").read_text() == (serial / "summary.md").read_text()
     assert _records(output) == _records(serial)
 
 
+def _memory(output: Path) -> list[float | None]:
+    return [row["worker_peak_rss_mib"] for row in json.loads((output / "summary.json").read_text())["cells"]]
+
+
 def test_a_finished_campaign_runs_no_cell_again(serial, campaign, capsys):
-    before = _mtimes(serial)
+    """...and its summary keeps the workers' peak memory that the run which ran the cells measured."""
+    before, memory = _mtimes(serial), _memory(serial)
     summary = run(campaign, capsys=capsys)
     assert (summary["ran"], summary["finished_before"]) == (0, 2)
     assert _mtimes(serial) == before
+    assert _memory(serial) == memory and all(mib > 50 for mib in memory)
 
 
 def assert_resumes_the_second_cell_only(campaign, output, serial, capsys) -> None:
@@ -243,6 +256,40 @@ def test_a_replay_campaign_says_which_attacks_still_collide(serial, tmp_path, ca
     assert summary["failures"] == 3
     root = ET.parse(tmp_path / "replayed" / "junit.xml").getroot()
     assert [case.get("name") for case in root.iter("testcase") if case.find("failure") is not None] == failing
+
+
+def test_a_replay_cell_shipped_to_a_ray_worker_needs_none_of_the_campaigns_paths(serial, tmp_path, monkeypatch):
+    """What a Ray worker does with a cell, here in this process: from the bag and the attack's report and
+    errors as shipped, with the attack's folder gone and no bag looked up by path, it gives the folder a
+    serial run gives (the replay still names the campaign's attack folder), written by the campaign."""
+    from advperc_ros import application
+    from advperc_ros import replay as replay_module
+    from advperc_ros.campaign.execute import Shipped, place, run_cell, run_shipped_cell, shipped_attack
+    from advperc_ros.params import resolve_bag
+
+    attacks = tmp_path / "attacks"
+    shutil.copytree(serial, attacks)
+    campaign = tmp_path / "replay.yaml"
+    campaign.write_text(yaml.safe_dump({"name": "small", "output": str(tmp_path / "out"), "replay": str(attacks)}))
+    cell = spec.plan(spec.load_campaign(campaign))[0]
+    assert run_cell(cell, tmp_path / "here").error is None
+    bag, attack = Shipped.of(resolve_bag(cell.params)), shipped_attack(cell)
+    shutil.rmtree(attacks)
+
+    def nowhere(params):
+        raise AssertionError(f"the worker looked up {params.bag} by path")
+
+    monkeypatch.setattr(application, "resolve_bag", nowhere)
+    monkeypatch.setattr(replay_module, "resolve_bag", nowhere)
+    (tmp_path / "there").mkdir()
+    result, folder = run_shipped_cell(cell, bag, attack)
+    assert place(tmp_path / "there", result, folder).error is None
+    here, there = tmp_path / "here" / cell.name, tmp_path / "there" / cell.name
+    assert sorted(p.name for p in here.iterdir()) == sorted(p.name for p in there.iterdir())
+    reports = [json.loads((folder / "replay.json").read_text()) for folder in (here, there)]
+    assert [{k: v for k, v in report.items() if k != "wall_time_s"} for report in reports] == [
+        {k: v for k, v in reports[0].items() if k != "wall_time_s"}] * 2
+    assert reports[1]["attack"] == str(attacks / CELLS[0])
 
 
 class _Page(HTMLParser):

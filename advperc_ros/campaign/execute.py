@@ -6,24 +6,37 @@ every executor gives the same table. Each cell builds its own stack: a fresh pla
 what keeps results independent of which worker ran what before (it costs 3 ms for IDM, 0.2-0.5 s
 for ObP, against seconds to minutes of search). The campaign keeps as many cells in flight as it
 has workers, so it always knows which cells are running.
+
+Ray's workers may be on machines that share no file system with the campaign (a KubeRay cluster, a
+few cloud VMs), so the Ray executor sends each cell its inputs through Ray (the bag once per bag into
+the object store; a replayed attack's report and errors with the task), the worker runs the cell in a
+temporary folder of its own (`run_shipped_cell`), and the results folder's files come back to the
+campaign, which alone writes the output.
 """
 
 import os
+import re
 import sys
+import tempfile
 import traceback
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
+from contextlib import ExitStack, redirect_stdout, suppress
+from dataclasses import dataclass, replace
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Protocol
 
 from advperc_ros.application import attack_to_folder
 from advperc_ros.campaign.spec import Campaign, Cell
+from advperc_ros.core.staging import staged_folder
 from advperc_ros.exits import EXPECTED_TYPES, expected_failure
-from advperc_ros.params import ParamsError
+from advperc_ros.params import ParamsError, resolve_bag
+from advperc_ros.paths import check_output
 from advperc_ros.replay import load_attack, replay, write_replay
+from advperc_ros.results import ERRORS, REPORT_JSON
 
 
 @dataclass(frozen=True)
@@ -31,25 +44,119 @@ class CellResult:
     name: str
     error: str | None = None  # the one-line expected failure, or a bug's traceback
     exit_code: int | None = None  # of an expected failure; None for a bug
+    peak_rss_mib: float | None = None  # the worker's peak resident memory while it ran the cell (Linux only)
 
 
-def run_cell(cell: Cell, output: Path, progress: bool = False) -> CellResult:
-    """Attack (or replay) one cell into output/<cell name>; an expected failure is the cell's result,
-    not the campaign's end. An attack a kill interrupted resumes from its checkpoint, so it costs
-    only the rollouts it had not run."""
-    folder = output / cell.name
+def _outcome(name: str, work: Callable[[], object]) -> CellResult:
+    """`work` done as a cell's: an expected failure is the cell's result, not the campaign's end, and a
+    bug's traceback goes into the summary while the other cells go on."""
     try:
-        if cell.attack is None:
-            # a killed cell goes on from its checkpoint
-            attack_to_folder(cell.params, folder, progress=progress, resume=True)
-        else:
-            write_replay(folder, replay(load_attack(cell.attack), cell.params))
+        work()
     except EXPECTED_TYPES as exc:
         line, code = expected_failure(exc)
-        return CellResult(cell.name, line, code)
-    except Exception:  # a bug: its traceback goes into the summary, and the other cells go on
-        return CellResult(cell.name, traceback.format_exc())
-    return CellResult(cell.name)
+        return CellResult(name, line, code)
+    except Exception:
+        return CellResult(name, traceback.format_exc())
+    return CellResult(name)
+
+
+PROC_SELF = Path("/proc/self")
+
+
+def _reset_peak_memory() -> None:
+    """Linux lets a process set its peak resident memory (VmHWM) back to what it holds now, so a worker
+    that ran other cells before measures this cell alone (its Python and imports included)."""
+    with suppress(OSError):  # not Linux
+        (PROC_SELF / "clear_refs").write_text("5")
+
+
+def _peak_memory_mib() -> float | None:
+    try:
+        found = re.search(r"^VmHWM:\s+(\d+) kB", (PROC_SELF / "status").read_text(), re.MULTILINE)
+    except OSError:  # not Linux
+        return None
+    return round(int(found.group(1)) / 1024, 1) if found else None
+
+
+def run_cell(cell: Cell, output: Path, progress: bool = False, bag: Path | None = None,
+             attack: Path | None = None) -> CellResult:
+    """Attack (or replay) one cell into output/<cell name>, measuring the worker's peak memory. An attack
+    a kill interrupted resumes from its checkpoint, so it costs only the rollouts it had not run. `bag`
+    and `attack`: local copies of the cell's bag and replayed results folder (a Ray worker's), used
+    instead of the paths the cell names, which the report and summary still name."""
+    folder = output / cell.name
+
+    def work() -> None:
+        if cell.attack is None:
+            # a killed cell goes on from its checkpoint
+            attack_to_folder(cell.params, folder, progress=progress, resume=True, bag_path=bag)
+        else:
+            found = replace(load_attack(attack or cell.attack), folder=cell.attack)
+            write_replay(folder, replay(found, cell.params, bag))
+
+    _reset_peak_memory()
+    return replace(_outcome(cell.name, work), peak_rss_mib=_peak_memory_mib())
+
+
+@dataclass(frozen=True)
+class Shipped:
+    """A file or a folder as bytes: how a cell's inputs reach a Ray worker, and its results folder the
+    campaign, when they share no file system."""
+
+    name: str  # the file's or folder's own name (a bag reader may go by its suffix)
+    files: tuple[tuple[str, bytes], ...]  # (path in the folder, bytes); a file is one entry with path ""
+
+    @classmethod
+    def of(cls, path: Path, only: tuple[str, ...] | None = None) -> "Shipped":
+        """The file, or the folder's files (those named `only`, when given), in a stable order."""
+        if path.is_file():
+            return cls(path.name, (("", path.read_bytes()),))
+        files = sorted(p for p in path.rglob("*") if p.is_file() and (only is None or p.name in only))
+        return cls(path.name, tuple((p.relative_to(path).as_posix(), p.read_bytes()) for p in files))
+
+    def write(self, path: Path) -> Path:
+        """Recreate it as `path`, which is returned."""
+        if len(self.files) == 1 and self.files[0][0] == "":
+            path.write_bytes(self.files[0][1])
+            return path
+        path.mkdir()
+        for name, data in self.files:
+            (path / name).parent.mkdir(parents=True, exist_ok=True)
+            (path / name).write_bytes(data)
+        return path
+
+
+def shipped_attack(cell: Cell) -> Shipped | None:
+    """What a replay cell's worker needs of the attack replayed: what load_attack reads of its folder."""
+    return Shipped.of(cell.attack, only=(REPORT_JSON, ERRORS)) if cell.attack is not None else None
+
+
+def run_shipped_cell(cell: Cell, bag: Shipped, attack: Shipped | None) -> tuple[CellResult, Shipped | None]:
+    """A cell on a Ray worker, which may see none of the campaign's paths: in a temporary folder of its
+    own, from the inputs that came with it (the cell's params travel in the cell as values); answers
+    the result and the results folder's files, for the campaign to write."""
+    with tempfile.TemporaryDirectory(prefix="advperc-cell-") as temporary:
+        root = Path(temporary)
+        (root / "inputs").mkdir()
+        result = run_cell(cell, root / "output", bag=bag.write(root / "inputs" / bag.name),
+                          attack=attack.write(root / "inputs" / "attack") if attack is not None else None)
+        folder = root / "output" / cell.name
+        return result, Shipped.of(folder) if folder.is_dir() else None
+
+
+def place(output: Path, result: CellResult, folder: Shipped | None) -> CellResult:
+    """The cell's results folder, written by the campaign as a worker on its machine would have: into a
+    staging folder renamed into place, so a kill leaves only what the next run clears."""
+    if folder is None:
+        return result
+
+    def work() -> None:
+        check_output(output / result.name)  # what attack_to_folder refuses there
+        with staged_folder(output / result.name) as staging:
+            folder.write(staging)
+
+    placed = _outcome(result.name, work)
+    return result if placed.error is None else replace(placed, peak_rss_mib=result.peak_rss_mib)
 
 
 class Executor(Protocol):
@@ -143,13 +250,20 @@ LOCAL_RAY = {SINGLE_NODE: "0",
              "RAY_worker_niceness": "0"}  # ray's 15 would leave its cells behind every other process on a shared machine
 
 
+RETRIES = 1  # a cell's Ray worker or node may die once under it; a second death is the cell's error, as in a pool
+
+
 class RayExecutor:
-    """Ray tasks. Without an address, a local Ray of `workers` CPUs on the loopback interface only:
-    Ray takes this machine's network address for its node unless told the node is not part of a
-    cluster (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0, read when ray is imported), with no dashboard and no
-    usage statistics sent; its workers run at the campaign's priority and import this very
-    advperc_ros. With an address, the cluster's nodes need advperc_ros installed and the campaign's
-    files (bags, output) at the same paths."""
+    """Ray tasks, which share no file system with the campaign: each cell's bag goes once into the
+    object store (shared by the cells of that bag), a replayed attack's report and errors go with its
+    task, and the results folder comes back to be written here (`run_shipped_cell`, `place`). A task
+    whose worker or node dies is run once more (Ray's retries); a second death is that cell's error.
+
+    Without an address, a local Ray of `workers` CPUs on the loopback interface only: Ray takes this
+    machine's network address for its node unless told the node is not part of a cluster
+    (RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER=0, read when ray is imported), with no dashboard and no usage
+    statistics sent; its workers run at the campaign's priority and import this very advperc_ros.
+    With an address, the cluster's nodes need advperc_ros installed, and none of the campaign's paths."""
 
     def __init__(self, output: Path, workers: int, address: str | None) -> None:
         if address is None and "ray" in sys.modules and os.environ.get(SINGLE_NODE) != LOCAL_RAY[SINGLE_NODE]:
@@ -164,36 +278,49 @@ class RayExecutor:
 
         import advperc_ros
 
-        if address is None:
-            package_root = str(Path(advperc_ros.__file__).resolve().parent.parent)
-            path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH")) if p)
-            ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
-                     runtime_env={"env_vars": {"PYTHONPATH": path}})
-            if ray.util.get_node_ip_address() != LOOPBACK:
-                node = ray.util.get_node_ip_address()
-                ray.shutdown()
-                raise ParamsError(f"executor ray: the local Ray took address {node}, not {LOOPBACK}")
-        else:
-            ray.init(address=address, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
+        with ExitStack() as stack:  # undone if Ray cannot start here
+            # the campaign's stdout is its one-line summary, but Ray prints a cluster's errors (a node lost)
+            # to the driver's stdout from a thread of its own: they go to stderr, beside the campaign's progress
+            stack.enter_context(redirect_stdout(sys.stderr))
+            if address is None:
+                package_root = str(Path(advperc_ros.__file__).resolve().parent.parent)
+                path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH")) if p)
+                ray.init(num_cpus=workers, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
+                         runtime_env={"env_vars": {"PYTHONPATH": path}})
+            else:
+                ray.init(address=address, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False)
+            stack.callback(ray.shutdown)
+            if address is None and ray.util.get_node_ip_address() != LOOPBACK:
+                raise ParamsError(f"executor ray: the local Ray took address {ray.util.get_node_ip_address()}, "
+                                  f"not {LOOPBACK}")
+            self.stack = stack.pop_all()
         self.ray, self.output = ray, output
-        self.task = ray.remote(num_cpus=1, max_retries=0)(run_cell)
+        self.task = ray.remote(num_cpus=1, max_retries=RETRIES)(run_shipped_cell)
+        self.bags: dict[Path, object] = {}  # bag -> its object in the store
         self.refs: dict = {}  # task -> cell name
 
     def submit(self, cell: Cell) -> None:
-        self.refs[self.task.remote(cell, self.output)] = cell.name
+        bag = resolve_bag(cell.params)  # checked by plan(): it exists here
+        if bag not in self.bags:
+            self.bags[bag] = self.ray.put(Shipped.of(bag))
+        self.refs[self.task.remote(cell, self.bags[bag], shipped_attack(cell))] = cell.name
 
     def next_done(self) -> CellResult:
         (done,), _ = self.ray.wait(list(self.refs), num_returns=1)
         name = self.refs.pop(done)
         try:
-            return self.ray.get(done)
-        except self.ray.exceptions.RayError:  # the worker died under the cell (killed, out of memory)
+            result, folder = self.ray.get(done)
+        except self.ray.exceptions.RayTaskError:  # raised on the worker outside the cell (its temporary folder)
             return CellResult(name, traceback.format_exc())
+        except self.ray.exceptions.RayError as exc:  # its worker or node died under it, and again under its retry
+            return CellResult(name, f"its Ray worker died twice under it (its node lost, killed from outside, or out "
+                                    f"of memory): {type(exc).__name__}")
+        return place(self.output, result, folder)
 
     def close(self) -> None:
         for ref in self.refs:
             self.ray.cancel(ref, force=True)
-        self.ray.shutdown()
+        self.stack.close()  # Ray shut down, then stdout back
 
 
 def executor(campaign: Campaign, output: Path, progress: bool) -> Executor:

@@ -13,7 +13,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from advperc_ros.campaign.execute import CellResult, executor
-from advperc_ros.campaign.spec import Campaign, plan
+from advperc_ros.campaign.spec import Campaign, Cell, plan
 from advperc_ros.campaign.summary import (
     ERROR,
     FAILURE,
@@ -72,6 +72,16 @@ def _summary_owner(output: Path) -> tuple[str, str] | None:
         return None
 
 
+def _earlier_memory(output: Path) -> dict[str, float]:
+    """The workers' peak memory per cell that an earlier run of this campaign recorded in its summary
+    (the cell folders do not hold it), so a resumed campaign's summary still has it."""
+    try:
+        rows = json.loads((output / SUMMARY_JSON).read_text())["cells"]
+        return {row["cell"]: row["worker_peak_rss_mib"] for row in rows if row.get("worker_peak_rss_mib") is not None}
+    except (OSError, ValueError, TypeError, KeyError):
+        return {}
+
+
 def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
     refuse_foreign_output(campaign)
     cells = plan(campaign)  # everything checked before any work
@@ -84,10 +94,17 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
         before = tuple(cell.name for cell in cells if reports[cell.name] is not None)
         results: dict[str, CellResult] = {}
         running: set[str] = set()
+        earlier = {name: mib for name, mib in _earlier_memory(output).items() if name in before}
+
+        def status(cell: Cell) -> CellStatus:
+            result = results.get(cell.name)
+            if result is None:
+                return CellStatus(cell, reports[cell.name], running=cell.name in running,
+                                  peak_rss_mib=earlier.get(cell.name))
+            return CellStatus(cell, reports[cell.name], result.error, cell.name in running, result.peak_rss_mib)
 
         def statuses() -> list[CellStatus]:
-            return [CellStatus(cell, reports[cell.name], results[cell.name].error if cell.name in results else None,
-                               cell.name in running) for cell in cells]
+            return [status(cell) for cell in cells]
 
         say = (lambda line: tqdm.write(line, file=sys.stderr)) if progress else (lambda line: None)
         bar = tqdm(total=len(cells), initial=len(before), desc=f"campaign {campaign.name}", unit="cell",
@@ -113,8 +130,7 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
                 reports[result.name] = by_name[result.name].report(output)
                 results[result.name] = result
                 records = write_summary(campaign, output, statuses())
-                status = CellStatus(by_name[result.name], reports[result.name], result.error)
-                say(f"finished {result.name}: {verdict(status, dict(campaign.thresholds)).text}")
+                say(f"finished {result.name}: {verdict(status(by_name[result.name]), dict(campaign.thresholds)).text}")
                 bar.update()
         finally:
             if pool is not None:

@@ -2,8 +2,8 @@
 figure), summary.md and summary.html (Table 1's layout; the page shows each cell's pictures) and
 junit.xml (a test case per cell, failing when an attack reaches its objective's threshold).
 
-The tables hold nothing that depends on how or when the cells ran (wall times are in the CSV, JSON
-and JUnit only), so every executor writes the same summary.md for the same campaign and seeds.
+The tables hold nothing that depends on how or when the cells ran (wall times and the workers' peak
+memory are in the CSV, JSON and JUnit only), so every executor writes the same summary.md for the same campaign and seeds.
 """
 
 import csv
@@ -38,6 +38,7 @@ class CellStatus:
     report: dict | None = None  # report.json (replay.json) of a finished cell
     error: str | None = None  # why the cell failed in this run (a line, or a bug's traceback)
     running: bool = False
+    peak_rss_mib: float | None = None  # the worker's peak resident memory while it ran the cell
 
 
 @dataclass(frozen=True)
@@ -87,7 +88,8 @@ def record(status: CellStatus, thresholds: dict[str, float]) -> dict:
         row["closest_approach"] = (report.get("closest_approach") or {}).get("min_signed_distance")
     else:
         row.update({key: report.get(key) for key in REPLAY_FIELDS}, attack=str(cell.attack))
-    row.update(config_hash=report.get("config_hash"), wall_time_s=report.get("wall_time_s"), error=status.error)
+    row.update(config_hash=report.get("config_hash"), wall_time_s=report.get("wall_time_s"),
+               worker_peak_rss_mib=status.peak_rss_mib, error=status.error)
     return row
 
 

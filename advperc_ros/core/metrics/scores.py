@@ -63,18 +63,34 @@ def longest_drop_fraction(missed: np.ndarray, counted: np.ndarray) -> float:
 def matched_errors(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> tuple[PerceptionErrors, np.ndarray, NDSResult]:
     """The errors a perception output made, read off the devkit's greedy matching at 4 m.
 
-    Returns (errors, counted, nds result): errors[k, j] holds the offset of the detection matched to
-    gt slot j at frame k, fn where none matched; counted marks gt present within 50 m.
+    Returns (errors, counted, nds result): errors[k, j] holds the offset, yaw error, velocity error
+    and size scales of the detection matched to gt slot j at frame k, fn where none matched; its
+    ghost slots, one per prediction slot, hold the false positives (the in-range predictions no
+    truth matched, as `fp` counts them); counted marks gt present within 50 m.
     """
     result = nds(gt, pred, ego_xy)
     pred_gt = result.matchings[max(DIST_THRESHOLDS)].pred_gt
     f, p = np.nonzero(pred_gt >= 0)
     g = pred_gt[f, p]
-    errors = PerceptionErrors.none(*gt.shape)
-    errors.fn[:] = True
-    errors.fn[f, g] = False
-    errors.dx[f, g], errors.dy[f, g] = pred.x[f, p] - gt.x[f, g], pred.y[f, p] - gt.y[f, g]
-    errors.dyaw[f, g] = wrap_angle(pred.yaw[f, p] - gt.yaw[f, g])
+    fn = np.ones(gt.shape, dtype=bool)
+    fn[f, g] = False
+
+    def at_matches(values: np.ndarray, neutral: float = 0.0) -> np.ndarray:
+        out = np.full(gt.shape, neutral)
+        out[f, g] = values
+        return out
+
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero-sized truth (nuScenes JSON may hold one)
+        length_scale = at_matches(pred.length[f, p] / gt.length[f, g], 1.0)
+        width_scale = at_matches(pred.width[f, p] / gt.width[f, g], 1.0)
+    errors = PerceptionErrors(
+        dx=at_matches(pred.x[f, p] - gt.x[f, g]), dy=at_matches(pred.y[f, p] - gt.y[f, g]),
+        dyaw=at_matches(wrap_angle(pred.yaw[f, p] - gt.yaw[f, g])), fn=fn,
+        dvx=at_matches(pred.vx[f, p] - gt.vx[f, g]), dvy=at_matches(pred.vy[f, p] - gt.vy[f, g]),
+        length_scale=length_scale, width_scale=width_scale,
+        ghost_on=result.pred_in_range & (pred_gt < 0), ghost_x=pred.x, ghost_y=pred.y, ghost_yaw=pred.yaw,
+        ghost_vx=pred.vx, ghost_vy=pred.vy,  # the predictions' own arrays: read, never written
+    )
     return errors, result.gt_in_range, result
 
 

@@ -248,7 +248,7 @@ def cmd_pem_fit(args: argparse.Namespace) -> int:
     else:
         gt = Path(args.ground_truth) if args.ground_truth else None
         sources = [aligned_objects(gt or Path(bag), Path(bag), args.topic) for bag in args.inputs]
-    model, source = fit_pem(sources, args.inputs)
+    model, source = fit_pem(sources, args.inputs, tracked=not args.nuscenes_gt)  # a sample's slots are no agents
     output = Path(args.output)
     staging = staging_path(output)
     output.parent.mkdir(parents=True, exist_ok=True)  # check_output allowed folders still to be made

@@ -6,20 +6,20 @@ import math
 
 import numpy as np
 import pytest
+from test_scores import random_case
 
 from advperc_ros.core.metrics.scores import matched_errors, score
-from test_scores import random_case
 
 
 def naive_matches(gt, pred, ego, threshold=4.0):
     """Per frame: {gt slot: pred slot} of the greedy matching, and the in-range unmatched pred slots."""
+    def near(boxes, k, i):
+        return boxes.valid[k, i] and math.hypot(boxes.x[k, i] - ego[k, 0], boxes.y[k, i] - ego[k, 1]) < 50.0
+
     frames = []
     for k in range(gt.shape[0]):
-        def near(boxes, i):
-            return boxes.valid[k, i] and math.hypot(boxes.x[k, i] - ego[k, 0], boxes.y[k, i] - ego[k, 1]) < 50.0
-
-        gts = [g for g in range(gt.shape[1]) if near(gt, g)]
-        preds = sorted((p for p in range(pred.shape[1]) if near(pred, p)), key=lambda p: -pred.score[k, p])
+        gts = [g for g in range(gt.shape[1]) if near(gt, k, g)]
+        preds = sorted((p for p in range(pred.shape[1]) if near(pred, k, p)), key=lambda p: -pred.score[k, p])
         pairs, unmatched = {}, []
         for p in preds:
             free = [g for g in gts if g not in pairs]
@@ -41,7 +41,7 @@ def test_velocity_size_and_false_positives_are_read_off_the_matching(seed):
     pred.vy[:] += rng.normal(0.0, 1.0, pred.shape)
     pred.length[:] *= rng.uniform(0.7, 1.4, pred.shape)
     pred.width[:] *= rng.uniform(0.7, 1.4, pred.shape)
-    errors, counted, _ = matched_errors(gt, pred, ego)
+    errors, _, _ = matched_errors(gt, pred, ego)
     expected_ghosts = np.zeros(pred.shape, dtype=bool)
     for k, (pairs, unmatched) in enumerate(naive_matches(gt, pred, ego)):
         expected_ghosts[k, unmatched] = True

@@ -509,7 +509,7 @@ _FIELDS = {
     "position_nu": _Field(None, 0.0),
     "yaw_log_scale": _Field(NUM_FEATURES),
     "yaw_nu": _Field(None, 0.0),
-    "false_positive_rate": _Field(None, 0.0, closed=True),
+    "false_positive_rate": _Field(None, 0.0, 1000.0, closed=True),  # beyond, no detector (and no Poisson draw)
     "flip_near": _Field(None, 0.0, 1.0, closed=True),
     "flip_far": _Field(None, 0.0, 1.0, closed=True),
     "velocity_radial_scale": _Field(None, 0.0, closed=True),

@@ -56,3 +56,12 @@ def test_velocity_size_and_false_positives_are_read_off_the_matching(seed):
     assert np.array_equal(errors.ghost_on, expected_ghosts)
     assert np.array_equal(errors.ghost_x[errors.ghost_on], pred.x[errors.ghost_on])
     assert errors.ghost_on.sum() == score(gt, pred, ego).fp  # the false positives the report counts
+
+
+def test_without_terms_beyond_the_paper_only_the_paper_errors_are_read():
+    """What the hand-specified default scores: the same paper errors, nothing else to compute."""
+    gt, pred, ego = random_case(np.random.default_rng(9))
+    full, counted, _ = matched_errors(gt, pred, ego)
+    paper, same, _ = matched_errors(gt, pred, ego, beyond_the_paper=False)
+    assert paper.kinds == ("position", "yaw", "drop") and np.array_equal(counted, same)
+    assert all(np.array_equal(getattr(paper, name), getattr(full, name)) for name in ("dx", "dy", "dyaw", "fn"))

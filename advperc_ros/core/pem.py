@@ -62,7 +62,6 @@ FIT_LATENCIES = ErrorSpace().max_latency  # a fit tries latencies 0..this, the e
 SCALE_FLOOR = 1e-3  # smallest velocity scale (m/s) and size std a fit gives: a log without such errors is no
 # zero-width model
 GHOST_SLOTS = ErrorSpace().ghosts  # sampled ghosts per frame at most (the attack's own bound)
-LAG_FIELDS = 5  # what a latency shifts: radial and tangential position, yaw, radial and tangential velocity
 
 
 def features(truth: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
@@ -164,7 +163,9 @@ class ObjectFrames:
     log_size: np.ndarray  # (K, 2) log of the length and width scale
     previous: np.ndarray  # (K,) row of the same agent's previous detected object-frame, -1 if none
     gap: np.ndarray  # (K,) frames back to it
-    lags: dict[int, np.ndarray]  # latency -> (K, LAG_FIELDS): what the agent's own motion over it adds to the errors
+    # latency -> (K, 5): what the agent's own motion over it adds to the errors (position radial and tangential,
+    # yaw, velocity radial and tangential)
+    lags: dict[int, np.ndarray]
     false_positives: np.ndarray  # (frames,) in-range detections no truth matched
     exposure: np.ndarray  # (frames,) counted object-frames per frame of the frame's sequence
 
@@ -200,7 +201,7 @@ def _previous_detections(observed: np.ndarray, counted: np.ndarray) -> tuple[np.
 
 
 def _lag_offsets(truth: BoxSequence, latency: int, bearing: np.ndarray) -> np.ndarray:
-    """(F, M, LAG_FIELDS): the truth `latency` frames earlier (`latency_source`) minus the present one,
+    """(F, M, 5) as `ObjectFrames.lags`: the truth `latency` frames earlier (`latency_source`) minus the present one,
     positions and velocities turned radial/tangential to the present bearing."""
     source = latency_source(truth.valid, np.full(truth.shape, latency), slice(None))
     agents = np.arange(truth.shape[1])
@@ -214,28 +215,35 @@ def _lag_offsets(truth: BoxSequence, latency: int, bearing: np.ndarray) -> np.nd
 
 
 def object_frames(truth: BoxSequence, errors: PerceptionErrors, ego_xy: np.ndarray, counted: np.ndarray,
-                  phi: np.ndarray, latencies: tuple[int, ...] = (), tracked: bool = True) -> ObjectFrames:
+                  phi: np.ndarray, latencies: tuple[int, ...] = (), tracked: bool = True,
+                  reader: "PEM | None" = None) -> ObjectFrames:
     """The object-frames of one sequence: `errors` as `matched_errors` reads them (its ghost slots the
     in-range detections no truth matched), the lags of `latencies` (besides 0), `tracked` if a slot is
-    one agent in every frame (else no agent has a previous detection, and no latency can be told)."""
+    one agent in every frame (else no agent has a previous detection, and no latency can be told).
+    With a `reader`, only what that model scores is read and the rest left neutral (zero errors, no
+    previous detection, no false positive): scoring the paper's parts costs what it did before the
+    terms beyond them; without, everything is (a fit's)."""
+    count = np.count_nonzero(counted)
     bearing = bearings(truth, ego_xy)
-    rt = to_radial(errors.dx, errors.dy, bearing)
-    zeros = np.zeros((*truth.shape, 2))
-    velocity = zeros if errors.dvx is None or errors.dvy is None else to_radial(errors.dvx, errors.dvy, bearing)
-    with np.errstate(divide="ignore"):  # a zero-sized box has no size error to read: -inf, as its density says
-        log_size = zeros if errors.length_scale is None or errors.width_scale is None else \
-            np.log(np.stack([errors.length_scale, errors.width_scale], axis=-1))
-    if tracked:
+    rt = to_radial(errors.dx, errors.dy, bearing)[counted]
+    velocity = log_size = np.zeros((count, 2))
+    if errors.dvx is not None and errors.dvy is not None and (reader is None or reader.models_velocity):
+        velocity = to_radial(errors.dvx, errors.dvy, bearing)[counted]
+    if errors.length_scale is not None and errors.width_scale is not None and (reader is None or reader.models_size):
+        with np.errstate(divide="ignore"):  # a zero-sized box has no size error to read: -inf, as its density says
+            log_size = np.log(np.stack([errors.length_scale[counted], errors.width_scale[counted]], axis=-1))
+    previous, gap = np.full(count, -1), np.ones(count, dtype=np.int64)
+    if tracked and (reader is None or reader.position_ar != 0.0):
         previous, gap = _previous_detections(counted & ~errors.fn, counted)
-    else:
-        previous, gap = np.full(np.count_nonzero(counted), -1), np.ones(np.count_nonzero(counted), dtype=np.int64)
     frames = truth.shape[0]
-    false_positives = np.zeros(frames) if errors.ghost_on is None else errors.ghost_on.sum(axis=1).astype(float)
+    false_positives = np.zeros(frames)
+    if errors.ghost_on is not None and (reader is None or reader.false_positive_rate > 0.0):
+        false_positives = errors.ghost_on.sum(axis=1).astype(float)
     return ObjectFrames(
-        phi=phi[counted], detected=~errors.fn[counted], position=rt[counted], dyaw=errors.dyaw[counted],
-        velocity=velocity[counted], log_size=log_size[counted], previous=previous, gap=gap,
+        phi=phi[counted], detected=~errors.fn[counted], position=rt, dyaw=errors.dyaw[counted],
+        velocity=velocity, log_size=log_size, previous=previous, gap=gap,
         lags={latency: _lag_offsets(truth, latency, bearing)[counted] for latency in latencies if latency},
-        false_positives=false_positives, exposure=np.full(frames, np.count_nonzero(counted) / frames),
+        false_positives=false_positives, exposure=np.full(frames, count / frames),
     )
 
 
@@ -295,6 +303,12 @@ class PEM:
     @property
     def frames_late(self) -> int:
         return int(self.latency)
+
+    @property
+    def reads_beyond_the_paper(self) -> bool:
+        """Whether scoring reads more of a perception output than the paper's errors: velocities,
+        sizes or false positives (`matched_errors` reads them back only then)."""
+        return self.models_velocity or self.models_size or self.false_positive_rate > 0.0
 
     def _position_scales(self, phi: np.ndarray) -> np.ndarray:
         return np.stack([np.exp(self._linear(self.radial_log_scale, phi)),
@@ -369,7 +383,8 @@ class PEM:
         if not counted.any():
             return float("nan")
         phi = features(truth, ego_xy) if phi is None else phi
-        return self.mean_log_likelihood(object_frames(truth, errors, ego_xy, counted, phi, (self.frames_late,)))
+        return self.mean_log_likelihood(object_frames(truth, errors, ego_xy, counted, phi, (self.frames_late,),
+                                                      reader=self))
 
     def sample_features(self, phi: np.ndarray, rng: np.random.Generator):
         """(detected, radial/tangential position errors (..., 2), yaw errors) drawn for features phi,

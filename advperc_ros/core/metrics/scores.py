@@ -105,8 +105,10 @@ def score(
     """All perception metrics of `pred` against `gt` (same frames; gt slots are agents).
 
     PEM LL reads the errors off the same 4 m matching: a matched car is detected with the error
-    of its match, an unmatched one is missed (default model unless `pem` is given; `phi`, the
-    model's features of gt seen from ego_xy, may be passed in to score many outputs on one rollout).
+    of its match, an unmatched one is missed, an unmatched detection in range is a false positive
+    (the paper's kinds' default model unless `pem` is given: errors of other kinds are scored by
+    `default_pem(kinds)`; `phi`, the model's features of gt seen from ego_xy, may be passed in to
+    score many outputs on one rollout).
     """
     model = pem or default_pem()
     errors, counted, result = matched_errors(gt, pred, ego_xy, model.reads_beyond_the_paper)

@@ -171,12 +171,11 @@ def _extended_output(model: PEM, seed: int, frames: int = 20):
 ], ids=lambda change: ",".join(change) or "every term")
 def test_every_term_scores_as_its_scipy_reference(change):
     model = replace(EXTENDED, **change)
-    for seed in range(2):
-        truth, perceived, ego = _extended_output(model, seed)
-        errors, counted, _ = matched_errors(truth, perceived, ego)
-        assert errors.ghost_on.any() or model.false_positive_rate == 0.0
-        expected = _reference_pem_ll(model, truth, errors, ego, counted)
-        assert model.score(truth, errors, ego, counted) == pytest.approx(expected, rel=1e-10)
+    truth, perceived, ego = _extended_output(model, 0)
+    errors, counted, _ = matched_errors(truth, perceived, ego)
+    assert errors.ghost_on.any() or model.false_positive_rate == 0.0
+    expected = _reference_pem_ll(model, truth, errors, ego, counted)
+    assert model.score(truth, errors, ego, counted) == pytest.approx(expected, rel=1e-10)
 
 
 def test_the_false_positive_term_adds_to_the_sum_not_to_the_count():

@@ -11,35 +11,41 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.metrics.scores import matched_errors
-from advperc_ros.core.pem import PEM, bearings, features, fit
+from advperc_ros.core.pem import FIT_LATENCIES, PEM, ObjectFrames, features, fit_object_frames, object_frames
 from advperc_ros.exceptions import BagError
 
 MIN_OBJECT_FRAMES = 50  # counted object-frames a fit needs at least,
-MIN_DETECTED = 20  # and detected ones among them
+MIN_DETECTED = 20  # and detected ones among them,
+MIN_FOLLOWING = 20  # and, with track identity, detections that follow an earlier one of their agent
 
 
-def training_set(pairs: Iterable[tuple[BoxSequence, BoxSequence, np.ndarray]]
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(features, detected, radial/tangential position error, yaw error) of every counted
-    object-frame of (truth, perceived, ego_xy) pairs: the errors of the matches the metrics make."""
-    phis, detected, rts, yaws = [], [], [], []
+def training_set(pairs: Iterable[tuple[BoxSequence, BoxSequence, np.ndarray]], tracked: bool = True) -> ObjectFrames:
+    """The counted object-frames of (truth, perceived, ego_xy) pairs, with the errors of the matches
+    the metrics make and the frames' false positives; with `tracked` (a truth slot is one agent in
+    every frame, as in bags) also the lags of every latency a fit tries."""
+    latencies = tuple(range(1, FIT_LATENCIES + 1)) if tracked else ()
+    parts = []
     for truth, perceived, ego_xy in pairs:
         errors, counted, _ = matched_errors(truth, perceived, ego_xy)
-        bearing = bearings(truth, ego_xy)
-        c, s = np.cos(bearing), np.sin(bearing)
-        rt = np.stack([c * errors.dx + s * errors.dy, -s * errors.dx + c * errors.dy], axis=-1)
-        phis.append(features(truth, ego_xy)[counted])
-        detected.append(~errors.fn[counted])
-        rts.append(rt[counted])
-        yaws.append(errors.dyaw[counted])
-    return np.concatenate(phis), np.concatenate(detected), np.concatenate(rts), np.concatenate(yaws)
+        parts.append(object_frames(truth, errors, ego_xy, counted, features(truth, ego_xy), latencies, tracked))
+    return ObjectFrames.concatenate(parts)
 
 
-def fit_pem(pairs: Iterable[tuple[BoxSequence, BoxSequence, np.ndarray]], inputs: Sequence[str]) -> tuple[PEM, str]:
+def fit_pem(pairs: Iterable[tuple[BoxSequence, BoxSequence, np.ndarray]], inputs: Sequence[str],
+            tracked: bool = True) -> tuple[PEM, str]:
     """The model fitted to the pairs read from `inputs`, and its provenance line; one BagError line
-    when they hold too few object-frames to fit."""
-    phi, detected, rt, dyaw = training_set(pairs)
+    when they hold too few object-frames to fit (or, `tracked`, too few detections following one of
+    their agent's to fit how errors persist). Without track identity (nuScenes results: a sample's
+    slots are its boxes) latency and persistence are not fitted, and the provenance says so."""
+    frames = training_set(pairs, tracked)
+    detected = frames.detected
     if detected.size < MIN_OBJECT_FRAMES or detected.sum() < MIN_DETECTED:
         raise BagError(f"{inputs[0]}: too few object-frames to fit ({detected.size}, {detected.sum()} detected)")
+    following = int(np.count_nonzero(frames.previous[detected] >= 0))
+    if tracked and following < MIN_FOLLOWING:
+        raise BagError(f"{inputs[0]}: too few detections follow an earlier one of their agent to fit how position "
+                       f"errors persist ({following}, {MIN_FOLLOWING} needed)")
     source = f"fitted by advperc pem fit on {', '.join(inputs)} ({detected.size} object-frames)"
-    return fit(phi, detected, rt, dyaw, source), source
+    if not tracked:
+        source += "; no track identity, so no latency or persistence fitted"
+    return fit_object_frames(frames, source, tracked), source

@@ -8,7 +8,7 @@ within 4 m still earns NDS credit, so only what no threshold credits counts as a
 Table 1 counts and for NDS-t's longest drop fraction alike.
 """
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -60,21 +60,42 @@ def longest_drop_fraction(missed: np.ndarray, counted: np.ndarray) -> float:
     return worst
 
 
-def matched_errors(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray) -> tuple[PerceptionErrors, np.ndarray, NDSResult]:
+def matched_errors(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray, beyond_the_paper: bool = True
+                   ) -> tuple[PerceptionErrors, np.ndarray, NDSResult]:
     """The errors a perception output made, read off the devkit's greedy matching at 4 m.
 
-    Returns (errors, counted, nds result): errors[k, j] holds the offset of the detection matched to
-    gt slot j at frame k, fn where none matched; counted marks gt present within 50 m.
+    Returns (errors, counted, nds result): errors[k, j] holds the offset and yaw error of the
+    detection matched to gt slot j at frame k, fn where none matched; `beyond_the_paper`, also its
+    velocity error and size scales, and ghost slots, one per prediction slot, that hold the false
+    positives (the in-range predictions no truth matched, as `fp` counts them): what the perception
+    error model's terms beyond the paper read, left out when no term will. counted marks gt present
+    within 50 m.
     """
     result = nds(gt, pred, ego_xy)
     pred_gt = result.matchings[max(DIST_THRESHOLDS)].pred_gt
     f, p = np.nonzero(pred_gt >= 0)
     g = pred_gt[f, p]
-    errors = PerceptionErrors.none(*gt.shape)
-    errors.fn[:] = True
-    errors.fn[f, g] = False
-    errors.dx[f, g], errors.dy[f, g] = pred.x[f, p] - gt.x[f, g], pred.y[f, p] - gt.y[f, g]
-    errors.dyaw[f, g] = wrap_angle(pred.yaw[f, p] - gt.yaw[f, g])
+    fn = np.ones(gt.shape, dtype=bool)
+    fn[f, g] = False
+
+    def at_matches(values: np.ndarray, neutral: float = 0.0) -> np.ndarray:
+        out = np.full(gt.shape, neutral)
+        out[f, g] = values
+        return out
+
+    errors = PerceptionErrors(dx=at_matches(pred.x[f, p] - gt.x[f, g]), dy=at_matches(pred.y[f, p] - gt.y[f, g]),
+                              dyaw=at_matches(wrap_angle(pred.yaw[f, p] - gt.yaw[f, g])), fn=fn)
+    if not beyond_the_paper:
+        return errors, result.gt_in_range, result
+    with np.errstate(divide="ignore", invalid="ignore"):  # a zero-sized truth (nuScenes JSON may hold one)
+        length_scale = at_matches(pred.length[f, p] / gt.length[f, g], 1.0)
+        width_scale = at_matches(pred.width[f, p] / gt.width[f, g], 1.0)
+    errors = replace(
+        errors, dvx=at_matches(pred.vx[f, p] - gt.vx[f, g]), dvy=at_matches(pred.vy[f, p] - gt.vy[f, g]),
+        length_scale=length_scale, width_scale=width_scale,
+        ghost_on=result.pred_in_range & (pred_gt < 0), ghost_x=pred.x, ghost_y=pred.y, ghost_yaw=pred.yaw,
+        ghost_vx=pred.vx, ghost_vy=pred.vy,  # the predictions' own arrays: read, never written
+    )
     return errors, result.gt_in_range, result
 
 
@@ -84,10 +105,13 @@ def score(
     """All perception metrics of `pred` against `gt` (same frames; gt slots are agents).
 
     PEM LL reads the errors off the same 4 m matching: a matched car is detected with the error
-    of its match, an unmatched one is missed (default model unless `pem` is given; `phi`, the
-    model's features of gt seen from ego_xy, may be passed in to score many outputs on one rollout).
+    of its match, an unmatched one is missed, an unmatched detection in range is a false positive
+    (the paper's kinds' default model unless `pem` is given: errors of other kinds are scored by
+    `default_pem(kinds)`; `phi`, the model's features of gt seen from ego_xy, may be passed in to
+    score many outputs on one rollout).
     """
-    errors, counted, result = matched_errors(gt, pred, ego_xy)
+    model = pem or default_pem()
+    errors, counted, result = matched_errors(gt, pred, ego_xy, model.reads_beyond_the_paper)
     matched = counted & ~errors.fn
     missed = counted & errors.fn
     ldf = longest_drop_fraction(missed, counted)
@@ -104,5 +128,5 @@ def score(
         fp=int(result.pred_in_range.sum()) - tp,
         mpe=float(position_error.mean()) if tp else float("nan"),
         maoe=float(orientation_error.mean()) if tp else float("nan"),
-        pem_ll=(pem or default_pem()).score(gt, errors, ego_xy, counted, phi),
+        pem_ll=model.score(gt, errors, ego_xy, counted, phi),
     )

@@ -16,7 +16,7 @@ from typing import NoReturn
 import numpy as np
 
 from advperc_ros.core.feasibility import ScenarioRejected
-from advperc_ros.core.perception_errors import ERROR_KINDS
+from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import Scenario, ScenarioError
 from advperc_ros.core.search.problem import OBJECTIVES
@@ -142,7 +142,6 @@ def cmd_import_bag(args: argparse.Namespace) -> int:
 def cmd_check_typical(args: argparse.Namespace) -> int:
     from advperc_ros.backends.embedded import Stack
     from advperc_ros.core.pem import PEM, default_pem
-    from advperc_ros.core.perception_errors import parse_error_kinds
     from advperc_ros.core.typical import check_typical
     from advperc_ros.params import resolve_bag
     from advperc_ros.ros.bag import read_scenario
@@ -225,10 +224,12 @@ def cmd_campaign(args: argparse.Namespace) -> int:
 
 def cmd_score(args: argparse.Namespace) -> int:
     from advperc_ros.core.metrics.scores import score
+    from advperc_ros.core.pem import PEM, default_pem
     from advperc_ros.ros.bag import aligned_objects
 
+    pem = PEM.load(Path(args.model)) if args.model else default_pem(args.errors)
     truth, perceived, ego_xy = aligned_objects(Path(args.ground_truth), Path(args.perceived), args.topic)
-    result = score(truth, perceived, ego_xy)
+    result = score(truth, perceived, ego_xy, pem)
     print(json.dumps({"frames": int(truth.shape[0]), **result.as_dict()}, indent=2))
     return 0
 
@@ -297,6 +298,14 @@ def _path(text: str) -> str:
     if not text.strip():
         raise argparse.ArgumentTypeError("an empty path names nothing; give one or leave the flag out")
     return text
+
+
+def _error_kinds(text: str) -> tuple[str, ...]:
+    """Error kinds as `errors.kinds` names them (paper, all, or a comma-separated list)."""
+    try:
+        return parse_error_kinds(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
 
 
 def _strengths(text: str) -> tuple[float, ...]:
@@ -403,6 +412,10 @@ def build_parser() -> argparse.ArgumentParser:
     score_cmd.add_argument("ground_truth", help="ground-truth bag (topic /ground_truth/objects)")
     score_cmd.add_argument("perceived", help="bag with detections (confidence in each CUBE marker's text)")
     score_cmd.add_argument("--topic", default="/perception/objects", help="detections topic in the perceived bag")
+    score_cmd.add_argument("--errors", metavar="KINDS", type=_error_kinds, default=PAPER_KINDS,
+                           help="score PEM LL with the shipped model for these kinds, as an attack with this "
+                           "errors.kinds did (paper: the hand-specified one; any kind beyond: the calibrated one)")
+    score_cmd.add_argument("--model", type=_path, help="PEM JSON to score PEM LL with instead (overrides --errors)")
     score_cmd.set_defaults(func=cmd_score)
 
     check_bag = sub.add_parser("check-bag", help="check a ground-truth bag against the bag contract")

@@ -345,6 +345,8 @@ def _cases() -> list[Case]:
         Case("advperc robustness RESULTS --samples", "`--samples 0`", robustness("--samples", "0"), "--samples", None),
         Case("advperc score GT PERCEIVED", "ground-truth bag missing", lambda f: ["score", str(f / "none"), str(GOOD_BAG)], "none", "none"),
         Case("advperc score GT PERCEIVED", "no detections topic", lambda f: ["score", str(GOOD_BAG), str(GOOD_BAG)], "/perception/objects", None),
+        Case("advperc score GT PERCEIVED --errors", "`--errors ghosts`, no such kind", lambda f: ["score", str(GOOD_BAG), str(GOOD_BAG), "--errors", "ghosts"], "--errors", None),
+        Case("advperc score GT PERCEIVED --model", "model file missing", lambda f: ["score", str(GOOD_BAG), str(GOOD_BAG), "--model", str(f / "none.json")], "none.json", "none.json"),
         Case("advperc pem fit BAG --output", "input bag missing", lambda f: ["pem", "fit", str(f / "none"), "--output", str(f / "m.json")], "none", "none"),
         Case("advperc pem fit BAG --output", "output is a folder", lambda f: (f / "m").mkdir() or ["pem", "fit", str(GOOD_BAG), "--output", str(f / "m")], "m", "m"),
         Case("advperc pem fit BAG --output", "output under a file", lambda f: (f / "file").write_text("x") and ["pem", "fit", str(GOOD_BAG), "--output", str(f / "file" / "m.json")], "file", "file"),

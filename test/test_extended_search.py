@@ -3,10 +3,13 @@ within the params' bounds, the paper's kinds keep the paper's moves and draws, a
 with every kind on is the same attack on one worker and on two, reports the kinds it uses and what
 each costs, and replays from its npz."""
 
+import json
+
 import numpy as np
 import pytest
 
 from advperc_ros.application import attack_to_folder
+from advperc_ros.cli import main
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, ErrorSpace, PerceptionErrors
 from advperc_ros.core.search import extended
 from advperc_ros.core.search.extended import MoveContext
@@ -93,7 +96,7 @@ def test_the_paper_s_search_refuses_the_extended_kinds(lane_following):
         params.with_values(**{"errors.kinds": "ghosts"})
 
 
-def test_every_kind_gives_one_attack_on_any_number_of_workers_and_says_what_each_costs(lane_following, tmp_path):
+def test_every_kind_gives_one_attack_on_any_number_of_workers_and_says_what_each_costs(lane_following, tmp_path, capsys):
     scenario, params = lane_following
     params = params.with_values(**{"errors.kinds": "all", "search.budget": 30})
     reports = {}
@@ -106,6 +109,15 @@ def test_every_kind_gives_one_attack_on_any_number_of_workers_and_says_what_each
     assert kinds["enabled"] == list(ERROR_KINDS) and kinds["used"]
     assert set(kinds["used"]) <= set(errors_one.used_kinds(scenario.num_frames))  # what shows before the rollout ended
     assert set(kinds["cost"]) == set(kinds["used"]) and all(np.isfinite(cost) for cost in kinds["cost"].values())
+
+    # the attack bag scored as the attack was: PEM LL under the calibrated model its kinds call for
+    assert main(["score", str(REPO / "bags" / "idm_lane_following"), str(tmp_path / "w1" / "attack"), "--errors", "all"]) == 0
+    scored = json.loads(capsys.readouterr().out)
+    for key in ("nds", "nds_t"):
+        assert scored[key] == pytest.approx(one[key], abs=1e-9), key
+    assert scored["pem_ll"] == pytest.approx(one["pem_ll"], rel=1e-6)  # report.json holds 7 significant digits
+    assert main(["score", str(REPO / "bags" / "idm_lane_following"), str(tmp_path / "w1" / "attack")]) == 0
+    assert json.loads(capsys.readouterr().out)["pem_ll"] != pytest.approx(one["pem_ll"], abs=1e-3)  # the paper's model
 
 
 def test_the_approach_phase_keeps_the_cars_it_bisects_to_with_all_their_kinds_and_every_ghost():

@@ -16,7 +16,7 @@ JUNCTIONS = {
     "obp_left_turn": ("side_north", 1),
     "obp_right_turn": ("west_exit", 1),
 }
-TYPICAL_SAMPLES = 10  # each ObP rollout takes seconds; `advperc check-typical` runs the paper's 100
+TYPICAL_SAMPLES = 5  # each ObP rollout takes seconds; `advperc check-typical` runs the paper's 100
 
 
 @pytest.fixture(scope="module", params=sorted(JUNCTIONS))

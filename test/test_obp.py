@@ -20,7 +20,7 @@ from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
 from advperc_ros.params import load_params
 
 STATIONARY, ONCOMING = 0, 1  # agent slots in scenarios/obp_overtake.yaml
-TYPICAL_SAMPLES = 10  # each rollout takes seconds; `advperc check-typical` runs the paper's 100 (README)
+TYPICAL_SAMPLES = 5  # each rollout takes seconds; `advperc check-typical` runs the paper's 100 (docs/commands.md)
 
 
 def _spec(repo, **changes):

@@ -20,11 +20,15 @@ transient-local, writers keep-last 1.
 """
 
 import importlib
+import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
 from advperc_ros.ros.cdr import TYPESTORE, payload
 from advperc_ros.ros.topics import depth
+
+WAITABLES_PERIOD = 1.0
+"""s between `NodeExecutor`'s waits on a node's waitables (QoS events, which only warn)."""
 
 
 class Publisher(Protocol):
@@ -110,6 +114,11 @@ class NodeExecutor:
     queue is taken to its end, and callbacks are called directly. What a node sees is unchanged:
     the same rcl wait set, takes and callbacks, in one thread.
 
+    Waitables join the wait once per `WAITABLES_PERIOD` (no wait then lasts longer): a graph node's
+    are the QoS event handlers of its two dozen publishers and subscriptions, which only warn of an
+    incompatible peer, yet rclpy's Python around them cost some 100 us per wait, more than the rest
+    of the wait. A warning can so come up to a second late.
+
     Subscriptions marked `quiet` are not waited on but taken at every spin, woken or timed out: the
     graph client reads the per-frame topics only once a rollout is done (`Transport.subscriber`'s
     `wake=False`), and a wake-up for each would compete for the CPU with the nodes in every frame.
@@ -129,6 +138,7 @@ class NodeExecutor:
         self._wake = GuardCondition(None, None, context=self._context)
         self._context.on_shutdown(self._wake.trigger)
         self._quiet: set[Any] = set()
+        self._waitables_due = 0.0  # time.monotonic() of the next wait on the waitables
         self._build(self._gather())
 
     def quiet(self, subscription: Any) -> None:
@@ -170,6 +180,12 @@ class NodeExecutor:
         entities = self._gather()
         if entities != self._entities:
             self._build(entities)
+        now = time.monotonic()
+        waitables = self._waitables if now >= self._waitables_due else ()
+        if waitables:
+            self._waitables_due = now + WAITABLES_PERIOD
+        elif timeout is None or timeout < 0 or timeout > self._waitables_due - now:
+            timeout = self._waitables_due - now
         wait_set = self._wait_set
         wait_set.clear_entities()
         subscriptions, timers, guards, services = self._handles
@@ -181,7 +197,7 @@ class NodeExecutor:
             wait_set.add_guard_condition(handle)
         for handle in services:
             wait_set.add_service(handle)
-        for waitable in self._waitables:
+        for waitable in waitables:
             waitable.add_to_wait_set(wait_set)
         wait_set.wait(-1 if timeout is None or timeout < 0 else int(timeout * 1e9))
         if not self._context.ok():
@@ -201,7 +217,7 @@ class NodeExecutor:
             request, header = service.handle.service_take_request(service.srv_type.Request)
             if header is not None:
                 service.send_response(service.callback(request, service.srv_type.Response()), header)
-        for waitable in self._waitables:
+        for waitable in waitables:
             if waitable.is_ready(wait_set):
                 _finish(waitable.execute(waitable.take_data()))
         for pointer in wait_set.get_ready_entities("guard_condition"):  # last: one may shut the context down

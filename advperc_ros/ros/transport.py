@@ -124,9 +124,9 @@ class NodeExecutor:
     `wake=False`), and a wake-up for each would compete for the CPU with the nodes in every frame.
 
     It serves what the package's nodes hold: subscriptions (callbacks of one argument), timers,
-    guard conditions, services (the parameter services `ros2 param` talks to) and waitables (the
-    QoS event handlers that warn of an incompatible peer), all with plain callbacks; not service
-    clients, whose responses complete futures. For one thread, like the node's callbacks.
+    guard conditions, services (the parameter services `ros2 param` talks to) and waitables, all
+    with plain callbacks; not service clients, whose responses complete futures. For one thread,
+    like the node's callbacks.
     """
 
     def __init__(self, node: Any) -> None:
@@ -237,7 +237,7 @@ class RclpyTransport:
     def __init__(self, node: Any) -> None:
         self._node = node
         self._delivered = 0
-        self._executor: NodeExecutor | None = None  # made by the first spin (a transport that only publishes needs none)
+        self._executor: NodeExecutor | None = None  # made when first needed (a transport that only publishes needs none)
 
     def publisher(self, topic: str, msgtype: str, latched: bool = False) -> _RclpyPublication:
         return _RclpyPublication(self._node.create_publisher(_message_class(msgtype), topic, _rclpy_qos(latched)), msgtype)

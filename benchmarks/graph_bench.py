@@ -1,6 +1,6 @@
 """The node graph against embedded rollouts, side by side on the same error tensors.
 
-    python benchmarks/graph_bench.py [--repeats 5] [--domain-id 120] [SCENARIO ...]
+    python benchmarks/graph_bench.py [--repeats 5] [--hops 500] [--domain-id 120] [SCENARIO ...]
 
 or from benchmarks/bench.py: `from graph_bench import bench_graph; bench_graph(repeats)`. Per
 scenario (default idm_lane_following and obp_overtake): a ground-truth rollout and a lead-dropping
@@ -11,9 +11,12 @@ nodes driven from an rclpy node (what `ros2 launch advperc_ros attack.launch.py`
 the median times, their ratios to embedded, each graph's start-up time (processes, discovery,
 warm-up rollout) and the largest difference from the embedded ego trajectories and signed
 distances; then one ratio per scenario and backend (total time over total embedded time of its
-rollouts) against the issue's goal for its planner. All DDS traffic stays on loopback (the rclpy
-graph relies on ../shared/ros2/activate.sh's CYCLONEDDS_URI). The load average is printed too: on
-a shared machine the ratios move with it.
+rollouts) against the issue's goal for its planner, beside two floors measured in the same run:
+the hops' (hop_cost.py's round trip over the backend's transport, `--hops` ping-pongs, for the 4
+hops a frame waits for in sequence, added to the embedded frame) and the CPU's (all the graph's
+processes' CPU time spread perfectly over the machine's cores). All DDS traffic stays on loopback
+(the rclpy graph relies on ../shared/ros2/activate.sh's CYCLONEDDS_URI). The load average is
+printed too: on a shared machine the ratios move with it.
 """
 
 import argparse
@@ -32,6 +35,8 @@ import yaml
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
+
+import hop_cost  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
@@ -108,15 +113,19 @@ def _load() -> str:
     return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
-def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain_id: int = 120) -> list[dict]:
-    """Prints one line per scenario and error tensor, then one ratio per scenario and backend;
-    returns the per-tensor rows as dicts."""
-    try:
-        import rclpy  # noqa: F401
-        backends = ("cyclone", "rclpy")
-    except ImportError:
-        backends = ("cyclone",)
+def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain_id: int = 120,
+                hops: int = 500) -> list[dict]:
+    """Prints one line per scenario and error tensor, then one ratio per scenario and backend with
+    its floors (no hop floor with `hops` 0); returns the per-tensor rows as dicts."""
+    backends = tuple(kind for kind in hop_cost.available() if kind in ("cyclone", "rclpy"))  # our nodes' transports
+    if len(backends) == 1:
         print("(ROS 2 not sourced: the rclpy graph is left out; source ../shared/ros2/activate.sh to include it)")
+    round_trip = {}
+    if hops:
+        print(f"== One hop (hop_cost.py, {hops} ping-pongs); {_load()} ==")
+        for offset, backend in enumerate(backends):
+            cpu, round_trip[backend] = hop_cost.measure(backend, domain_id + 2 + offset, hops)
+            print(f"{backend:8s} relay CPU {cpu * 1e6:6.1f} us/message, round trip {round_trip[backend] * 1e6:6.1f} us")
     print(f"== Graphs (5 node processes, loopback) vs embedded rollouts, median of {repeats}, in turn; {_load()} ==")
     print(f"{'scenario':22s} {'errors':12s} {'frames':>6s} {'embedded s':>10s} "
           + " ".join(f"{b + ' s':>9s} {'ratio':>6s} {'diff':>8s}" for b in backends))
@@ -173,11 +182,15 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
             ratio = sum(row["graph_s"] for row in mine) / sum(row["embedded_s"] for row in mine)
             goal = GOALS.get((backend, mine[0]["planner"]))
             verdict = f" (goal <= {goal:g}x: {'met' if ratio <= goal else 'NOT met'})" if goal else ""
-            # the floor: the graph's CPU work spread perfectly over this machine's cores, against the
+            # the hops' floor: the embedded frame plus the 4 hops a frame waits for in sequence
+            frame = statistics.fmean(row["embedded_s"] / row["frames"] for row in mine)
+            hop_floor = (f"; hops' floor {1 + hop_cost.HOPS_IN_SEQUENCE * round_trip[backend] / 2 / frame:.2f}x"
+                         if backend in round_trip else "")
+            # the CPU's floor: the graph's CPU work spread perfectly over this machine's cores, against the
             # embedded rollout's CPU time (CPU, not wall time: other load on the machine cancels out)
             work = sum(row["cpu_s"] for row in mine) / sum(row["embedded_cpu_s"] for row in mine)
-            print(f"{name:22s} {backend:8s} {ratio:5.2f}x{verdict}; CPU {work:.2f}x the embedded rollout's, over "
-                  f"{os.cpu_count()} cores a floor of {work / (os.cpu_count() or 1):.2f}x")
+            print(f"{name:22s} {backend:8s} {ratio:5.2f}x{verdict}{hop_floor}; CPU {work:.2f}x the embedded rollout's, "
+                  f"over {os.cpu_count()} cores a floor of {work / (os.cpu_count() or 1):.2f}x")
     return rows
 
 
@@ -185,6 +198,7 @@ if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("scenarios", nargs="*", default=list(SCENARIOS))
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--domain-id", type=int, default=120)
+    parser.add_argument("--hops", type=int, default=500, help="ping-pongs per transport for the hops' floor (0: none)")
+    parser.add_argument("--domain-id", type=int, default=120, help="the first of four domain ids it uses")
     options = parser.parse_args()
-    bench_graph(options.repeats, tuple(options.scenarios), options.domain_id)
+    bench_graph(options.repeats, tuple(options.scenarios), options.domain_id, options.hops)

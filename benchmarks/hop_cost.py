@@ -2,17 +2,23 @@
 
     python benchmarks/hop_cost.py [--messages 2000] [--domain-id 124]
 
-A relay process receives a message and publishes it back, `--messages` times in ping-pong with
-this process, doing no work of its own: over bare Cyclone DDS (`DdsTransport.spin_once`, as the
-graph backend's nodes run) and, when ROS 2 is sourced, as an rclpy node spun by one executor that
-holds it (as `rclpy.spin(node)` spins the nodes under `ros2 run` and the launch file). Printed per transport: the relay's CPU time per
-message received and sent (executor or waitset wake-up, take, callback, publish) and the round
-trip's wall time. A graph frame is 10 such receptions across its six processes (player 2,
-injector 1, tracker 1, planner 2, rule monitor 2, orchestrator 2; 12 on a recorded rollout), 4 of
-them in sequence (player -> injector -> tracker -> planner -> player): 10 x the CPU per message is
-what the transport alone costs a frame in CPU, 4 x half the round trip what it adds to the frame's
-wall time, against the embedded rollout's whole frame (about 0.8 ms on idm_lane_following). All
-traffic stays on loopback.
+or from graph_bench.py, which runs it beside the graphs (`measure`). A relay process receives a
+message and publishes it back, `--messages` times in ping-pong with this process (one message in
+flight), doing no work of its own, over each transport:
+
+- `cyclone`: bare Cyclone DDS (`DdsTransport.spin_once`), as the graph backend's nodes run;
+- `rclpy` (ROS 2 sourced): an rclpy node spun by `NodeExecutor`, as our nodes run under `ros2 run`
+  and the launch file;
+- `rclpy-executor` (ROS 2 sourced): the same node spun by rclpy's SingleThreadedExecutor, as
+  `rclpy.spin(node)` runs a team's node (and ran ours before NodeExecutor).
+
+Printed per transport: the relay's CPU time per message received and sent (wake-up, take,
+callback, publish) and the round trip's wall time. A graph frame is 8 such receptions across the
+five nodes (player 2, injector 1, tracker 1, planner 2, rule monitor 2; the orchestrator takes
+its 2 per-frame messages without waking for them), 4 of them in sequence (player -> injector ->
+tracker -> planner -> player): 8 x the CPU per message is about what the transport costs a frame
+in CPU, 4 x half the round trip what it adds to the frame's wall time, against the embedded
+rollout's whole frame (about 0.8 ms on idm_lane_following). All traffic stays on loopback.
 """
 
 import argparse
@@ -20,7 +26,9 @@ import os
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
@@ -28,104 +36,132 @@ sys.path.insert(0, str(REPO))
 from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 
 PING, PONG = "/advperc_bench/ping", "/advperc_bench/pong"
-RECEPTIONS_PER_FRAME = 10
+KINDS = ("cyclone", "rclpy", "rclpy-executor")
+RECEPTIONS_PER_FRAME = 8
 HOPS_IN_SEQUENCE = 4
+# what a ping says, in its std_msgs/String: the warm-up's may be answered late or twice, so they are
+# neither timed nor counted; the stop ends the relay
+WARM_UP, MEASURED, STOP = "warm-up", "x" * 64, "stop"
 
 
-def relay(transport_kind: str, domain_id: int, count: int) -> None:
-    """The child: echo `count` pings, then print the CPU seconds that took."""
-    if transport_kind == "rclpy":
-        import rclpy
-        from rclpy.node import Node
-
-        from advperc_ros.ros.transport import RclpyTransport
-
-        rclpy.init(domain_id=domain_id)
-        node = Node("hop_relay")
-        transport = RclpyTransport(node)
-    else:
+def _endpoint(kind: str, domain_id: int, name: str) -> tuple[Any, Callable[[float], object]]:
+    """(a transport, its spin(timeout)) for one end of the ping-pong, over `kind`."""
+    if kind == "cyclone":
         from advperc_ros.ros.dds import DdsTransport
 
         transport = DdsTransport(domain_id, localhost_only=True)
-    pong = transport.publisher(PONG, CONTROL_TYPE)
-    seen: list[float] = []
+        return transport, transport.spin_once
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.node import Node
 
-    def echo(data: bytes) -> None:
-        if not seen:
-            seen.append(time.process_time())
-        pong.publish(data)
-        seen.append(0.0)
+    from advperc_ros.ros.transport import RclpyTransport
 
-    transport.subscriber(PING, CONTROL_TYPE, callback=echo, raw=True)
-    while len(seen) <= count:
-        transport.spin_once(0.05)  # rclpy: one executor holding the node, as rclpy.spin(node) keeps it
-    print(time.process_time() - seen[0], flush=True)
+    rclpy.init(domain_id=domain_id)
+    node = Node(name)
+    transport = RclpyTransport(node)
+    if kind == "rclpy":
+        return transport, transport.spin_once
+    executor = SingleThreadedExecutor()  # one executor holding the node for good, as rclpy.spin(node) keeps it
+    executor.add_node(node)
+    return transport, lambda timeout: executor.spin_once(timeout_sec=timeout)
 
 
-def measure(transport_kind: str, domain_id: int, count: int) -> tuple[float, float]:
-    """(relay CPU s per message, round-trip wall s) over `count` ping-pongs after a warm-up."""
+def _string(text: str) -> bytes:
     from advperc_ros.ros import messages as msgs
 
-    child = subprocess.Popen([sys.executable, __file__, "--relay", transport_kind, "--domain-id", str(domain_id),
-                              "--messages", str(count + 1)], stdout=subprocess.PIPE, text=True)
-    if transport_kind == "rclpy":
-        import rclpy
-        from rclpy.node import Node
+    return bytes(msgs.TYPESTORE.serialize_cdr(msgs.string(text), CONTROL_TYPE))
 
-        from advperc_ros.ros.transport import RclpyTransport
 
-        rclpy.init(domain_id=domain_id)
-        transport = RclpyTransport(Node("hop_driver"))
-    else:
-        from advperc_ros.ros.dds import DdsTransport
+def relay(kind: str, domain_id: int) -> None:
+    """The child: echo every ping until the stop, then print the CPU seconds from the first
+    measured ping to the stop and the number of measured pings."""
+    transport, spin = _endpoint(kind, domain_id, "hop_relay")
+    pong = transport.publisher(PONG, CONTROL_TYPE)
+    measured, stopped = MEASURED.encode(), STOP.encode()
+    cpu: list[float] = []  # at the first measured ping, then at the stop
+    pings = [0]
 
-        transport = DdsTransport(domain_id, localhost_only=True)
+    def echo(data: bytes) -> None:
+        if stopped in data:
+            cpu.append(time.process_time())
+            return
+        if measured in data:
+            if not cpu:
+                cpu.append(time.process_time())
+            pings[0] += 1
+        pong.publish(data)
+
+    transport.subscriber(PING, CONTROL_TYPE, callback=echo, raw=True)
+    while len(cpu) < 2:
+        spin(0.05)
+    print(cpu[1] - cpu[0], pings[0], flush=True)
+
+
+def measure(kind: str, domain_id: int, count: int) -> tuple[float, float]:
+    """(relay CPU s per message, round-trip wall s) over `count` ping-pongs after a warm-up."""
+    child = subprocess.Popen([sys.executable, __file__, "--relay", kind, "--domain-id", str(domain_id)],
+                             stdout=subprocess.PIPE, text=True)
+    transport, spin = _endpoint(kind, domain_id, "hop_driver")
     got: list[bytes] = []
     transport.subscriber(PONG, CONTROL_TYPE, callback=got.append, raw=True)
     ping = transport.publisher(PING, CONTROL_TYPE)
-    payload = bytes(msgs.TYPESTORE.serialize_cdr(msgs.TYPESTORE.types[CONTROL_TYPE](data="x" * 64), CONTROL_TYPE))
+    warm_up, measured, stop = _string(WARM_UP), _string(MEASURED), _string(STOP)
     deadline = time.monotonic() + 30
     while not got:  # warm-up: discovery, until the relay answers
         if time.monotonic() > deadline:
             child.kill()
-            raise RuntimeError(f"{transport_kind}: the relay never answered")
-        ping.publish(payload)
-        transport.spin_once(0.1)
+            raise RuntimeError(f"{kind}: the relay never answered")
+        ping.publish(warm_up)
+        spin(0.1)
+    answered = -1
+    while answered != len(got):  # the warm-up's other answers, until none comes for 0.2 s
+        answered = len(got)
+        spin(0.2)
     started = time.perf_counter()
     for _ in range(count):
         before = len(got)
-        ping.publish(payload)
+        ping.publish(measured)
         while len(got) == before:
-            transport.spin_once(1.0)
+            spin(1.0)
     wall = (time.perf_counter() - started) / count
-    cpu = float(child.communicate(timeout=60)[0].split()[-1])
-    if transport_kind == "rclpy":
+    ping.publish(stop)
+    cpu, relayed = child.communicate(timeout=60)[0].split()[-2:]
+    if int(relayed) != count:
+        raise RuntimeError(f"{kind}: the relay counted {relayed} pings, not {count}")
+    if kind != "cyclone":
         import rclpy
 
         rclpy.try_shutdown()
-    return cpu / count, wall
+    return float(cpu) / count, wall
+
+
+def available() -> tuple[str, ...]:
+    """The kinds this environment can run: all of them with ROS 2 sourced, else bare Cyclone alone."""
+    try:
+        import rclpy  # noqa: F401
+    except ImportError:
+        return KINDS[:1]
+    return KINDS
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--messages", type=int, default=2000)
     parser.add_argument("--domain-id", type=int, default=124)
-    parser.add_argument("--relay", choices=("cyclone", "rclpy"), help=argparse.SUPPRESS)
+    parser.add_argument("--relay", choices=KINDS, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.relay:
-        relay(args.relay, args.domain_id, args.messages)
+        relay(args.relay, args.domain_id)
         return
-    kinds = ["cyclone"]
-    try:
-        import rclpy  # noqa: F401
-        kinds.append("rclpy")
-    except ImportError:
+    kinds = available()
+    if len(kinds) == 1:
         print("(ROS 2 not sourced: rclpy left out)")
     print(f"== one hop: relay CPU per message and round trip, {args.messages} ping-pongs; load average "
           + " ".join(f"{x:.2f}" for x in os.getloadavg()))
     for offset, kind in enumerate(kinds):
         cpu, wall = measure(kind, args.domain_id + offset, args.messages)
-        print(f"{kind:8s} relay CPU {cpu * 1e6:6.1f} us/message, round trip {wall * 1e6:6.1f} us; per graph frame: "
+        print(f"{kind:14s} relay CPU {cpu * 1e6:6.1f} us/message, round trip {wall * 1e6:6.1f} us; per graph frame: "
               f"{cpu * RECEPTIONS_PER_FRAME * 1e3:.2f} ms CPU ({RECEPTIONS_PER_FRAME} receptions), "
               f"{wall / 2 * HOPS_IN_SEQUENCE * 1e3:.2f} ms wall ({HOPS_IN_SEQUENCE} hops in sequence)")
 

@@ -5,6 +5,7 @@ scheme (100 + (pid % 10) * 10) does not use in the same run, and localhost-only 
 Every wait is bounded (graph.timeout, the backend's startup timeout, thread joins).
 """
 
+import contextlib
 import csv
 import json
 import os
@@ -388,6 +389,80 @@ def test_rclpy_transport_passes_rosbags_messages_through(ros_domain):
         assert [m.data for m in got] == ["ünïcode"]
         sender.destroy_node()  # its participant leaves the domain now, not whenever the worker collects garbage
         receiver.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
+def test_node_executor_serves_everything_a_node_holds_to_a_team_s_typed_node(ros_domain):
+    """NodeExecutor, which spins our nodes instead of rclpy.spin, against a typed node on rclpy's own
+    executor: CDR bytes published raw arrive typed and typed messages arrive raw, a timer, a guard
+    condition and the parameter services (`ros2 param`) are served, a QoS mismatch is reported,
+    entities made after the first spin are served, a subscription that does not wake the spin is
+    taken all the same, and a shutdown from elsewhere ends `spin`."""
+    rclpy = need_ros("rclpy")
+    from rcl_interfaces.srv import GetParameters
+    from rclpy.event_handler import SubscriptionEventCallbacks
+    from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros.transport import RclpyTransport
+
+    rclpy.init()
+    try:
+        ours, team = Node("advperc_test_ours"), Node("advperc_test_team")
+        ours.declare_parameter("gate", 2.5)
+        transport = RclpyTransport(ours)
+        raw, typed, events, fired, quiet = [], [], [], [], []
+        transport.subscriber("/advperc_test/in", CONTROL_TYPE, callback=raw.append, raw=True)
+        transport.subscriber("/advperc_test/quiet", CONTROL_TYPE, callback=quiet.append, wake=False)
+        out = transport.publisher("/advperc_test/out", CONTROL_TYPE)
+        team.create_subscription(String, "/advperc_test/out", typed.append, 10)
+        to_ours = team.create_publisher(String, "/advperc_test/in", 10)
+        quietly = team.create_publisher(String, "/advperc_test/quiet", 10)
+        ours.create_subscription(String, "/advperc_test/mismatch", lambda msg: None, 10, event_callbacks=
+                                 SubscriptionEventCallbacks(incompatible_qos=events.append))
+        team.create_publisher(String, "/advperc_test/mismatch", QoSProfile(depth=10,
+                              reliability=ReliabilityPolicy.BEST_EFFORT))
+        team_executor = SingleThreadedExecutor()
+        team_executor.add_node(team)
+
+        def spin_until(done) -> None:
+            deadline = time.monotonic() + 10.0
+            while not done() and time.monotonic() < deadline:
+                transport.spin_once(0.02)
+                team_executor.spin_once(0.02)
+            assert done()
+
+        spin_until(lambda: out.matched_count() and to_ours.get_subscription_count() and quietly.get_subscription_count()
+                   and events)
+        guard = ours.create_guard_condition(lambda: fired.append("guard"))  # made after the first spin
+        timer = ours.create_timer(0.01, lambda: fired.append("timer"))
+        guard.trigger()
+        out.publish(msgs.string("to a typed node"))
+        to_ours.publish(String(data="from a typed node"))
+        quietly.publish(String(data="read without a wake-up"))
+        client = team.create_client(GetParameters, "/advperc_test_ours/get_parameters")
+        response = client.call_async(GetParameters.Request(names=["gate"]))
+        spin_until(lambda: raw and typed and quiet and {"guard", "timer"} <= set(fired) and response.done())
+        assert msgs.TYPESTORE.deserialize_cdr(raw[0], CONTROL_TYPE).data == "from a typed node"
+        assert [m.data for m in typed] == ["to a typed node"] and [m.data for m in quiet] == ["read without a wake-up"]
+        assert response.result().values[0].double_value == 2.5
+        timer.cancel()  # nothing wakes the spin below but the shutdown
+
+        def spin() -> None:
+            with contextlib.suppress(ExternalShutdownException):
+                transport.executor.spin()
+
+        spinning = threading.Thread(target=spin, daemon=True)  # a hung spin fails the test, not the run
+        spinning.start()
+        time.sleep(0.2)
+        rclpy.try_shutdown()
+        spinning.join(timeout=10.0)
+        assert not spinning.is_alive()
+        team_executor.shutdown()
     finally:
         rclpy.try_shutdown()
 

@@ -4,6 +4,7 @@
     python benchmarks/recordings_bench.py --planners idm reactive --recordings USA_US101-1_1_T-1
     python benchmarks/recordings_bench.py --markdown            # the README's table
     python benchmarks/recordings_bench.py --method guided       # every attack with that search method
+    python benchmarks/recordings_bench.py --errors all          # every attack over the extended error kinds
 
 Per recording: `advperc import-commonroad X.xml --output DIR/bag` once, then `advperc attack
 DIR/bag.yaml` (IDM), `DIR/bag.obp.yaml` (ObP) or `DIR/bag.reactive.yaml` (the third-party
@@ -69,19 +70,21 @@ def params_file(bag: Path, planner: str) -> Path:
     return bag.with_name({"idm": "bag.yaml", "obp": "bag.obp.yaml", "reactive": "bag.reactive.yaml"}[planner])
 
 
-def attack(recording: str, planner: str, bag: Path | None, rejected: str, method: str | None = None) -> Row:
-    """The row of one attack (`method`: the search method, None: the params file's); with --keep, a row
-    written by an earlier run is read back instead (so a killed benchmark resumes)."""
-    cell = planner if method is None else f"{planner}-{method}"
+def attack(recording: str, planner: str, bag: Path | None, rejected: str, method: str | None = None,
+           errors: str | None = None) -> Row:
+    """The row of one attack (`method`: the search method, `errors`: errors.kinds, None: the params file's); with
+    --keep, a row written by an earlier run is read back instead (so a killed benchmark resumes)."""
+    cell = "-".join([planner, *(part for part in (method, errors) if part)]).replace(",", "+")
     if bag is not None and bag.with_name(f"row-{cell}.json").is_file():
         return Row(**json.loads(bag.with_name(f"row-{cell}.json").read_text()))
-    row = _attack(recording, planner, bag, rejected, method, cell)
+    row = _attack(recording, planner, bag, rejected, method, errors, cell)
     if bag is not None and row.outcome != "error":
         bag.with_name(f"row-{cell}.json").write_text(json.dumps(asdict(row)))
     return row
 
 
-def _attack(recording: str, planner: str, bag: Path | None, rejected: str, method: str | None, cell: str) -> Row:
+def _attack(recording: str, planner: str, bag: Path | None, rejected: str, method: str | None, errors: str | None,
+            cell: str) -> Row:
     if bag is None:
         return Row(recording, planner, None, None, "rejected", rejected, None, None, None, 0.0)
     from advperc_ros.ros.bag import read_scenario  # noqa: PLC0415 (the parent process needs no ROS types)
@@ -94,7 +97,7 @@ def _attack(recording: str, planner: str, bag: Path | None, rejected: str, metho
             shutil.rmtree(left)
     started = time.perf_counter()
     done = advperc("attack", str(params_file(bag, planner)), "--output", str(out), "--quiet",
-                   *(("--method", method) if method else ()))
+                   *(("--method", method) if method else ()), *(("--errors", errors) if errors else ()))
     wall = time.perf_counter() - started
     said = [line for line in done.stderr.splitlines() if line.startswith("advperc: ")]  # not a library's noise
     last = said[-1] if said else ""
@@ -140,6 +143,8 @@ def main() -> None:
     parser.add_argument("--planners", nargs="+", choices=PLANNERS, default=("idm", "obp"))
     parser.add_argument("--workers", type=int, default=2, help="attacks run at once (each one process)")
     parser.add_argument("--method", choices=METHODS, help="the search method of every attack (default: the params files')")
+    parser.add_argument("--errors", metavar="KINDS", help="errors.kinds of every attack: paper, all, or a list "
+                        "(default: the params files')")
     parser.add_argument("--json", type=Path, help="also write the rows here")
     parser.add_argument("--keep", type=Path, help="write bags and results folders here (default: a temporary folder)")
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
@@ -151,7 +156,7 @@ def main() -> None:
         tmp = args.keep or scratch
         imported = dict(zip(names, pool.map(lambda n: import_recording(args.data / f"{n}.xml", Path(tmp) / n), names)))
         jobs = [(n, p) for n in names for p in args.planners]
-        rows = list(pool.map(lambda job: attack(job[0], job[1], *imported[job[0]], args.method), jobs))
+        rows = list(pool.map(lambda job: attack(job[0], job[1], *imported[job[0]], args.method, args.errors), jobs))
         for row in rows:
             print(json.dumps(asdict(row)), file=sys.stderr, flush=True)
     if args.json:

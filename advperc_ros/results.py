@@ -25,6 +25,7 @@ from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr, topics
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import BagError
+from advperc_ros.ros.interfaces.base import ObjectsLayer, PlanLayer, Profile
 from advperc_ros.ros.interfaces.registry import load_profile
 
 REPORT_JSON = "report.json"
@@ -49,6 +50,14 @@ def write_search_log(path: Path, log: list[LogRow]) -> None:
             writer.writerow({k: (f"{v:.10g}" if isinstance(v, float) else v) for k, v in asdict(row).items()})
 
 
+def stack_layers(profile: Profile) -> dict[str, ObjectsLayer | PlanLayer]:
+    """The layers an attack bag also holds in a stack's own types (perception, tracking, plan): those of
+    `profile` whose topic the bag contract does not already carry in ours."""
+    layers: dict[str, ObjectsLayer | PlanLayer] = {"perception": profile.detections, "tracking": profile.tracks,
+                                                   "plan": profile.plan}
+    return {name: layer for name, layer in layers.items() if layer.topic not in topics.TOPIC_TYPES}
+
+
 def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
     """Per frame: ground truth, perceived objects, tracks, ego odometry, plan and rule value; under an
     interface profile of its own (`graph.interface`), the perceived objects, tracks, plan and ego also
@@ -60,13 +69,12 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
     profile = load_profile(outcome.params.graph.interface)
     detections, tracked, planned = profile.detections, profile.tracks, profile.plan
     # (topic, type, frames it has, its payload at frame k stamped ns) of each layer outside the contract
-    extra: list[tuple[str, str, int, Callable[[int, int], bytes]]] = [
-        (detections.topic, detections.msgtype, rollout.num_frames,
-         lambda k, ns: detections.encode(perceived.frame(k), ns, "perception")),
-        (tracked.topic, tracked.msgtype, len(tracks), lambda k, ns: tracked.encode(tracks[k], ns, "tracking")),
-        (planned.topic, planned.msgtype, len(plans), lambda k, ns: planned.encode(plans[k], ns)),
-    ]
-    extra = [layer for layer in extra if layer[0] not in topics.TOPIC_TYPES]
+    payloads: dict[str, tuple[int, Callable[[int, int], bytes]]] = {
+        "perception": (rollout.num_frames, lambda k, ns: detections.encode(perceived.frame(k), ns, "perception")),
+        "tracking": (len(tracks), lambda k, ns: tracked.encode(tracks[k], ns, "tracking")),
+        "plan": (len(plans), lambda k, ns: planned.encode(plans[k], ns)),
+    }
+    extra = [(layer.topic, layer.msgtype, *payloads[name]) for name, layer in stack_layers(profile).items()]
     ego_too = profile.ego_topic != topics.ODOMETRY
     with bags.open_bag_for_writing(path) as bag:
         bags.write_scenario_static(bag, scenario)
@@ -99,10 +107,21 @@ def _hex(rgba: tuple[float, ...]) -> str:
     return "#" + "".join(f"{round(255 * c):02x}" for c in rgba)
 
 
-def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
+def _column(panels: list) -> str | dict:
+    """Foxglove's layout tree for `panels` stacked top to bottom, each the same height."""
+    if len(panels) == 1:
+        return panels[0]
+    return {"direction": "column", "first": panels[0], "second": _column(panels[1:]),
+            "splitPercentage": round(100 / len(panels), 1)}
+
+
+def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile | None = None) -> dict:
     """A Foxglove layout for an attack bag: a top-down 3D panel over `target` (map frame) with each
     layer on its own topic in its own colour (the bag's marker colours), the collision rule over time
-    and the JSON summary. config/foxglove_layout.json is this layout over the origin."""
+    and the JSON summary; under a stack's interface `profile`, a raw-messages panel for each layer the
+    bag also holds in the stack's own types (Foxglove draws no Autoware or vision_msgs objects in 3D,
+    but reads their schemas from the MCAP file). config/foxglove_layout.json is this layout over the
+    origin, for our own types."""
     markers = {topics.GROUND_TRUTH: "ground_truth", topics.PERCEPTION: "perception", topics.TRACKING: "tracking",
                topics.LANES: "lanes"}
     layers = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
@@ -113,6 +132,8 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
                            "gradient": [_hex(PLAN_COLOR), _hex((*PLAN_COLOR[:3], 0.3))]}
     layers[topics.ROUTE] = {"visible": True, "type": "line", "lineWidth": 0.15, "gradient": ["#80808080", "#80808080"]}
     three_d, plot, summary = "3D!attack", "Plot!collision_rule", "RawMessages!summary"
+    own = {f"RawMessages!{name}": (name, layer) for name, layer in
+           (stack_layers(profile).items() if profile is not None else ())}
     return {
         "configById": {
             three_d: {
@@ -135,12 +156,14 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0)) -> dict:
                 "isSynced": True,
             },
             summary: {"topicPath": f"{topics.SUMMARY}.data", "foxglovePanelTitle": "attack summary (report.json)"},
+            **{panel: {"topicPath": layer.topic, "foxglovePanelTitle": f"{name} as the stack reads it: {layer.msgtype}"}
+               for panel, (name, layer) in own.items()},
         },
         "globalVariables": {},
         "userNodes": {},
         "playbackConfig": {"speed": 1.0},
         "layout": {"direction": "row", "first": three_d, "splitPercentage": 65,
-                   "second": {"direction": "column", "first": plot, "second": summary, "splitPercentage": 50}},
+                   "second": _column([plot, summary, *own])},
     }
 
 
@@ -211,7 +234,8 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
             frame, _ = outcome.attack_rollout.closest_approach()
-            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.attack_rollout.ego[frame, :2])))
+            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.attack_rollout.ego[frame, :2]),
+                                                                                 load_profile(outcome.params.graph.interface)))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
             plots.attack_animation(staging / ANIMATION, outcome)
     return report

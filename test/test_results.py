@@ -18,8 +18,11 @@ from advperc_ros.ros.bag import write_ground_truth_bag
 
 @pytest.fixture(scope="module")
 def attack(repo, tmp_path_factory):
+    """An attack under Autoware's interface profile: its bag holds the attacked layers in our types and in
+    Autoware's."""
     base = tmp_path_factory.mktemp("attack")
-    assert main(["attack", str(write_params(base / "params.yaml", repo)), "--output", str(base / "out"), "--quiet"]) == 0
+    params = write_params(base / "params.yaml", repo, **{"graph.interface": "autoware"})
+    assert main(["attack", str(params), "--output", str(base / "out"), "--quiet"]) == 0
     return base / "out"
 
 
@@ -48,6 +51,13 @@ def test_every_topic_of_the_foxglove_layout_is_in_the_attack_bag(attack):
     assert len(set(colours)) == len(layers)  # each layer its own colour
     assert named[topics.RULE].startswith("Plot!") and named[topics.SUMMARY].startswith("RawMessages!")
     assert in_bag[topics.RULE] == "std_msgs/msg/Float64"
+    # every layer the bag holds in the stack's own types has a panel of its own, titled with the type
+    own = {topic: msgtype for topic, msgtype in in_bag.items() if msgtype.startswith("autoware_")}
+    assert set(own) == {"/perception/object_recognition/detection/objects", "/perception/object_recognition/objects",
+                        "/planning/scenario_planning/trajectory"}
+    for topic, msgtype in own.items():
+        assert named[topic].startswith("RawMessages!"), topic
+        assert layout["configById"][named[topic]]["foxglovePanelTitle"].endswith(msgtype)
 
 
 def test_the_layout_looks_at_the_collision(attack):

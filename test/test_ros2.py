@@ -377,6 +377,47 @@ def test_ros2_bag_play_feeds_ground_truth_the_graph_accepts(ros_domain):
         rclpy.try_shutdown()
 
 
+def test_a_log_recorded_by_ros2_bag_record_imports_as_the_log_it_was_published_from(ros_domain, tmp_path):
+    """A team's log as rosbag2 itself writes one: `ros2 bag record` (its MCAP writer, metadata and QoS, and
+    log times that are the moments of reception, not the stamps) of Autoware's objects, the ego's odometry
+    and the map while they are published live, by `ros2 bag play` of the log test_import_bag writes of a
+    bundled scenario. `advperc import-bag` makes the same ground-truth bag of both logs, to the bit, so the
+    recorded one gives the bundled bag's attack as the written one does (test_import_bag)."""
+    need_program("ros2")
+    from test_import_bag import BUNDLED, OBJECTS, ODOMETRY, autoware_log
+
+    from advperc_ros.cli import main
+
+    source = autoware_log(tmp_path / "source", bags.read_scenario(BUNDLED), with_map=True)
+    recorded = tmp_path / "recorded"
+    wanted = [OBJECTS, ODOMETRY, topics.LANES, topics.ROUTE]
+    recorder = subprocess.Popen(["ros2", "bag", "record", "-s", "mcap", "-o", str(recorded), "--topics", *wanted],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True)
+    try:
+        # play's publishers exist during its delay, so the recorder subscribes to each before its first message
+        player = subprocess.run(["ros2", "bag", "play", str(source), "--rate", "5", "--delay", "3"],
+                                capture_output=True, text=True, timeout=TIMEOUT)
+        assert player.returncode == 0, player.stderr[-3000:]
+        time.sleep(1.0)
+    finally:
+        os.killpg(recorder.pid, signal.SIGINT)
+    code, log = _ended(recorder, timeout=60)
+    assert code == 0, log[-3000:]
+    played, got = _recorded(source), _recorded(recorded)
+    assert got == played, log[-3000:]  # every message of every topic, none lost
+    received, _ = bags.read_topics(recorded, [OBJECTS], raw=True)
+    stamps = bags.read_scenario(BUNDLED).stamps_ns
+    assert received[OBJECTS][0][0] - stamps[0] > 10**9  # logged at the wall-clock moment of reception, not the stamp
+    assert main(["import-bag", str(source), "--output", str(tmp_path / "from_source")]) == 0
+    assert main(["import-bag", str(recorded), "--output", str(tmp_path / "from_record")]) == 0
+    written, read_back = bags.read_scenario(tmp_path / "from_source"), bags.read_scenario(tmp_path / "from_record")
+    assert np.array_equal(read_back.stamps_ns, written.stamps_ns) and read_back.ego_start == written.ego_start
+    for field in ("ids", "valid", "x", "y", "yaw", "vx", "vy", "length", "width", "height"):
+        assert np.array_equal(getattr(read_back.agents, field), getattr(written.agents, field)), field
+    assert np.array_equal(read_back.route.points, written.route.points)
+    assert [(lane.id, lane.width) for lane in read_back.lanes] == [(lane.id, lane.width) for lane in written.lanes]
+
+
 def test_the_player_logs_failed_and_finished_rollouts_through_rclpys_logger():
     """rclpy's logger raises when one call site logs at two severities; the player logged an
     inconclusive rollout (warning) and a finished one (info) from one call, so a launch whose warm-up

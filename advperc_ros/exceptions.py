@@ -81,6 +81,11 @@ class DdsError(AdvpercError, RuntimeError):
     """A transport that cannot be set up as asked; the text says what and why."""
 
 
+class MessageTypeMissing(AdvpercError, RuntimeError):
+    """A message type this ROS 2 installation has no Python package for (rclpy needs one to make an
+    endpoint); a node leaves out the optional topics of that type and says so."""
+
+
 # ----- the user stopped it -----
 
 class Interrupted(AdvpercError):

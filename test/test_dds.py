@@ -101,7 +101,9 @@ def edge_values_message() -> object:
 CASES = contract_messages()
 WIRE_CASES = [*CASES, ("/tracking/objects", TOPIC_TYPES[TRACKING], edge_values_message()),
               ("/localization/acceleration", msgs.ACCELERATION,  # the Autoware profiles' (not a contract topic)
-               msgs.TYPESTORE.deserialize_cdr(msgs.acceleration_cdr(-2.5, T0), msgs.ACCELERATION))]
+               msgs.TYPESTORE.deserialize_cdr(msgs.acceleration_cdr(-2.5, T0), msgs.ACCELERATION)),
+              ("/tf", msgs.TRANSFORMS,  # the Autoware profiles' too
+               msgs.TYPESTORE.deserialize_cdr(msgs.transform_cdr(EgoState(12.5, -3.25, 0.4, 9.0), T0), msgs.TRANSFORMS))]
 
 
 def test_contract_covers_every_topic_type():
@@ -145,7 +147,7 @@ def assert_same(a: object, b: object, where: str = "msg") -> None:
         assert type(a) is type(b) and a == b, f"{where}: {a!r} != {b!r}"
 
 
-@pytest.mark.parametrize(("topic", "msgtype", "msg"), WIRE_CASES, ids=[*_ids(CASES), "MarkerArray-edge-values", "AccelWithCovarianceStamped"])
+@pytest.mark.parametrize(("topic", "msgtype", "msg"), WIRE_CASES, ids=[*_ids(CASES), "MarkerArray-edge-values", "AccelWithCovarianceStamped", "TFMessage"])
 def test_idl_serialisation_equals_rosbags_cdr(topic, msgtype, msg):
     """The wire-compatibility proof: Cyclone's CDR of the generated type is rosbags' (= ROS 2's)."""
     expected = bytes(msgs.TYPESTORE.serialize_cdr(msg, msgtype))

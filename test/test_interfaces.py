@@ -231,8 +231,9 @@ def test_the_docs_profile_table_is_the_registry_s():
         cells = [cell.strip() for cell in line.strip("|").split("|")]
         rows[cells[0].split()[0].strip("`")] = [cell.replace("`", "").split() for cell in cells[1:]]
     assert sorted(rows) == sorted(BUNDLED)
-    for name, (detections, tracks, plan, ego) in rows.items():
+    for name, (detections, tracks, plan, ego, extra) in rows.items():
         profile = load_profile(name)
+        assert extra == [topic for topic in (profile.acceleration_topic, profile.transforms_topic) if topic] or ["-"], name
         assert detections == [profile.detections.topic, profile.detections.msgtype], name
         assert tracks == [profile.tracks.topic, profile.tracks.msgtype], name
         assert plan == [profile.plan.topic, profile.plan.msgtype], name
@@ -254,33 +255,76 @@ class _Recorder:
         self.callbacks[topic] = callback
 
 
-def test_under_autoware_the_player_publishes_the_ego_s_acceleration_as_its_speed_changes():
-    """/localization/acceleration, which Autoware's planners read: the change of the ego's speed over
-    each frame, 0 at the start, stamped with the frame, in the odometry's child frame."""
+def _three_frames(profile_name: str, transport=None, said=None):
+    """The player of idm_lane_following under a profile, through three frames whose plans speed the ego up,
+    hold and brake; (its transport, the frame stamps). `said` keeps its warnings."""
     from advperc_ros.nodes.scenario_player import ScenarioPlayer
     from advperc_ros.ros.lockstep import ready_message, rule_diagnostics
     from advperc_ros.ros.topics import READY, RULE_DIAGNOSTICS
 
     bag = Path(__file__).resolve().parent.parent / "bags" / "idm_lane_following"
-    transport = _Recorder()
-    profile = load_profile("autoware")
-    logger = type("Log", (), {"info": print, "warning": print})()
+    transport = transport or _Recorder()
+    profile = load_profile(profile_name)
+    warn = said.append if said is not None else print
+    logger = type("Log", (), {"info": print, "warning": staticmethod(warn)})()
     player = ScenarioPlayer(transport, bag, True, 10.0, profile, False, logger, (4.6, 1.9))
     stamps = [int(s) for s in player.scenario.stamps_ns]
     start = player.scenario.ego_start
     transport.callbacks[READY](ready_message(1))
-    for k, speed in enumerate([start.v + 0.5, start.v + 0.5, start.v - 1.0]):  # the ego speeds up, holds, brakes
+    for k, speed in enumerate([start.v + 0.5, start.v + 0.5, start.v - 1.0]):
         t = np.array([0.0, 0.1, 0.2, 2.0]) + (stamps[k] - stamps[0]) * 1e-9
         x = start.x + speed * (t - t[0]) + k
         plan = Trajectory(t=t, x=x, y=np.full(4, start.y), yaw=np.zeros(4))
         transport.callbacks[RULE_DIAGNOSTICS](rule_diagnostics(stamps[k], np.array([1]), np.array([9.0])))
         transport.callbacks[profile.plan.topic](profile.plan.encode(plan, stamps[k]))
+    return transport, stamps
+
+
+def test_under_autoware_the_player_publishes_the_ego_s_acceleration_as_its_speed_changes():
+    """/localization/acceleration, which Autoware's planners read: the change of the ego's speed over
+    each frame, 0 at the start, stamped with the frame, in the odometry's child frame."""
+    transport, stamps = _three_frames("autoware")
     sent = [msgs.TYPESTORE.deserialize_cdr(data, msgs.ACCELERATION) for data in transport.published[autoware.ACCELERATION_TOPIC]]
     speeds = [msgs.ego_from_cdr(data, "odometry")[1].v for data in transport.published["/ego/odometry"]]
     assert [msgs.stamp_ns(m.header.stamp) for m in sent] == stamps[:len(sent)] and len(sent) == len(speeds) >= 3
     expected = [0.0] + [(b - a) / ((t1 - t0) * 1e-9) for a, b, t0, t1 in zip(speeds, speeds[1:], stamps, stamps[1:])]
     assert [m.accel.accel.linear.x for m in sent] == pytest.approx(expected, abs=1e-12)
     assert all(m.header.frame_id == cdr.CHILD_FRAME_ID for m in sent) and any(abs(a) > 0.1 for a in expected)
-    quiet = _Recorder()  # our own profile has no acceleration topic
-    ScenarioPlayer(quiet, bag, True, 10.0, load_profile("advperc"), False, logger, (4.6, 1.9))
-    assert autoware.ACCELERATION_TOPIC not in quiet.published
+    quiet, _ = _three_frames("advperc")  # our own profile has no acceleration topic, nor /tf
+    assert autoware.ACCELERATION_TOPIC not in quiet.published and autoware.TRANSFORMS_TOPIC not in quiet.published
+
+
+def test_under_autoware_the_player_publishes_map_to_base_link_on_tf_where_the_odometry_puts_the_ego():
+    """/tf, through which Autoware's nodes look up the ego: per frame one transform map -> base_link,
+    stamped with the frame, at the odometry's pose to the bit (the centre of the ego's box)."""
+    transport, stamps = _three_frames("autoware")
+    sent = [msgs.TYPESTORE.deserialize_cdr(data, msgs.TRANSFORMS) for data in transport.published[autoware.TRANSFORMS_TOPIC]]
+    odometry = [msgs.TYPESTORE.deserialize_cdr(data, msgs.ODOMETRY) for data in transport.published["/ego/odometry"]]
+    assert len(sent) == len(odometry) >= 3
+    for message, ego, stamp in zip(sent, odometry, stamps):
+        (transform,) = message.transforms
+        assert msgs.stamp_ns(transform.header.stamp) == stamp == msgs.stamp_ns(ego.header.stamp)
+        assert (transform.header.frame_id, transform.child_frame_id) == (cdr.FRAME_ID, cdr.CHILD_FRAME_ID)
+        assert ego.child_frame_id == cdr.CHILD_FRAME_ID
+        pose, moved = ego.pose.pose, transform.transform
+        assert (moved.translation.x, moved.translation.y, moved.translation.z) == (pose.position.x, pose.position.y, 0.0)
+        rotation, orientation = moved.rotation, pose.orientation
+        assert (rotation.x, rotation.y, rotation.z, rotation.w) == (orientation.x, orientation.y, orientation.z, orientation.w)
+
+
+def test_a_ros_without_tf2_msgs_for_python_leaves_tf_out_and_says_so_once():
+    """rclpy makes an endpoint only from a type's Python package, and a minimal ROS 2 (this kit) has none
+    for tf2_msgs: the player then publishes everything else, and says once which topic it leaves out."""
+    from advperc_ros.exceptions import MessageTypeMissing
+
+    class WithoutTf(_Recorder):
+        def publisher(self, topic, msgtype, latched=False):
+            if msgtype == msgs.TRANSFORMS:
+                raise MessageTypeMissing(f"{msgtype}: this ROS 2 has no Python package 'tf2_msgs'")
+            return super().publisher(topic, msgtype, latched)
+
+    said: list[str] = []
+    transport, _ = _three_frames("autoware", WithoutTf(), said)
+    assert said == ["/tf is not published: tf2_msgs/msg/TFMessage: this ROS 2 has no Python package 'tf2_msgs'"]
+    assert autoware.TRANSFORMS_TOPIC not in transport.published
+    assert len(transport.published[autoware.ACCELERATION_TOPIC]) == len(transport.published["/ego/odometry"]) >= 3

@@ -32,6 +32,7 @@ from typing import Any
 
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import after_plan, violates
+from advperc_ros.exceptions import MessageTypeMissing
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
@@ -53,7 +54,7 @@ from advperc_ros.ros.topics import (
     RULE_DIAGNOSTICS,
     TOPIC_TYPES,
 )
-from advperc_ros.ros.transport import Transport
+from advperc_ros.ros.transport import Publisher, Transport
 
 
 @dataclass
@@ -92,8 +93,8 @@ class ScenarioPlayer:
         # the rule monitor reads /ego/odometry; a stack reads its own topic, where the same message goes too
         self._ego = [self._pub[ODOMETRY]] + ([transport.publisher(profile.ego_topic, TOPIC_TYPES[ODOMETRY])]
                                              if profile.ego_topic != ODOMETRY else [])
-        self._acceleration = (transport.publisher(profile.acceleration_topic, msgs.ACCELERATION)
-                              if profile.acceleration_topic is not None else None)
+        self._acceleration = self._optional(transport, profile.acceleration_topic, msgs.ACCELERATION)
+        self._transforms = self._optional(transport, profile.transforms_topic, msgs.TRANSFORMS)
         self._done = transport.publisher(DONE, CONTROL_TYPE)
         for topic in (LANES, ROUTE):
             if topics[topic]:
@@ -103,6 +104,17 @@ class ScenarioPlayer:
         if by_clock:
             transport.subscriber(profile.tracks.topic, profile.tracks.msgtype, callback=self.on_tracks, raw=True)
         transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule, raw=True)
+
+    def _optional(self, transport: Transport, topic: str | None, msgtype: str) -> Publisher | None:
+        """A publisher of a topic the profile's stack reads besides the contract, or None: where the profile
+        has no such topic, or where this ROS 2 lacks the type's Python package (said once, as a warning)."""
+        if topic is None:
+            return None
+        try:
+            return transport.publisher(topic, msgtype)
+        except MessageTypeMissing as missing:
+            self._log.warning(f"{topic} is not published: {missing}")
+            return None
 
     def _stamp(self, frame: int) -> int:
         return int(self.scenario.stamps_ns[frame])
@@ -127,6 +139,8 @@ class ScenarioPlayer:
         if self._acceleration is not None:  # the speed's change over the last frame (0 at the start)
             rate = 0.0 if frame == 0 else (ego.v - run.speed) / ((stamp - self._stamp(frame - 1)) * 1e-9)
             self._acceleration.publish(msgs.acceleration_cdr(rate, stamp))
+        if self._transforms is not None:
+            self._transforms.publish(msgs.transform_cdr(ego, stamp))
         run.speed = ego.v
         run.frame = frame
         run.clocked = not self._by_clock

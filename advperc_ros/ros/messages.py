@@ -117,6 +117,19 @@ def acceleration_cdr(longitudinal: float, ns_time: int) -> bytes:
     return cdr.payload(message, ACCELERATION)
 
 
+TRANSFORMS = "tf2_msgs/msg/TFMessage"
+
+
+def transform_cdr(ego: EgoState, ns_time: int) -> bytes:
+    """The ego's pose as the one transform map -> base_link (FRAME_ID -> CHILD_FRAME_ID) of a
+    tf2_msgs/TFMessage's CDR stamped `ns_time`: where the odometry puts it, the centre of its box."""
+    transform = T["geometry_msgs/msg/Transform"](
+        translation=T["geometry_msgs/msg/Vector3"](x=float(ego.x), y=float(ego.y), z=0.0), rotation=_quaternion(ego.yaw))
+    stamped = T["geometry_msgs/msg/TransformStamped"](header=header(ns_time), child_frame_id=cdr.CHILD_FRAME_ID,
+                                                      transform=transform)
+    return cdr.payload(T[TRANSFORMS](transforms=[stamped]), TRANSFORMS)
+
+
 def odometry(ego: EgoState, ns_time: int):
     return TYPESTORE.deserialize_cdr(ego_to_cdr(ego, ns_time), ODOMETRY)
 

@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
+from advperc_ros.exceptions import MessageTypeMissing
 from advperc_ros.ros.cdr import TYPESTORE, payload
 from advperc_ros.ros.topics import depth
 
@@ -64,7 +65,10 @@ class Transport(Protocol):
 def _message_class(msgtype: str) -> Any:
     """The rclpy (rosidl) class of `pkg/msg/Type`: module `pkg.msg`, attribute `Type`."""
     package, kind, name = msgtype.split("/")
-    return getattr(importlib.import_module(f"{package}.{kind}"), name)
+    try:
+        return getattr(importlib.import_module(f"{package}.{kind}"), name)
+    except ModuleNotFoundError:
+        raise MessageTypeMissing(f"{msgtype}: this ROS 2 has no Python package '{package}'") from None
 
 
 class _RclpyPublication:

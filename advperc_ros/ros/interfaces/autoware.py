@@ -49,6 +49,7 @@ TRACKED_TOPIC = "/perception/object_recognition/tracking/objects"
 TRAJECTORY_TOPIC = "/planning/scenario_planning/trajectory"
 KINEMATIC_STATE_TOPIC = "/localization/kinematic_state"
 ACCELERATION_TOPIC = "/localization/acceleration"  # geometry_msgs/AccelWithCovarianceStamped, in base_link
+TRANSFORMS_TOPIC = "/tf"  # tf2_msgs/TFMessage: map -> base_link, which Autoware's nodes look up through tf2
 
 PREDICTION_HORIZON = 8.0  # s
 PREDICTION_STEP = 0.5  # s
@@ -304,6 +305,7 @@ PROFILE = Profile(
     plan=PlanLayer(TRAJECTORY_TOPIC, TRAJECTORY, encode_trajectory, decode_trajectory),
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,
+    transforms_topic=TRANSFORMS_TOPIC,
 )
 
 TRACKED_PROFILE = Profile(
@@ -315,4 +317,5 @@ TRACKED_PROFILE = Profile(
     plan=PROFILE.plan,
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,
+    transforms_topic=TRANSFORMS_TOPIC,
 )

@@ -77,3 +77,4 @@ class Profile:
     plan: PlanLayer
     ego_topic: str
     acceleration_topic: str | None = None  # where the stack reads the ego's acceleration, if it does
+    transforms_topic: str | None = None  # where the stack reads map -> base_link (tf2_msgs/TFMessage), if it does

@@ -169,14 +169,15 @@ class _Scene:
 
     def involved(self, k: int, slot: int) -> np.ndarray:
         """Points a view of frame k must contain: the ego, where it heads, the collision agent (true and
-        perceived) and every agent within NEAR of the ego."""
-        agents, ego = self.outcome.scenario.agents, self.rollout.ego[k]
+        perceived), every agent within NEAR of the ego and every ghost detection centred within NEAR."""
+        agents, perceived, ego = self.outcome.scenario.agents, self.perceived, self.rollout.ego[k]
         slots = (self.rollout.distances[k] < NEAR) | (np.arange(agents.shape[1]) == slot)
+        ghosts = np.hypot(perceived.x[k, len(slots):] - ego[0], perceived.y[k, len(slots):] - ego[1]) < NEAR
         x, y, yaw = ego[:3]
         points = [box_corners(x, y, yaw, *self.ego_size),
                   ego[None, :2] + LOOK_AHEAD * max(ego[3], 1.0) * np.array([[np.cos(ego[2]), np.sin(ego[2])]])]
-        for boxes in (agents, self.perceived):
-            keep = slots & boxes.valid[k]
+        for boxes, shown in ((agents, slots), (perceived, np.concatenate([slots, ghosts]))):
+            keep = shown & boxes.valid[k]
             points.append(box_corners(boxes.x[k, keep], boxes.y[k, keep], boxes.yaw[k, keep],
                                       boxes.length[k, keep], boxes.width[k, keep]).reshape(-1, 2))
         return np.concatenate(points)

@@ -2,6 +2,7 @@
 panel, whatever the road's heading; an animation of the whole rollout; a search that found nothing
 plotted as such."""
 
+import dataclasses
 import re
 
 import matplotlib.pyplot as plt
@@ -59,6 +60,27 @@ def test_every_bev_panel_holds_the_ego_and_the_collision_agent(outcome):
         assert _inside(hit, ax), ax.get_title()
     assert "collision" in panels[-1].get_title()
     plt.close(fig)
+
+
+def test_a_ghost_detection_beside_the_ego_is_drawn_inside_every_panel(outcome, tmp_path):
+    """A ghost (a perceived car no agent explains, one more slot than the agents) 6 m ahead of the ego in
+    every frame: each bird's-eye panel frames it, and the animation draws it."""
+    rollout = outcome.recorded
+    errors = outcome.best.errors.with_kind("ghost", ghosts=2)
+    frames = errors.shape[0]
+    ego = rollout.ego[np.minimum(np.arange(frames), rollout.num_frames - 1)]
+    on = np.zeros((frames, 2), dtype=bool)
+    on[:, 1] = True
+    ahead = {"ghost_x": ego[:, 0] + 6.0 * np.cos(ego[:, 2]), "ghost_y": ego[:, 1] + 6.0 * np.sin(ego[:, 2])}
+    ghosted = dataclasses.replace(errors, ghost_on=on, ghost_yaw=np.repeat(ego[:, 2:3], 2, axis=1),
+                                  **{name: np.repeat(values[:, None], 2, axis=1) for name, values in ahead.items()})
+    shown = dataclasses.replace(outcome, best=dataclasses.replace(outcome.best, errors=ghosted))
+    fig = plots.bev_figure(shown)
+    for ax in [ax for ax in fig.axes if ax.get_title()]:
+        k = int(round(float(re.search(r"t = ([\d.]+) s", ax.get_title()).group(1)) / outcome.scenario.dt))
+        assert _inside(box_corners(ahead["ghost_x"][k], ahead["ghost_y"][k], ego[k, 2], 4.5, 1.8), ax), ax.get_title()
+    plt.close(fig)
+    plots.attack_animation(tmp_path / "attack.gif", shown)
 
 
 def test_the_animation_shows_the_whole_rollout_up_to_the_collision(outcome, tmp_path):

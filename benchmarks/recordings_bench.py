@@ -102,8 +102,10 @@ def _attack(recording: str, planner: str, bag: Path | None, rejected: str, metho
     said = [line for line in done.stderr.splitlines() if line.startswith("advperc: ")]  # not a library's noise
     last = said[-1] if said else ""
     if done.returncode != 0:
-        kind = {1: "refused"}.get(done.returncode, "error")
-        return Row(recording, planner, vehicles, frames, kind, last, None, None, None, wall)
+        # exit 1 is a refusal only with our one line; a traceback also exits 1, and is an error to see
+        kind = "refused" if done.returncode == 1 and said else "error"
+        reason = last or (done.stderr.strip().splitlines() or [f"exit {done.returncode}"])[-1]
+        return Row(recording, planner, vehicles, frames, kind, reason, None, None, None, wall)
     report = json.loads((out / "report.json").read_text())
     if report["collision"]:
         return Row(recording, planner, vehicles, frames, "attack",

@@ -18,6 +18,7 @@ from advperc_ros.backends.registry import open_rollouts
 from advperc_ros.backends.resumed import Checkpoint, ResumedRollouts
 from advperc_ros.configs import CoreConfigs, core_configs
 from advperc_ros.core.scenario import Scenario
+from advperc_ros.core.search import phantom
 from advperc_ros.core.search.config import SearchConfig, budget
 from advperc_ros.core.search.diagnosis import inconclusive_search
 from advperc_ros.core.search.method import Progress
@@ -54,6 +55,7 @@ class RolloutProgress:
         self.total = 1 + num_agents  # the estimate the bar shows
         self.method = search_method(config)
         self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
+        self.phantoms = 0  # phantom obstacles run (ghosts on)
         self.bisections_owed = 0  # bisections run plus those the influential agents' drops still owe
         self.joint = False  # a joint drop has run
         self.approach = False  # the approach phase has run (no drop collided)
@@ -68,6 +70,9 @@ class RolloutProgress:
             if not self.method.batched_heuristic:  # it bisects an agent before dropping the next: those are done
                 self.bisections_owed = self.bisections
             self.bisections_owed += 2 * self.config.heuristic_iterations * row.collided  # batched: after all drops
+            self.influential += row.collided
+        elif phase == Phase.PHANTOM:  # ghosts are on: the phantom obstacles run after the drops
+            self.phantoms += 1
             self.influential += row.collided
         elif phase == Phase.JOINT:  # no single drop collided: the joint drops run, within their own bound
             self.joint = True
@@ -111,7 +116,8 @@ class RolloutProgress:
             return min(left, self.method.still_owed(phase, self._progress()))
         bisections = max(0, self.bisections_owed - self.bisections)
         tail = self.method.still_owed(None, self._progress()) if self.influential else 0
-        return min(left, self.num_agents - self.drops + bisections + tail)
+        phantoms = phantom.worst_case(self.config.errors) - self.phantoms
+        return min(left, self.num_agents - self.drops + phantoms + bisections + tail)
 
     def _progress(self) -> Progress:
         return Progress(run=self.run, began=self.began, random=self.random, refined=self.refined,
@@ -155,7 +161,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
 
     counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], best, progress, say, params.objective)
     problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter,
-                            run_rollouts=getattr(backend, "rollout_many", None))
+                            run_rollouts=getattr(backend, "rollout_many", None), kinds=config.errors.kinds)
     try:
         result = run_search(problem, config)
     finally:

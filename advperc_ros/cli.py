@@ -176,7 +176,8 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     scenario = read_scenario(bag)
     if errors.shape != scenario.agents.shape:
         raise BagError(f"{results / ERRORS}: field 'fn' has shape {errors.shape}, the bag {bag} has {scenario.agents.shape}")
-    problem = AttackProblem(scenario, Stack(scenario, params).rollout, params.objective)
+    problem = AttackProblem(scenario, Stack(scenario, params).rollout, params.objective,
+                            kinds=parse_error_kinds(params.errors.kinds))
     points = robustness_curve(problem, errors, args.strengths, args.samples, np.random.default_rng(args.seed))
     staging = staging_path(table)
     with staging.open("w", newline="") as handle:

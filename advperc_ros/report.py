@@ -88,7 +88,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
             **report_scores(best),
         )
-        costs = kind_costs(outcome.scenario, best, params.objective)
+        costs = kind_costs(outcome.scenario, best, params.objective, parse_error_kinds(params.errors.kinds))
         report["error_kinds"].update(used=list(costs), cost={kind: _finite_or_none(cost) for kind, cost in costs.items()})
     else:
         report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,

@@ -9,6 +9,7 @@ from dataclasses import dataclass
 
 from advperc_ros.core.perception_errors import ErrorSpace
 from advperc_ros.core.search import approach as approach_phase
+from advperc_ros.core.search import phantom
 from advperc_ros.core.search.joint import worst_case
 from advperc_ros.core.search.random_search import RandomSearchConfig
 
@@ -43,13 +44,14 @@ class SearchConfig:
 
 def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: bool = False) -> int:
     """Rollouts the paper's search may run: ground truth, per agent a drop and two bisections, and
-    `after_failure_bound`; and the joint drops' worst case when they run (`joint`: no single drop
-    collided) and the approach phase's when it runs (`approach`: no drop collided), so a search where
-    a drop collides keeps the paper's bound."""
+    `after_failure_bound`; the phantom obstacles when ghosts are on; and the joint drops' worst case
+    when they run (`joint`: no single drop collided) and the approach phase's when it runs
+    (`approach`: no drop collided), so a search of the paper's kinds where a drop collides keeps the
+    paper's bound."""
     joint_worst = worst_case(config.joint_max_agents, num_agents) if joint else 0
     approach_worst = approach_phase.worst_case(config.approach_steps, num_agents) if approach else 0
-    return (1 + num_agents * (1 + 2 * config.heuristic_iterations) + joint_worst + approach_worst
-            + after_failure_bound(config))
+    return (1 + num_agents * (1 + 2 * config.heuristic_iterations) + phantom.worst_case(config.errors) + joint_worst
+            + approach_worst + after_failure_bound(config))
 
 
 def after_failure_bound(config: SearchConfig) -> int:

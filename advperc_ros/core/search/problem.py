@@ -8,7 +8,7 @@ import numpy as np
 
 from advperc_ros.core.metrics.scores import PerceptionScores, score
 from advperc_ros.core.pem import default_pem, features
-from advperc_ros.core.perception_errors import PerceptionErrors, inject
+from advperc_ros.core.perception_errors import PAPER_KINDS, PerceptionErrors, inject
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import BudgetSpent
@@ -24,6 +24,7 @@ class Phase(str, Enum):
     HEURISTIC_START = "heuristic_start"  # Algorithm 1: bisecting the drop's latest start
     HEURISTIC_END = "heuristic_end"  # Algorithm 1: bisecting its earliest end
     JOINT = "joint"  # beyond the paper, when no single drop collides: several agents dropped at once, bisected
+    PHANTOM = "phantom"  # beyond the paper, when ghosts are on: a ghost standing just ahead of the ego
     APPROACH = "approach"  # beyond the paper, when no drop collides: nearby cars shown displaced, towards a collision
     RANDOM = "random"  # Algorithm 2
     REFINE = "refine"  # beyond the paper: re-detecting the start of dropped runs
@@ -36,7 +37,7 @@ class Phase(str, Enum):
     @property
     def heuristic(self) -> bool:
         return self in (Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END,
-                        Phase.JOINT)
+                        Phase.JOINT, Phase.PHANTOM)
 
 
 @dataclass(frozen=True)
@@ -73,24 +74,26 @@ class LogRow:
 
 
 def perception_scores(scenario: Scenario, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray,
-                      phi: np.ndarray | None = None) -> PerceptionScores:
+                      phi: np.ndarray | None = None, kinds: tuple[str, ...] = PAPER_KINDS) -> PerceptionScores:
     """m(I(y, e), y) over the first `frames` frames of a rollout of `scenario` whose ego was at ego_xy;
-    PEM LL under the shipped model for the kinds `errors` has (a search beyond the paper's kinds is
-    judged by the model whose terms cover ghosts, flips, velocities, sizes and latency)."""
+    PEM LL under the shipped model for the error `kinds` the search may use (and any `errors` has): a
+    search beyond the paper's kinds is judged by the model whose terms cover ghosts, flips,
+    velocities, sizes and latency, whichever kinds its attack ends up using (a pure drop included)."""
     agents = scenario.agents
     # inject over the whole scenario first: a detection's confidence depends on its frame and
     # agent only, never on where this rollout stopped
     return score(agents.frames(frames), inject(agents, errors).frames(frames), ego_xy,
-                 pem=default_pem(errors.kinds), phi=phi)
+                 pem=default_pem((*kinds, *errors.kinds)), phi=phi)
 
 
-def kind_costs(scenario: Scenario, evaluation: Evaluation, objective: str) -> dict[str, float]:
+def kind_costs(scenario: Scenario, evaluation: Evaluation, objective: str,
+               kinds: tuple[str, ...] = PAPER_KINDS) -> dict[str, float]:
     """Per error kind the attack uses, what it costs the objective: the objective on the attack's rollout
     with that kind's errors taken out, less the attack's own (a drop taken out shows the car, perfectly
-    unless another kind's error is on it)."""
+    unless another kind's error is on it); `kinds`: the search's, as `perception_scores` takes them."""
     rollout = evaluation.rollout
     return {kind: getattr(perception_scores(scenario, evaluation.errors.without(kind), rollout.num_frames,
-                                            rollout.ego_xy), objective) - evaluation.metric
+                                            rollout.ego_xy, kinds=kinds), objective) - evaluation.metric
             for kind in evaluation.errors.used_kinds(rollout.num_frames)}
 
 
@@ -105,6 +108,7 @@ class AttackProblem:
     # several rollouts at once (a backend's worker pool); None: one after another
     run_rollouts: Callable[[list[PerceptionErrors]], list[RolloutResult]] | None = None
     budget: int | None = None  # rollouts allowed; one more raises BudgetSpent
+    kinds: tuple[str, ...] = PAPER_KINDS  # the error kinds the search may use: PEM LL's model (`perception_scores`)
     log: list[LogRow] = field(default_factory=list)
     best: Evaluation | None = None
     _reference: RolloutResult | None = field(default=None, repr=False)
@@ -130,7 +134,7 @@ class AttackProblem:
 
     def scores(self, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray, phi=None) -> PerceptionScores:
         """m(I(y, e), y) over the first `frames` frames of a rollout whose ego was at ego_xy."""
-        return perception_scores(self.scenario, errors, frames, ego_xy, phi)
+        return perception_scores(self.scenario, errors, frames, ego_xy, phi, self.kinds)
 
     def metric(self, errors: PerceptionErrors, reference: RolloutResult) -> float:
         """The objective of errors judged on a previous rollout's ground truth (Algorithm 2)."""

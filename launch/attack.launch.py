@@ -42,6 +42,7 @@ from launch import LaunchDescription
 PACKAGE = "advperc_ros"
 ARGUMENTS = ("params", "planner", "tracker", "output", "resume", "interface", "drive")
 CHOICES = {"interface": tuple(INTERFACES), "drive": SCHEMA["graph.drive"].choices}  # overriding graph.<argument>  # every launch argument this file declares
+ORCHESTRATOR_GRACE = 30  # s between a Ctrl-C and launch's SIGTERM to the orchestrator (launch's default: 5)
 
 
 def _exit_with(code: int) -> None:
@@ -111,8 +112,10 @@ def _graph(context, *args, **kwargs):
         raise _refuse(f"launch argument 'resume' must be true or false, got {resume!r}")
     if resume == "true":
         overrides["resume"] = True
+    # on Ctrl-C the orchestrator keeps its checkpoint and stops the search before it exits with 130; launch's
+    # 5 s before SIGTERM was not always enough on a loaded machine, and the launch then ended with 143
     orchestrator = Node(package=PACKAGE, executable="orchestrator", name="orchestrator", output="screen",
-                        parameters=[params_file, overrides])
+                        parameters=[params_file, overrides], sigterm_timeout=str(ORCHESTRATOR_GRACE))
     stop_with_orchestrator = RegisterEventHandler(OnProcessExit(target_action=orchestrator, on_exit=_orchestrator_exited))
     return [*nodes, orchestrator, stop_with_orchestrator]
 

@@ -113,3 +113,26 @@ def test_a_checkpoint_only_finishes_its_own_attack(uninterrupted, tmp_path):
     resumed = _attack(other, "--resume", str(output))
     _, err = resumed.communicate(timeout=60)
     assert resumed.returncode == 2 and "other params" in err
+
+
+def test_an_attack_killed_among_its_phantom_obstacles_resumes_to_the_uninterrupted_report(tmp_path):
+    """With every error kind on, the phantom obstacles roll out after the drops: a kill once the first
+    of them is checkpointed loses none, and the resume writes the uninterrupted report."""
+    params = write_params(tmp_path / "p.yaml", REPO)
+    whole = _attack(params, "--errors", "all", "--output", str(tmp_path / "whole"))
+    _, err = whole.communicate(timeout=600)
+    assert whole.returncode == 0, err
+    phases = [line.split(",")[1] for line in (tmp_path / "whole" / "search_log.csv").read_text().splitlines()[1:]]
+    first_phantom = phases.index("phantom")
+    output = tmp_path / "run"
+    run = _attack(params, "--errors", "all", "--output", str(output))
+    deadline = time.monotonic() + 300
+    while _kept_rollouts(output) <= first_phantom and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    run.send_signal(signal.SIGKILL)
+    run.wait(timeout=60)
+    assert not output.exists() and _kept_rollouts(output) > first_phantom  # killed after a phantom, before the end
+    resumed = _attack(params, "--errors", "all", "--resume", str(output))
+    _, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err
+    assert _report(output) == _report(tmp_path / "whole")

@@ -113,6 +113,10 @@ DDS_MODULES = {"test_dds", "test_graph"}
 ROS_MODULES = {"test_ros2", "test_orchestrator_node"}
 LONGEST_TEST = "test_readme_ros_section_runs_as_written"
 SLOW_TO_FAIL_TEST = "test_a_launch_whose_planner_never_answers_exits_4_naming_who_is_silent"  # the warm-up's minute
+# one worker for these, in a workspace of its own (a build takes seconds), the others for ros_workspace and ros: with
+# ROS 2 sourced the three take 350-420 s each (`--durations=0`), where ros_workspace alone took 465 s
+README_WORKER_TESTS = (LONGEST_TEST, SLOW_TO_FAIL_TEST,
+                       "test_ros2_run_with_the_graph_backend_shows_the_whole_graph_and_gives_the_embedded_report")
 
 
 # The groups that take a worker longest, longest first (`--durations=0` with ROS 2 sourced); the rest take
@@ -124,7 +128,7 @@ LONGEST_GROUPS = ("ros_workspace", "ros_readme", "ros", "dds", "test_junction_sc
 
 def _xdist_group(item) -> str:
     module = item.module.__name__.rpartition(".")[2]
-    if item.originalname in (LONGEST_TEST, SLOW_TO_FAIL_TEST):  # one worker for them, the other for ros_workspace
+    if item.originalname in README_WORKER_TESTS:
         return "ros_readme"
     if "workspace" in item.fixturenames:  # `ros2 launch` and `ros2 run` in a colcon workspace: the long ones
         return "ros_workspace"

@@ -562,8 +562,9 @@ def test_launch_file_builds_the_graph():
 
 def test_two_graph_searches_on_one_domain_give_their_solo_reports(tmp_path):
     """Each spawned graph talks in a DDS partition of its own, so the same params (same domain
-    id) run twice at once give the report one run alone gives."""
-    params = params_for(tmp_path)
+    id) run twice at once give the report one run alone gives (a search of 8 rollouts: what is compared is
+    the partitions, not the search)."""
+    params = params_for(tmp_path, **{"search.budget": 8})
     solo = tmp_path / "solo"
     assert advperc(["attack", str(params), "--output", str(solo), "--quiet", "--backend", "embedded"]) == 0
     runs = [subprocess.Popen([sys.executable, "-m", "advperc_ros.cli", "attack", str(params), "--output",

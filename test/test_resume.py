@@ -117,8 +117,9 @@ def test_a_checkpoint_only_finishes_its_own_attack(uninterrupted, tmp_path):
 
 def test_an_attack_killed_among_its_phantom_obstacles_resumes_to_the_uninterrupted_report(tmp_path):
     """With every error kind on, the phantom obstacles roll out after the drops: a kill once the first
-    of them is checkpointed loses none, and the resume writes the uninterrupted report."""
-    params = write_params(tmp_path / "p.yaml", REPO)
+    of them is checkpointed loses none, and the resume writes the uninterrupted report. The budget ends the
+    search two rollouts after them (idm_lane_following: 12 rollouts of drops, then the 8 phantoms)."""
+    params = write_params(tmp_path / "p.yaml", REPO, **{"search.budget": 22})
     whole = _attack(params, "--errors", "all", "--output", str(tmp_path / "whole"))
     _, err = whole.communicate(timeout=600)
     assert whole.returncode == 0, err

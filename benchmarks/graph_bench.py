@@ -14,7 +14,9 @@ distances; then one ratio per scenario and backend (total time over total embedd
 rollouts) against the issue's goal for its planner, beside two floors measured in the same run:
 the hops' (hop_cost.py's round trip over the backend's transport, `--hops` ping-pongs, for the 4
 hops a frame waits for in sequence, added to the embedded frame) and the CPU's (all the graph's
-processes' CPU time spread perfectly over the machine's cores). All DDS traffic stays on loopback
+processes' CPU time spread perfectly over the machine's cores); and each node's CPU time against the
+embedded rollout's, with the sum of the four a frame passes one after another (player, injector,
+tracker, planner), which no number of cores brings under: the sequence's floor. All DDS traffic stays on loopback
 (the rclpy graph relies on ../shared/ros2/activate.sh's CYCLONEDDS_URI). The load average is
 printed too: on a shared machine the ratios move with it.
 """
@@ -60,8 +62,14 @@ def _cpu_seconds(pids: list[int]) -> float:
     return total / os.sysconf("SC_CLK_TCK")
 
 
-def _node_pids(graph: GraphRollouts) -> list[int]:
-    return [process.pid for process in graph.processes.running.values()] or graph.node_pids
+# the nodes a frame passes one after another (the rule monitor and the orchestrator work beside them): their CPU
+# time cannot overlap within a frame, so over any number of cores a rollout takes at least its sum
+IN_SEQUENCE = ("scenario_player", "error_injector", "tracker", "planner")
+
+
+def _node_pids(graph: GraphRollouts) -> dict[str, int]:
+    """The graph's node processes by node name (ours, or the rclpy ones `rclpy_graph` started)."""
+    return {name: process.pid for name, process in graph.processes.running.items()} or graph.node_pids
 
 
 @contextlib.contextmanager
@@ -86,7 +94,7 @@ def rclpy_graph(scenario, params, bag: Path, domain_id: int) -> Iterator[GraphRo
             node = Node("graph_bench")
             with GraphRollouts(scenario, params.with_values(**{"graph.spawn_nodes": False}), bag,
                                RclpyTransport(node)) as graph:
-                graph.node_pids = [process.pid for process in nodes]  # not ours to restart, but to measure
+                graph.node_pids = {spec.name: process.pid for spec, process in zip(SPECS, nodes)}  # to measure
                 yield graph
         finally:
             rclpy.try_shutdown()
@@ -147,6 +155,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                     else rclpy_graph(scenario, params, bag, domain_id + 1))
                 startup[backend] = time.perf_counter() - started
             cpu = {"embedded": 0.0, **{backend: 0.0 for backend in backends}}  # CPU s of the rollouts, all processes
+            per_node = {backend: dict.fromkeys((spec.name for spec in SPECS), 0.0) for backend in backends}
             for label, errors in cases.items():
                 times: dict[str, list[float]] = {"embedded": [], **{b: [] for b in backends}}
                 results = {}
@@ -157,19 +166,25 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                     times["embedded"].append(seconds)
                     for backend, graph in graphs.items():
                         pids = _node_pids(graph)
-                        before = _cpu_seconds(pids) + time.process_time()
+                        nodes_before = {node: _cpu_seconds([pid]) for node, pid in pids.items()}
+                        before = time.process_time()
                         seconds, results[backend] = _timed(graph.rollout, errors)
-                        cpu[backend] += _cpu_seconds(pids) + time.process_time() - before
+                        nodes_used = {node: _cpu_seconds([pid]) - nodes_before[node] for node, pid in pids.items()}
+                        cpu[backend] += sum(nodes_used.values()) + time.process_time() - before
+                        for node, used in nodes_used.items():
+                            per_node[backend][node] += used
                         times[backend].append(seconds)
                 median = {key: statistics.median(values) for key, values in times.items()}
                 for backend in backends:
                     rows.append({"scenario": name, "planner": params.planner, "backend": backend, "errors": label,
                                  "cpu_s": cpu[backend], "embedded_cpu_s": cpu["embedded"],
+                                 "node_cpu_s": per_node[backend],
                                  "frames": results[backend].num_frames, "embedded_s": median["embedded"],
                                  "graph_s": median[backend], "ratio": median[backend] / median["embedded"],
                                  "max_difference": _difference(results[backend], embedded),
                                  "startup_s": startup[backend]})
                 cpu = dict.fromkeys(cpu, 0.0)
+                per_node = {backend: dict.fromkeys(nodes, 0.0) for backend, nodes in per_node.items()}
                 mine = rows[-len(backends):]
                 print(f"{name:22s} {label:12s} {mine[0]['frames']:6d} {median['embedded']:10.3f} "
                       + " ".join(f"{r['graph_s']:9.3f} {r['ratio']:6.2f} {r['max_difference']:8.1e}" for r in mine))
@@ -189,8 +204,12 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
             # the CPU's floor: the graph's CPU work spread perfectly over this machine's cores, against the
             # embedded rollout's CPU time (CPU, not wall time: other load on the machine cancels out)
             work = sum(row["cpu_s"] for row in mine) / sum(row["embedded_cpu_s"] for row in mine)
+            embedded_cpu = sum(row["embedded_cpu_s"] for row in mine)
+            nodes = {node: sum(row["node_cpu_s"][node] for row in mine) / embedded_cpu for node in mine[0]["node_cpu_s"]}
+            sequence = sum(nodes[node] for node in IN_SEQUENCE)
             print(f"{name:22s} {backend:8s} {ratio:5.2f}x{verdict}{hop_floor}; CPU {work:.2f}x the embedded rollout's, "
-                  f"over {os.cpu_count()} cores a floor of {work / (os.cpu_count() or 1):.2f}x")
+                  f"over {os.cpu_count()} cores a floor of {work / (os.cpu_count() or 1):.2f}x; the nodes in sequence "
+                  f"{sequence:.2f}x (" + ", ".join(f"{node} {share:.2f}" for node, share in nodes.items()) + ")")
     return rows
 
 

@@ -154,9 +154,9 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                     GraphRollouts(scenario, params, bag) if backend == "cyclone"
                     else rclpy_graph(scenario, params, bag, domain_id + 1))
                 startup[backend] = time.perf_counter() - started
-            cpu = {"embedded": 0.0, **{backend: 0.0 for backend in backends}}  # CPU s of the rollouts, all processes
-            per_node = {backend: dict.fromkeys((spec.name for spec in SPECS), 0.0) for backend in backends}
             for label, errors in cases.items():
+                cpu = {"embedded": 0.0, **{backend: 0.0 for backend in backends}}  # CPU s of the rollouts, all processes
+                per_node = {backend: dict.fromkeys((spec.name for spec in SPECS), 0.0) for backend in backends}
                 times: dict[str, list[float]] = {"embedded": [], **{b: [] for b in backends}}
                 results = {}
                 for _ in range(repeats):
@@ -183,8 +183,6 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                                  "graph_s": median[backend], "ratio": median[backend] / median["embedded"],
                                  "max_difference": _difference(results[backend], embedded),
                                  "startup_s": startup[backend]})
-                cpu = dict.fromkeys(cpu, 0.0)
-                per_node = {backend: dict.fromkeys(nodes, 0.0) for backend, nodes in per_node.items()}
                 mine = rows[-len(backends):]
                 print(f"{name:22s} {label:12s} {mine[0]['frames']:6d} {median['embedded']:10.3f} "
                       + " ".join(f"{r['graph_s']:9.3f} {r['ratio']:6.2f} {r['max_difference']:8.1e}" for r in mine))
@@ -203,8 +201,8 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                          if backend in round_trip else "")
             # the CPU's floor: the graph's CPU work spread perfectly over this machine's cores, against the
             # embedded rollout's CPU time (CPU, not wall time: other load on the machine cancels out)
-            work = sum(row["cpu_s"] for row in mine) / sum(row["embedded_cpu_s"] for row in mine)
             embedded_cpu = sum(row["embedded_cpu_s"] for row in mine)
+            work = sum(row["cpu_s"] for row in mine) / embedded_cpu
             nodes = {node: sum(row["node_cpu_s"][node] for row in mine) / embedded_cpu for node in mine[0]["node_cpu_s"]}
             sequence = sum(nodes[node] for node in IN_SEQUENCE)
             print(f"{name:22s} {backend:8s} {ratio:5.2f}x{verdict}{hop_floor}; CPU {work:.2f}x the embedded rollout's, "

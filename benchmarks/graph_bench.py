@@ -12,11 +12,12 @@ the median times, their ratios to embedded, each graph's start-up time (processe
 warm-up rollout) and the largest difference from the embedded ego trajectories and signed
 distances; then one ratio per scenario and backend (total time over total embedded time of its
 rollouts) against the issue's goal for its planner, beside two floors measured in the same run:
-the hops' (hop_cost.py's round trip over the backend's transport, `--hops` ping-pongs, for the 4
+the hops' (hop_cost.py's round trip over the backend's transport, `--hops` ping-pongs, for the 2
 hops a frame waits for in sequence, added to the embedded frame) and the CPU's (all the graph's
 processes' CPU time spread perfectly over the machine's cores); and each node's CPU time against the
-embedded rollout's, with the sum of the four a frame passes one after another (player, injector,
-tracker, planner), which no number of cores brings under: the sequence's floor. All DDS traffic stays on loopback
+embedded rollout's, with the sum of the two a frame passes one after another (player, planner: the
+injector and the tracker work a frame ahead, beside the planner), which no number of cores brings
+under: the sequence's floor. All DDS traffic stays on loopback
 (the rclpy graph relies on ../shared/ros2/activate.sh's CYCLONEDDS_URI). The load average is
 printed too: on a shared machine the ratios move with it.
 """
@@ -62,9 +63,10 @@ def _cpu_seconds(pids: list[int]) -> float:
     return total / os.sysconf("SC_CLK_TCK")
 
 
-# the nodes a frame passes one after another (the rule monitor and the orchestrator work beside them): their CPU
-# time cannot overlap within a frame, so over any number of cores a rollout takes at least its sum
-IN_SEQUENCE = ("scenario_player", "error_injector", "tracker", "planner")
+# the nodes a frame passes one after another: their CPU time cannot overlap within a frame, so over any number
+# of cores a rollout takes at least its sum. With the ground truth a frame ahead (our nodes, driven by messages)
+# the injector and the tracker work on the next frame beside the planner, as the rule monitor does
+IN_SEQUENCE = ("scenario_player", "planner")
 
 
 def _node_pids(graph: GraphRollouts) -> dict[str, int]:
@@ -195,7 +197,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
             ratio = sum(row["graph_s"] for row in mine) / sum(row["embedded_s"] for row in mine)
             goal = GOALS.get((backend, mine[0]["planner"]))
             verdict = f" (goal <= {goal:g}x: {'met' if ratio <= goal else 'NOT met'})" if goal else ""
-            # the hops' floor: the embedded frame plus the 4 hops a frame waits for in sequence
+            # the hops' floor: the embedded frame plus the hops a frame waits for in sequence
             frame = statistics.fmean(row["embedded_s"] / row["frames"] for row in mine)
             hop_floor = (f"; hops' floor {1 + hop_cost.HOPS_IN_SEQUENCE * round_trip[backend] / 2 / frame:.2f}x"
                          if backend in round_trip else "")

@@ -15,10 +15,11 @@ flight), doing no work of its own, over each transport:
 Printed per transport: the relay's CPU time per message received and sent (wake-up, take,
 callback, publish) and the round trip's wall time. A graph frame is 8 such receptions across the
 five nodes (player 2, injector 1, tracker 1, planner 2, rule monitor 2; the orchestrator takes
-its 2 per-frame messages without waking for them), 4 of them in sequence (player -> injector ->
-tracker -> planner -> player): 8 x the CPU per message is about what the transport costs a frame
-in CPU, 4 x half the round trip what it adds to the frame's wall time, against the embedded
-rollout's whole frame (about 0.8 ms on idm_lane_following). All traffic stays on loopback.
+its 2 per-frame messages without waking for them), 2 of them in sequence (player -> planner ->
+player: with the ground truth a frame ahead, the injector and the tracker work on the next frame
+beside the planner): 8 x the CPU per message is about what the transport costs a frame in CPU,
+2 x half the round trip what it adds to the frame's wall time, against the embedded rollout's
+whole frame (about 0.8 ms on idm_lane_following). All traffic stays on loopback.
 """
 
 import argparse
@@ -38,7 +39,9 @@ from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 PING, PONG = "/advperc_bench/ping", "/advperc_bench/pong"
 KINDS = ("cyclone", "rclpy", "rclpy-executor")
 RECEPTIONS_PER_FRAME = 8
-HOPS_IN_SEQUENCE = 4
+# the hops a frame waits for one after another: the odometry to the planner and the plan back to the player
+# (with the ground truth a frame ahead, the injector's and the tracker's hops run beside the planner)
+HOPS_IN_SEQUENCE = 2
 # what a ping says, in its std_msgs/String: the warm-up's may be answered late or twice, so they are
 # neither timed nor counted; the stop ends the relay
 WARM_UP, MEASURED, STOP = "warm-up", "x" * 64, "stop"

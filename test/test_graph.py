@@ -123,9 +123,47 @@ def assert_same_rollout(graph, embedded) -> None:
 def test_error_tensor_round_trips_exactly_through_json(scenario):
     errors = lead_drop(scenario)
     ids = scenario.agents.ids[0]
-    back = lockstep.parse_errors(lockstep.errors_message(lockstep.RolloutErrors(7, errors, ids, scenario.stamps_ns)))
-    assert back.rollout == 7 and back.errors.equals(errors)
+    back = lockstep.parse_errors(lockstep.errors_message(lockstep.RolloutErrors(7, errors, ids, scenario.stamps_ns, True)))
+    assert back.rollout == 7 and back.errors.equals(errors) and back.ahead is True
     assert np.array_equal(back.agent_ids, ids) and np.array_equal(back.stamps_ns, scenario.stamps_ns)
+
+
+def test_running_ahead_is_the_orchestrator_s_word_and_off_unless_said():
+    """`ahead` travels from the errors to the ready message; a sender that does not say it means no."""
+    import json as json_module
+
+    for ahead in (True, False):
+        assert lockstep.parse_ready(lockstep.ready_message(lockstep.RolloutReady(4, ahead))) == lockstep.RolloutReady(4, ahead)
+    silent = lockstep.msgs.string(json_module.dumps({"rollout": 4}))
+    assert lockstep.parse_ready(silent) == lockstep.RolloutReady(4, False)
+    with pytest.raises(lockstep.MessageError, match="'ahead' must be bool"):
+        lockstep.parse_ready(lockstep.msgs.string(json_module.dumps({"rollout": 4, "ahead": 1})))
+
+
+def test_a_stream_that_starts_again_drops_what_it_left_unpaired():
+    """With the ground truth a frame ahead, a rollout that ended at frame k leaves tracks stamped
+    t_{k+1} in flight; they may reach the planner after the next rollout's first odometry. The
+    tracks stream's own restart (t_0 after t_{k+1}) drops them, so the next rollout's odometry of
+    t_{k+1} pairs with that rollout's tracks, never with the stale ones."""
+    answered = []
+    pairs = lockstep.StampPairs(lambda stamp, tracks, ego: answered.append((stamp, tracks, ego)))
+    for stamp in (0, 100):  # rollout 1: frames 0 and 1, then tracks of frame 2 ahead, unpaired at its end
+        pairs.put(0, stamp, f"old tracks {stamp}")
+        pairs.put(1, stamp, f"old ego {stamp}")
+        pairs.clock.answer(stamp)
+    pairs.put(0, 200, "old tracks 200")
+    answered.clear()
+    pairs.put(1, 0, "new ego 0")  # rollout 2 begins on the odometry stream
+    pairs.put(0, 200, "old tracks 200")  # the stale tracks arrive late
+    pairs.put(0, 0, "new tracks 0")  # the tracks stream starts again
+    pairs.clock.answer(0)
+    pairs.put(1, 100, "new ego 100")
+    pairs.put(0, 100, "new tracks 100")
+    pairs.clock.answer(100)
+    pairs.put(1, 200, "new ego 200")  # before its tracks: it must wait for them
+    assert [stamp for stamp, _, _ in answered] == [0, 100]
+    pairs.put(0, 200, "new tracks 200")
+    assert answered[-1] == (200, "new tracks 200", "new ego 200")
 
 
 def test_rule_diagnostics_carry_every_agent_exactly():
@@ -226,6 +264,7 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
     params = load_params(params_for(tmp_path))
     stack = Stack(scenario, params)
     with GraphRollouts(scenario, params, BAG) as graph:
+        assert graph.perception_ahead  # our nodes, driven by messages: the ground truth runs a frame ahead
         assert sorted(graph.processes.running) == sorted(("scenario_player", "error_injector", "tracker", "planner", "rule_monitor"))
         assert len({p.pid for p in graph.processes.running.values()} | {os.getpid()}) == 6
         truth = PerceptionErrors.none(*scenario.agents.shape)
@@ -282,6 +321,7 @@ def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path
     stack = Stack(scenario, params)
     attack = lead_drop(scenario)
     with GraphRollouts(scenario, params, BAG) as graph:
+        assert graph.perception_ahead is (drive == "messages")  # a clock-driven planner gets each frame in turn
         result = graph.rollout(attack, record=True)
     embedded = stack.rollout(attack, record=True)
     assert_same_rollout(result, embedded)

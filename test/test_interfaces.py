@@ -255,11 +255,12 @@ class _Recorder:
         self.callbacks[topic] = callback
 
 
-def _three_frames(profile_name: str, transport=None, said=None):
+def _three_frames(profile_name: str, transport=None, said=None, ahead=False):
     """The player of idm_lane_following under a profile, through three frames whose plans speed the ego up,
-    hold and brake; (its transport, the frame stamps). `said` keeps its warnings."""
+    hold and brake; (its transport, the frame stamps). `said` keeps its warnings; `ahead`: the ready
+    message lets it run the ground truth a frame ahead."""
     from advperc_ros.nodes.scenario_player import ScenarioPlayer
-    from advperc_ros.ros.lockstep import ready_message, rule_diagnostics
+    from advperc_ros.ros.lockstep import RolloutReady, ready_message, rule_diagnostics
     from advperc_ros.ros.topics import READY, RULE_DIAGNOSTICS
 
     bag = Path(__file__).resolve().parent.parent / "bags" / "idm_lane_following"
@@ -270,7 +271,7 @@ def _three_frames(profile_name: str, transport=None, said=None):
     player = ScenarioPlayer(transport, bag, True, 10.0, profile, False, logger, (4.6, 1.9))
     stamps = [int(s) for s in player.scenario.stamps_ns]
     start = player.scenario.ego_start
-    transport.callbacks[READY](ready_message(1))
+    transport.callbacks[READY](ready_message(RolloutReady(1, ahead)))
     for k, speed in enumerate([start.v + 0.5, start.v + 0.5, start.v - 1.0]):
         t = np.array([0.0, 0.1, 0.2, 2.0]) + (stamps[k] - stamps[0]) * 1e-9
         x = start.x + speed * (t - t[0]) + k
@@ -278,6 +279,40 @@ def _three_frames(profile_name: str, transport=None, said=None):
         transport.callbacks[RULE_DIAGNOSTICS](rule_diagnostics(stamps[k], np.array([1]), np.array([9.0])))
         transport.callbacks[profile.plan.topic](profile.plan.encode(plan, stamps[k]))
     return transport, stamps
+
+
+class _Ordered(_Recorder):
+    """A _Recorder that also keeps the order of everything published, across topics."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.order: list[str] = []
+
+    def publisher(self, topic, msgtype, latched=False):
+        sent = self.published.setdefault(topic, [])
+
+        def publish(data):
+            sent.append(data)
+            self.order.append(topic)
+        return type("Publisher", (), {"publish": staticmethod(publish)})()
+
+
+def test_ahead_the_player_publishes_the_next_frame_s_ground_truth_after_the_ego():
+    """Told `ahead`, the player sends frame k+1's ground truth with frame k, after the odometry the
+    planner waits for; the ego it drives is the same as in turn, frame for frame."""
+    from advperc_ros.ros import cdr
+
+    in_turn, stamps = _three_frames("advperc")
+    ahead, _ = _three_frames("advperc", transport=_Ordered(), ahead=True)
+
+    def truth_stamps(transport):
+        return [cdr.decode_objects(data, "test")[0] for data in transport.published["/ground_truth/objects"]]
+    assert truth_stamps(in_turn) == stamps[:4]  # frames 0-3: three answered, the fourth published
+    assert truth_stamps(ahead) == stamps[:5]  # and frame 4's, ahead
+    assert ahead.published["/ego/odometry"] == in_turn.published["/ego/odometry"]
+    per_frame = [topic for topic in ahead.order if topic in ("/ground_truth/objects", "/ego/odometry")]
+    assert per_frame == ["/ground_truth/objects", "/ego/odometry", "/ground_truth/objects"] + \
+        ["/ego/odometry", "/ground_truth/objects"] * 3
 
 
 def test_under_autoware_the_player_publishes_the_ego_s_acceleration_as_its_speed_changes():

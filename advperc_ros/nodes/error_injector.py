@@ -19,7 +19,7 @@ from advperc_ros.core.perception_errors import inject_frame
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros.interfaces.base import ObjectsLayer
 from advperc_ros.ros.interfaces.registry import load_profile
-from advperc_ros.ros.lockstep import RolloutErrors, parse_errors, ready_message
+from advperc_ros.ros.lockstep import RolloutErrors, RolloutReady, parse_errors, ready_message
 from advperc_ros.ros.topics import CONTROL_TYPE, ERRORS, GROUND_TRUTH, READY, TOPIC_TYPES
 from advperc_ros.ros.transport import Transport
 
@@ -44,7 +44,7 @@ class ErrorInjector:
         self._frames = {int(stamp): k for k, stamp in enumerate(rollout.stamps_ns)}
         self._history = BoxSequence.empty(*rollout.errors.shape)
         self._history.ids[:] = rollout.agent_ids
-        self._ready.publish(ready_message(rollout.rollout))
+        self._ready.publish(ready_message(RolloutReady(rollout.rollout, rollout.ahead)))
 
     def on_ground_truth(self, data: bytes) -> None:
         stamp, truth = ground_truth_objects(data)

@@ -3,7 +3,12 @@
 On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lockstep:
 
 1. publish frame k: /clock, /ground_truth/objects (the bag's own message) and /ego/odometry, all
-   stamped t_k (frame 0: the bag's own start odometry, restamped t_0);
+   stamped t_k (frame 0: the bag's own start odometry, restamped t_0). When the rollout's ready
+   message says `ahead` (our tracker and planner, driven by messages), the ground truth runs one
+   frame ahead of the ego: frame 0 comes with the ground truth of frame 1, and frame k with that of
+   frame k+1 (published after the odometry, which the planner waits for), so that the injector and
+   the tracker work on frame k+1 while the planner plans frame k. Nothing the nodes compute depends
+   on the ego but the plan and the rule value, so the results are the same;
 2. wait for the rule value (/rules/diagnostics stamped t_k) and the plan (/planning/trajectory
    stamped t_k); messages with other stamps are ignored. Waiting for both at every published
    frame, even when the rollout ends there, leaves no answer in flight when it ends.
@@ -62,6 +67,7 @@ class _Run:
     rollout: int
     frame: int
     deadline: float
+    ahead: bool = False  # the ground truth runs one frame ahead of the ego (the ready message's word)
     ego_xy: tuple[float, float] = (0.0, 0.0)  # where the ego is at this frame (a plan without times is timed from it)
     speed: float = 0.0  # the ego's speed at this frame (its change is the acceleration a stack may read)
     clocked: bool = True  # /clock shows this frame's time (drive: clock sets it once the frame's tracks are out)
@@ -126,15 +132,16 @@ class ScenarioPlayer:
         return self._run
 
     def _publish_frame(self, frame: int, odometry: bytes) -> None:
+        run = self._running()
         stamp = self._stamp(frame)
         if not self._by_clock:
             self._pub[CLOCK].publish(cdr.encode_clock(stamp))
         elif frame == 0:
             self._pub[CLOCK].publish(cdr.encode_clock(self._stamp(-1)))
-        self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
+        if frame == 0 or not run.ahead:  # ahead, frame k's ground truth went out with frame k-1
+            self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
         for publisher in self._ego:
             publisher.publish(odometry)
-        run = self._running()
         ego = msgs.ego_from_cdr(odometry, ODOMETRY)[1]
         if self._acceleration is not None:  # the speed's change over the last frame (0 at the start)
             rate = 0.0 if frame == 0 else (ego.v - run.speed) / ((stamp - self._stamp(frame - 1)) * 1e-9)
@@ -147,12 +154,15 @@ class ScenarioPlayer:
         run.ego_xy = (ego.x, ego.y)
         run.rule = run.plan = None
         run.deadline = time.monotonic() + self._timeout
+        if run.ahead and frame + 1 < self.scenario.num_frames:
+            self._pub[GROUND_TRUTH].publish(self._ground_truth[frame + 1])
 
     def on_ready(self, msg: Any) -> None:
-        rollout = parse_ready(msg)
+        ready = parse_ready(msg)
         if self._run is not None:
-            self._finish(Status.INCONCLUSIVE, f"frame {self._run.frame}: superseded by rollout {rollout}", timeout=True)
-        self._run = _Run(rollout, 0, 0.0)
+            self._finish(Status.INCONCLUSIVE, f"frame {self._run.frame}: superseded by rollout {ready.rollout}",
+                         timeout=True)
+        self._run = _Run(ready.rollout, 0, 0.0, ahead=ready.ahead)
         self._publish_frame(0, self._start)
 
     def on_tracks(self, data: bytes) -> None:

@@ -5,10 +5,15 @@ written with `repr` by the json module and so round-trip exactly):
 
 | topic | QoS | from -> to | JSON |
 |---|---|---|---|
-| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn"}, and the arrays of each extended error kind on (`core.perception_errors.EXTENDED_KINDS`) |
-| /attack/ready | volatile | injector -> player | {"rollout"}: the injector holds that rollout's errors |
+| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn", "ahead"}, and the arrays of each extended error kind on (`core.perception_errors.EXTENDED_KINDS`) |
+| /attack/ready | volatile | injector -> player | {"rollout", "ahead"}: the injector holds that rollout's errors |
 | /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout"} |
 | /attack/nodes | latched | every graph node -> orchestrator | {"node", "pid"}: the node is up, its topics created |
+
+`ahead` (optional, false when absent) lets the player publish each frame's ground truth one frame
+ahead of the ego, so that the injector and the tracker work on frame k+1 while the planner plans
+frame k (docs/graph.md, "Perception one frame ahead"); the orchestrator sets it only when the
+planner and the tracker are ours and the planner is driven by messages.
 
 `timeout` in /attack/done is true when the rollout is inconclusive because the graph failed to
 answer (a node died or went silent), as opposed to the planner's own failure; the orchestrator
@@ -54,12 +59,22 @@ class Status(str, Enum):
 
 @dataclass(frozen=True)
 class RolloutErrors:
-    """The error tensor of one rollout, with what places it: agent id per slot, stamp per frame."""
+    """The error tensor of one rollout, with what places it (agent id per slot, stamp per frame) and
+    whether the player may run the ground truth one frame ahead of the ego (`ahead`)."""
 
     rollout: int
     errors: PerceptionErrors
     agent_ids: np.ndarray  # (N,) int64
     stamps_ns: np.ndarray  # (T,) int64
+    ahead: bool = False
+
+
+@dataclass(frozen=True)
+class RolloutReady:
+    """The injector holds rollout `rollout`'s errors; `ahead` is the orchestrator's word, passed on."""
+
+    rollout: int
+    ahead: bool
 
 
 @dataclass(frozen=True)
@@ -78,6 +93,7 @@ def errors_message(item: RolloutErrors):
         "agent_ids": item.agent_ids.tolist(),
         "stamps_ns": item.stamps_ns.tolist(),
         **{name: array.tolist() for name, array in e.arrays().items()},
+        "ahead": item.ahead,
     }))
 
 
@@ -139,15 +155,21 @@ def parse_errors(msg) -> RolloutErrors:
         errors = PerceptionErrors.from_arrays(arrays)
     except ValueError as exc:
         raise MessageError(f"{ERRORS}: {exc}") from None
-    return RolloutErrors(_field(data, ERRORS, "rollout", int), errors, agent_ids, stamps)
+    return RolloutErrors(_field(data, ERRORS, "rollout", int), errors, agent_ids, stamps, _ahead(data, ERRORS))
 
 
-def ready_message(rollout: int):
-    return msgs.string(json.dumps({"rollout": rollout}))
+def _ahead(data: dict, topic: str) -> bool:
+    """The optional `ahead` of a control message: false when absent (a sender that predates it)."""
+    return "ahead" in data and _field(data, topic, "ahead", bool)
 
 
-def parse_ready(msg) -> int:
-    return _field(_json_object(msg, READY), READY, "rollout", int)
+def ready_message(ready: RolloutReady):
+    return msgs.string(json.dumps({"rollout": ready.rollout, "ahead": ready.ahead}))
+
+
+def parse_ready(msg) -> RolloutReady:
+    data = _json_object(msg, READY)
+    return RolloutReady(_field(data, READY, "rollout", int), _ahead(data, READY))
 
 
 def presence_message(node: str, pid: int):
@@ -252,19 +274,41 @@ class RolloutClock:
         return first, (stamp - self._origin) * 1e-9
 
 
+class RisingStamps:
+    """One input stream's stamps, which rise within a rollout (each node publishes its frames in
+    order, and every rollout starts again at the first stamp): a stamp at or below the stream's
+    last one begins a new rollout on that stream, and what the stream left unpaired is stale.
+    With perception one frame ahead, the previous rollout can leave one input stamped past its
+    last frame, which can reach a node after the next rollout's first input from elsewhere; the
+    stream's own restart is what tells it from the next rollout's input with that stamp."""
+
+    def __init__(self) -> None:
+        self._last: int | None = None
+
+    def restarts(self, stamp: int) -> bool:
+        """Call on every input of the stream; True when it begins a new rollout on the stream."""
+        restarted = self._last is not None and stamp <= self._last
+        self._last = stamp
+        return restarted
+
+
 class StampPairs:
     """Pairs two input streams (`put(0, ...)`, `put(1, ...)`) by stamp and calls `answer(stamp,
-    first, second)` once both are in; what is still unpaired when a new rollout starts is dropped."""
+    first, second)` once both are in; what is still unpaired when a new rollout starts is dropped,
+    and so is what one stream left unpaired when that stream starts again (`RisingStamps`)."""
 
     def __init__(self, answer: Callable[[int, Any, Any], None]) -> None:
         self.clock = RolloutClock()
         self._answer = answer
         self._pending: tuple[dict[int, Any], dict[int, Any]] = ({}, {})
+        self._streams = (RisingStamps(), RisingStamps())
 
     def put(self, stream: int, stamp: int, value: Any) -> None:
         if self.clock.observe(stamp):
             for pending in self._pending:
                 pending.clear()
+        if self._streams[stream].restarts(stamp):
+            self._pending[stream].clear()
         self._pending[stream][stamp] = value
         if all(stamp in pending for pending in self._pending):
             first, second = (pending.pop(stamp) for pending in self._pending)

@@ -15,6 +15,7 @@ from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.interfaces.base import ObjectsLayer, PlanLayer, Profile
 from advperc_ros.ros.lockstep import (
+    RisingStamps,
     RolloutDone,
     RolloutErrors,
     errors_message,
@@ -87,11 +88,15 @@ class LockstepClient:
         per message would compete for the CPU with the nodes in every frame)."""
         received: dict[int, Any] = {}
         self.received[topic] = received
+        stamps = RisingStamps()
 
         def keep(data: bytes) -> None:
             stamp, value = self._decode(topic, data)
-            if stamp is not None:  # a message without a stamp belongs to no frame
-                received[stamp] = value
+            if stamp is None:  # a message without a stamp belongs to no frame
+                return
+            if stamps.restarts(stamp):  # a previous rollout's input past its last frame is not this one's
+                received.clear()
+            received[stamp] = value
 
         layer = self._layers.get(topic)
         wire, msgtype = (layer.topic, layer.msgtype) if layer is not None else (topic, TOPIC_TYPES[topic])
@@ -117,14 +122,15 @@ class LockstepClient:
         ego = self.received[ODOMETRY][stamp]
         return layer.decode(self.received[PLAN][stamp], self._stamps[0], (ego.x, ego.y), layer.topic)[1]
 
-    def send(self, errors: PerceptionErrors) -> int:
-        """Publish a rollout's errors under a fresh rollout id; forget the previous rollout's messages."""
+    def send(self, errors: PerceptionErrors, ahead: bool) -> int:
+        """Publish a rollout's errors under a fresh rollout id, with whether the player may run the
+        ground truth a frame ahead; forget the previous rollout's messages."""
         rollout = self._next_rollout
         self._next_rollout += 1
         for received in self.received.values():
             received.clear()
         self._done.clear()
-        self.errors.publish(errors_message(RolloutErrors(rollout, errors, self._agent_ids, self._stamps_ns)))
+        self.errors.publish(errors_message(RolloutErrors(rollout, errors, self._agent_ids, self._stamps_ns, ahead)))
         return rollout
 
     def collect(self, rollout: int, stall: float, record: bool, dead: Callable[[], str | None]) -> RolloutDone:

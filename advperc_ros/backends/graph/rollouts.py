@@ -189,16 +189,27 @@ class GraphRollouts:
         """Our planner node (started by us, or announced on /attack/nodes: the launch file
         configures it from the same params), else an external node, named where the middleware
         tells who publishes the plans; the same for the tracker whose tracks it read."""
-        ours = self.params.graph.spawn_nodes
-
         def publishers(topic: str) -> str:
             return ", ".join(self.client.transport.publishers_of(topic) or ())
 
-        tracker = None if ours or TRACKER_NODE in self.client.present else publishers(self.profile.tracks.topic)
-        if ours or PLANNER_NODE in self.client.present:
+        tracker = None if self._ours(TRACKER_NODE) else publishers(self.profile.tracks.topic)
+        if self._ours(PLANNER_NODE):
             return AttackedPlanner(self.params.planner, tracker_node=tracker)
         node = publishers(self.profile.plan.topic)
         return AttackedPlanner(EXTERNAL, node, tracker, self.client.versions.get(node.rsplit("/", 1)[-1]))
+
+    def _ours(self, node: str) -> bool:
+        """Whether the graph's `node` is ours: started by us, or announced on /attack/nodes (the launch
+        file configures it from the same params)."""
+        return self.params.graph.spawn_nodes or node in self.client.present
+
+    @property
+    def perception_ahead(self) -> bool:
+        """Whether the player may run the ground truth a frame ahead of the ego (docs/graph.md,
+        "Perception one frame ahead"): only for our tracker and planner, which pair their inputs by
+        stamp, and only when messages drive the planner; a team's node may take the latest message
+        it holds instead, which would then be a frame early."""
+        return self.params.graph.drive == "messages" and self._ours(TRACKER_NODE) and self._ours(PLANNER_NODE)
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
@@ -209,7 +220,7 @@ class GraphRollouts:
         none = PerceptionErrors.none(*self.scenario.agents.shape)
         stall = WARMUP_STALL
         while True:
-            rollout = self.client.send(none)
+            rollout = self.client.send(none, self.perception_ahead)
             try:
                 done = self.client.collect(rollout, stall, self._recording, self.processes.dead)
                 if done.status != Status.INCONCLUSIVE or time.monotonic() > deadline:
@@ -258,7 +269,7 @@ class GraphRollouts:
             self.client.record_too()
             self._warm_up(time.monotonic() + STARTUP_TIMEOUT)  # proves the new subscriptions
         client = self.client
-        rollout = client.send(errors)
+        rollout = client.send(errors, self.perception_ahead)
         try:
             done = client.collect(rollout, self.params.graph.timeout + GRACE, record, self.processes.dead)
         except RolloutFault as raised:

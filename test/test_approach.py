@@ -248,3 +248,39 @@ def test_patience_counts_from_the_last_step_nearer_and_steps_cap_the_phase(monke
     assert rollouts([True] * 100, steps=12, patience=3) == 12
     assert rollouts([], steps=12, patience=3) == 3
     assert rollouts([False, True, False, False, True], steps=12, patience=3) == 5 + 3
+
+
+def test_a_walk_stalled_from_a_phantom_goes_on_from_the_nearest_rollout_without_ghosts(monkeypatch):
+    """A phantom obstacle's near miss may be a dead end that the paper's kinds' start is not: with a
+    phantom nearest, the phase walks from it, and once that walk stalls it walks again from the nearest
+    rollout showing no ghost, with the steps left; the nearer of the two walks' ends is its closest."""
+    from advperc_ros.core.perception_errors import ERROR_KINDS, ErrorSpace
+    from advperc_ros.core.search import phantom
+
+    every_kind = ErrorSpace(kinds=ERROR_KINDS)
+    spec = {**SWERVE_SPEC, "agents": [a for a in SWERVE_SPEC["agents"] if a["id"] != 3]}  # nothing to hit
+    problem = swerve_problem(spec=spec)
+    truth = problem.evaluate(every_kind.blank(*problem.scenario.agents.shape), Phase.GROUND_TRUTH)
+    probe = phantom.probes(truth, problem.scenario.agents.shape, problem.scenario.dt, every_kind)[-1]
+    probed = problem.evaluate(probe, Phase.PHANTOM)
+    assert not probed.adversarial and "ghost" in probe.used_kinds(probed.rollout.num_frames)
+    # the phantom is nearer than anything; no candidate of either walk is nearer than where it started
+    monkeypatch.setattr(approach, "nearer", lambda trial, current: trial is probed and current is not probed)
+    evaluate, shown = problem.evaluate, []
+
+    def recording(errors, *args):
+        shown.append("ghost" in errors.used_kinds(errors.shape[0]))
+        return evaluate(errors, *args)
+
+    monkeypatch.setattr(problem, "evaluate", recording)
+    patience = 4
+    result = approach.approach(problem, [truth, probed], np.random.default_rng(0), CONFIG.random, 30, patience)
+    assert result.start is probed and result.closest is probed and result.rollouts == 2 * patience
+    assert shown == [True] * patience + [False] * patience  # the phantom's walk, then the ground truth's
+    # with the steps spent by the first walk, there is no second
+    again = approach.approach(problem, [truth, probed], np.random.default_rng(0), CONFIG.random, patience, patience)
+    assert again.rollouts == patience
+    # without a phantom nearest, one walk as before
+    monkeypatch.setattr(approach, "nearer", lambda trial, current: False)
+    assert approach.approach(problem, [truth, probed], np.random.default_rng(0), CONFIG.random, 30, patience).rollouts \
+        == patience

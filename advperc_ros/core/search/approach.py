@@ -7,18 +7,22 @@ for a while only, so that a planner that waited for it sets off and meets it. Th
 falsification search on the rollout's margins (`RolloutResult.counted`: its signed distances to the
 cars where a contact would be the ego's fault, so a car closing in from behind is no progress). It
 starts from the nearest of the conclusive rollouts so far (ground truth, single drops, the blind
-one), and each step rolls out one candidate that shows one of the `NEAREST` cars the ego comes
-closest to at its fault (in the ground truth or the current rollout) wrongly over a segment of its
-frames, by a move drawn at even odds: the paper's proposal (one offset of up to `max_offset` in a
-uniform direction, yaw noise), the car moved a uniform share of the way towards the ego's path
-(traffic shown in its way, which a planner brakes or swerves for), or the car hidden. A conclusive
-candidate that is `nearer` (each car's margin compared, nearest first, to `MIN_GAIN`: progress
-behind a car the errors cannot move still counts) becomes the current rollout; an inconclusive one
-is never kept. It ends at a collision, after `patience` rollouts in a row that are not nearer, or
-after `steps` rollouts. A collision usually still hides or
-displaces cars that play no part, so the phase then bisects for the fewest cars nearest the ego
-whose errors alone (everything else perceived perfectly) still collide: the random search or guided
-search then trades the remaining wrongness back for metric, as after a drop.
+one, the phantom obstacles when ghosts are on), and each step rolls out one candidate that shows one
+of the `NEAREST` cars the ego comes closest to at its fault (in the ground truth or the current
+rollout) wrongly over a segment of its frames, by a move drawn at even odds: the paper's proposal
+(one offset of up to `max_offset` in a uniform direction, yaw noise), the car moved a uniform share
+of the way towards the ego's path (traffic shown in its way, which a planner brakes or swerves for),
+or the car hidden. A conclusive candidate that is `nearer` (each car's margin compared, nearest
+first, to `MIN_GAIN`: progress behind a car the errors cannot move still counts) becomes the current
+rollout; an inconclusive one is never kept. A walk ends at a collision, after `patience` rollouts in
+a row that are not nearer, or after `steps` rollouts in all. A phantom obstacle's near miss (the ego
+braking hard for a ghost) can be a dead end where the paper's kinds' start is not: when the walk
+from one stalls, the phase walks again, with the steps left, from the nearest rollout that shows no
+ghost, as the paper's kinds' search would have (one walk, the same to the bit, when the nearest
+start shows none). A collision usually still hides or displaces cars that play no part, so the phase
+then bisects for the fewest cars nearest the ego whose errors alone (everything else perceived
+perfectly) still collide: the random search or guided search then trades the remaining wrongness
+back for metric, as after a drop.
 """
 
 import math
@@ -128,47 +132,61 @@ def hide(errors: PerceptionErrors, rng: np.random.Generator, where: np.ndarray) 
 
 def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Generator, cfg: RandomSearchConfig,
              steps: int, patience: int, space: ErrorSpace = ErrorSpace()) -> Approach:
-    """The phase from the rollouts `seen` (the ground truth first): it stops at a collision, after
-    `patience` rollouts in a row that bring the ego no nearer, after `steps` rollouts, or at the
-    problem's budget. With extended kinds on (`space`), each kind's moves join the paper's three at
+    """The phase from the rollouts `seen` (the ground truth first): a walk stops at a collision, after
+    `patience` rollouts in a row that bring the ego no nearer, after `steps` rollouts in all, or at the
+    problem's budget; a walk from a phantom obstacle that stalls is followed by one from the nearest
+    rollout without ghosts. With extended kinds on (`space`), each kind's moves join the paper's three at
     even odds, acting on the same nearest cars (ghosts: on the ego's path ahead)."""
     extended = [move for kind in space.kinds for _, move in MOVES_OF_KIND.get(kind, ())]
     truth = seen[0]
     def order(a: Evaluation, b: Evaluation) -> int:
         return -1 if nearer(a, b) else int(nearer(b, a))
 
-    start = current = min((e for e in seen if not e.rollout.inconclusive), key=cmp_to_key(order))
+    conclusive = [e for e in seen if not e.rollout.inconclusive]
+    start = min(conclusive, key=cmp_to_key(order))
+    # a phantom obstacle's near miss may lead nowhere: the paper's kinds' start is walked from next
+    without_ghosts = [e for e in conclusive if "ghost" not in e.errors.used_kinds(e.rollout.num_frames)]
+    fallback = min(without_ghosts, key=cmp_to_key(order)) if without_ghosts else None
     valid = problem.scenario.agents.valid
     agents_xy = np.stack([problem.scenario.agents.x, problem.scenario.agents.y], axis=2)
     first = len(problem.log)
 
     def room() -> bool:
-        return problem.budget is None or len(problem.log) < problem.budget
+        return len(problem.log) - first < steps and (problem.budget is None or len(problem.log) < problem.budget)
 
-    stalled = 0
-    while len(problem.log) - first < steps and stalled < patience and not current.adversarial and room():
-        frames = current.rollout.num_frames
-        where = np.zeros((frames, valid.shape[1]), dtype=bool)
-        slots = nearest(truth, current)
-        where[:, slots] = valid[:frames, slots]
-        move = rng.integers(3 + len(extended))
-        if move == 0:
-            candidate = propose(current.errors, frames, rng, cfg, where)
-        elif move == 1:
-            candidate = into_path(current.errors, frames, rng, cfg, where, agents_xy, current.rollout.ego_xy)
-        elif move == 2:
-            candidate = hide(current.errors, rng, where)
-        else:
-            context = MoveContext(problem.scenario.agents, current.rollout.ego, space, problem.scenario.dt, where)
-            candidate = extended[move - 3](current.errors, frames, rng, context)
-            if candidate is None:  # that move had nothing to act on (a ghost to take away): another draw
-                continue
-        if candidate is None:  # no car near the ego is present
-            break
-        trial = problem.evaluate(candidate, Phase.APPROACH)
-        stalled += 1
-        if not trial.rollout.inconclusive and nearer(trial, current):
-            current, stalled = trial, 0
+    def walk(current: Evaluation) -> Evaluation:
+        """From `current`, one candidate a rollout, until a collision, `patience` rollouts in a row not
+        nearer, or no room: the nearest rollout reached."""
+        stalled = 0
+        while stalled < patience and not current.adversarial and room():
+            frames = current.rollout.num_frames
+            where = np.zeros((frames, valid.shape[1]), dtype=bool)
+            slots = nearest(truth, current)
+            where[:, slots] = valid[:frames, slots]
+            move = rng.integers(3 + len(extended))
+            if move == 0:
+                candidate = propose(current.errors, frames, rng, cfg, where)
+            elif move == 1:
+                candidate = into_path(current.errors, frames, rng, cfg, where, agents_xy, current.rollout.ego_xy)
+            elif move == 2:
+                candidate = hide(current.errors, rng, where)
+            else:
+                context = MoveContext(problem.scenario.agents, current.rollout.ego, space, problem.scenario.dt, where)
+                candidate = extended[move - 3](current.errors, frames, rng, context)
+                if candidate is None:  # that move had nothing to act on (a ghost to take away): another draw
+                    continue
+            if candidate is None:  # no car near the ego is present
+                break
+            trial = problem.evaluate(candidate, Phase.APPROACH)
+            stalled += 1
+            if not trial.rollout.inconclusive and nearer(trial, current):
+                current, stalled = trial, 0
+        return current
+
+    current = walk(start)
+    if not current.adversarial and fallback is not None and fallback is not start and room():
+        again = walk(fallback)
+        current = again if again.adversarial or nearer(again, current) else current
     if current.adversarial:
         current = fewest(problem, truth, current)
     return Approach(start, current, len(problem.log) - first)

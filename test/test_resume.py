@@ -51,24 +51,32 @@ def _kept_rollouts(output: Path) -> int:
     return rollouts.read_text().count("\n") if rollouts.exists() else 0
 
 
+def _kill_at(run: subprocess.Popen, output: Path, rollouts: int) -> None:
+    """SIGKILL once the attack has checkpointed `rollouts` rollouts in all (at once when it holds that
+    many already: a kill while it starts and reads its checkpoint), or once it has ended."""
+    deadline = time.monotonic() + 120
+    while _kept_rollouts(output) < rollouts and run.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    run.send_signal(signal.SIGKILL)
+    run.wait(timeout=60)
+
+
 def test_sigkill_ten_times_over_one_attack_then_resume_gives_the_uninterrupted_report(uninterrupted, tmp_path):
-    """Killed at a random moment after each start (the first run's after its first rollout), then every resumed run's: no
-    kill loses a checkpointed rollout, and the resume after the last one writes the uninterrupted report."""
+    """Killed at a random rollout of the search ten times over (the first run after its first rollout, a
+    resumed run at times while it starts), whatever the machine's speed: no kill loses a checkpointed
+    rollout, and the resume after the last one writes the uninterrupted report."""
     params, expected = uninterrupted
     output = tmp_path / "run"
-    moments = random.Random(12).sample([1.0 + 0.25 * i for i in range(20)], 10)  # seconds after each start
+    draw = random.Random(12)
     kept = 0
-    for n, moment in enumerate(moments):
+    for n in range(10):
         run = _attack(params, *(("--resume", str(output)) if n else ("--output", str(output))))
-        if n == 0:  # the first kill after the first rollout is kept, however long a loaded machine takes to start
-            _wait_for_a_checkpointed_rollout(run, output)
-        time.sleep(moment)
-        run.send_signal(signal.SIGKILL)
-        run.wait(timeout=60)
+        target = min(kept + draw.randint(0 if n else 1, max(1, expected["rollouts"] // 8)), expected["rollouts"] - 1)
+        _kill_at(run, output, target)
         if output.exists():  # it finished before this kill
             break
         now = _kept_rollouts(output)
-        assert now >= kept, f"kill {n + 1}, {moment:.2f} s after its start, lost rollouts"
+        assert now >= kept, f"kill {n + 1}, at rollout {target}, lost rollouts"
         kept = now
     else:
         resumed = _attack(params, "--resume", str(output))

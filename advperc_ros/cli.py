@@ -22,6 +22,7 @@ from advperc_ros.core.scenario import Scenario, ScenarioError
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
 from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
+from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import ParamsError, load_params
 from advperc_ros.ros.bag import BagError
 
@@ -426,6 +427,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    keep_freed_heap()
     args = build_parser().parse_args(argv)
     try:
         return args.func(args)

@@ -49,9 +49,11 @@ def main(args: list[str] | None = None) -> int:
         return 2  # exits.EXIT_INPUT; importing the whole stack first would hide this message behind its imports
     from advperc_ros.application import attack_to_folder, summary
     from advperc_ros.exceptions import Interrupted
+    from advperc_ros.heap import keep_freed_heap
     from advperc_ros.nodes.runtime import given_parameters, run_rclpy
     from advperc_ros.ros.transport import RclpyTransport
 
+    keep_freed_heap()
     argv = sys.argv[1:] if args is None else list(args)
 
     def body(node: Any) -> int:

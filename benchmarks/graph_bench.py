@@ -42,9 +42,10 @@ sys.path.insert(0, str(REPO))
 import hop_cost  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
+from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.rollout import RolloutResult  # noqa: E402
-from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
+from advperc_ros.heap import keep_freed_heap  # noqa: E402
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
@@ -127,6 +128,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                 hops: int = 500) -> list[dict]:
     """Prints one line per scenario and error tensor, then one ratio per scenario and backend with
     its floors (no hop floor with `hops` 0); returns the per-tensor rows as dicts."""
+    keep_freed_heap()  # the embedded rollouts run with the heap `advperc attack` and the nodes have
     backends = tuple(kind for kind in hop_cost.available() if kind in ("cyclone", "rclpy"))  # our nodes' transports
     if len(backends) == 1:
         print("(ROS 2 not sourced: the rclpy graph is left out; source ../shared/ros2/activate.sh to include it)")
@@ -157,7 +159,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                     else rclpy_graph(scenario, params, bag, domain_id + 1))
                 startup[backend] = time.perf_counter() - started
             for label, errors in cases.items():
-                cpu = {"embedded": 0.0, **{backend: 0.0 for backend in backends}}  # CPU s of the rollouts, all processes
+                cpu = {"embedded": 0.0, **dict.fromkeys(backends, 0.0)}  # CPU s of the rollouts, all processes
                 per_node = {backend: dict.fromkeys((spec.name for spec in SPECS), 0.0) for backend in backends}
                 times: dict[str, list[float]] = {"embedded": [], **{b: [] for b in backends}}
                 results = {}

@@ -12,6 +12,7 @@ from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutResult, rollout
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.tracker import make_tracker
+from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import AttackParams, params_from_values
 
 
@@ -63,6 +64,7 @@ _worker_stack: Stack | None = None  # a pool worker's own stack
 
 def _start_worker(scenario: Scenario, values: dict, source) -> None:
     global _worker_stack
+    keep_freed_heap()
     _worker_stack = Stack(scenario, params_from_values(values, source))
 
 

@@ -33,6 +33,7 @@ from advperc_ros.application import attack_to_folder
 from advperc_ros.campaign.spec import Campaign, Cell
 from advperc_ros.core.staging import staged_folder
 from advperc_ros.exits import EXPECTED_TYPES, expected_failure
+from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import ParamsError, resolve_bag
 from advperc_ros.paths import check_output
 from advperc_ros.replay import load_attack, replay, write_replay
@@ -84,6 +85,7 @@ def run_cell(cell: Cell, output: Path, progress: bool = False, bag: Path | None 
     a kill interrupted resumes from its checkpoint, so it costs only the rollouts it had not run. `bag`
     and `attack`: local copies of the cell's bag and replayed results folder (a Ray worker's), used
     instead of the paths the cell names, which the report and summary still name."""
+    keep_freed_heap()
     folder = output / cell.name
 
     def work() -> None:

@@ -32,6 +32,7 @@ import numpy as np
 import yaml
 
 from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXPECTED_TYPES, INPUT_ERRORS, expected_failure
+from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import SCHEMA, find_bag, load_params, node_values, params_from_values
 from advperc_ros.ros import cdr
 from advperc_ros.ros.lockstep import presence_message
@@ -87,6 +88,7 @@ def announce(transport: Transport, name: str) -> None:
 
 def run_node(spec: NodeSpec, args: list[str] | None = None) -> int:
     """Run the node until shutdown (SIGINT, SIGTERM, ROS shutdown); the process exit code."""
+    keep_freed_heap()
     argv = sys.argv[1:] if args is None else list(args)
     if "--ros-args" in argv or not argv:
         try:

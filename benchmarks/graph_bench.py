@@ -45,9 +45,10 @@ from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.rollout import RolloutResult  # noqa: E402
+from advperc_ros.core.scenario import Scenario  # noqa: E402
 from advperc_ros.heap import keep_freed_heap  # noqa: E402
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters  # noqa: E402
-from advperc_ros.params import load_params  # noqa: E402
+from advperc_ros.params import AttackParams, load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
 
 SCENARIOS = ("idm_lane_following", "obp_overtake")
@@ -124,6 +125,16 @@ def _load() -> str:
     return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
 
 
+def bundled_on_graph(name: str, domain_id: int) -> tuple[Path, Scenario, AttackParams, Stack]:
+    """A bundled scenario's bag, scenario, params set for the graph backend on loopback with `domain_id`,
+    and its embedded stack: what each side-by-side comparison starts from."""
+    bag = REPO / "bags" / name
+    scenario = read_scenario(bag)
+    params = load_params(REPO / "config" / f"{name}.yaml").with_values(
+        rollout_backend="graph", **{"dds.domain_id": domain_id, "dds.localhost_only": True})
+    return bag, scenario, params, Stack(scenario, params)
+
+
 def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain_id: int = 120,
                 hops: int = 500) -> list[dict]:
     """Prints one line per scenario and error tensor, then one ratio per scenario and backend with
@@ -143,11 +154,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
           + " ".join(f"{b + ' s':>9s} {'ratio':>6s} {'diff':>8s}" for b in backends))
     rows = []
     for name in scenarios:
-        bag = REPO / "bags" / name
-        scenario = read_scenario(bag)
-        params = load_params(REPO / "config" / f"{name}.yaml").with_values(
-            rollout_backend="graph", **{"dds.domain_id": domain_id, "dds.localhost_only": True})
-        stack = Stack(scenario, params)
+        bag, scenario, params, stack = bundled_on_graph(name, domain_id)
         none = PerceptionErrors.none(*scenario.agents.shape)
         cases = {"ground truth": none, "lead dropped": none.with_drop(0, 20, scenario.num_frames - 1)}
         with contextlib.ExitStack() as stacked:

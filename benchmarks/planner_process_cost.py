@@ -52,6 +52,8 @@ def _load_timer():
 
 plan_timer = _load_timer()  # this process's plan() tallies
 
+from graph_bench import bundled_on_graph  # noqa: E402
+
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
@@ -81,11 +83,7 @@ def _node_plan_seconds(pid: int, folder: Path) -> float:
 
 
 def in_the_graph(name: str, rollouts: int, domain_id: int) -> dict[str, float]:
-    bag = REPO / "bags" / name
-    scenario = read_scenario(bag)
-    params = load_params(REPO / "config" / f"{name}.yaml").with_values(
-        rollout_backend="graph", **{"dds.domain_id": domain_id, "dds.localhost_only": True})
-    stack = Stack(scenario, params)
+    bag, scenario, params, stack = bundled_on_graph(name, domain_id)
     errors = PerceptionErrors.none(*scenario.agents.shape)
     stack.rollout(errors)  # warm
     out = dict.fromkeys(("embedded", "embedded_plan", "node", "node_plan", "player"), 0.0)

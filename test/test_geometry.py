@@ -7,7 +7,14 @@ import numpy as np
 import pytest
 import shapely
 
-from advperc_ros.core.geometry import Polyline, box_corners, signed_box_distance, wrap_angle
+from advperc_ros.core.geometry import (
+    Polyline,
+    box_corners,
+    round_corners,
+    sharpest_turn,
+    signed_box_distance,
+    wrap_angle,
+)
 
 # An L: east 10 m from the origin, then north 10 m.  Arc length 0..10 on the first leg, 10..20 on the second.
 L_SHAPE = Polyline(np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
@@ -86,6 +93,62 @@ def test_project_is_inverse_of_position_with_offset():
 
 
 # ---------------------------------------------------------------- wrap_angle
+
+def _circle_through(a, b, c):
+    """Radius of the circle through three points (the circumradius: |ab| |bc| |ca| / (4 area))."""
+    area = abs((b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])) / 2.0
+    sides = np.linalg.norm(b - a) * np.linalg.norm(c - b) * np.linalg.norm(a - c)
+    return math.inf if area < 1e-12 else sides / (4.0 * area)
+
+
+def test_sharpest_turn_is_one_over_the_radius_of_an_arc():
+    arc = Polyline(8.0 * np.stack([np.cos(np.linspace(0, 1.5, 600)), np.sin(np.linspace(0, 1.5, 600))], axis=1))
+    assert sharpest_turn(arc) == pytest.approx(1.0 / 8.0, rel=1e-2)  # the chords' own turns: 2.5 mrad each
+    assert sharpest_turn(L_SHAPE) == pytest.approx((math.pi / 2) / 2.0)  # the vertex's quarter turn within 2 m
+
+
+def test_sharpest_turn_does_not_depend_on_where_a_path_has_its_vertices():
+    """The same path with collinear vertices added along its legs, or begun 0.37 m earlier on the
+    same line, turns as sharply: the measure sees each corner whole, not as samples fall."""
+    corner = np.array([[0.0, 0.0], [10.0, 0.0], [11.0, 0.6], [20.0, 4.0]])
+    denser = np.array([[0.0, 0.0], [3.3, 0.0], [7.1, 0.0], [10.0, 0.0], [11.0, 0.6], [15.5, 2.3], [20.0, 4.0]])
+    earlier = np.vstack([[[-0.37, 0.0]], corner[1:]])
+    turns = [sharpest_turn(Polyline(points)) for points in (corner, denser, earlier)]
+    assert turns[0] == pytest.approx(math.atan2(0.6, 1.0) / 2.0)  # the first vertex's turn, the second's turning back
+    assert turns[1] == turns[0] and turns[2] == turns[0]
+
+
+def test_a_path_that_turns_back_on_itself_cannot_be_rounded():
+    hairpin = Polyline(np.array([[0.0, 0.0], [100.0, 0.0], [180.0, 3.0], [120.0, 0.0], [300.0, 0.0]]))
+    with pytest.raises(ValueError, match="no smoothing"):
+        round_corners(hairpin, 5.0)
+
+
+def test_a_path_that_turns_no_tighter_than_the_radius_is_left_as_it_is():
+    gentle = Polyline(np.array([[0.0, 0.0], [20.0, 0.0], [40.0, 1.0], [60.0, 3.0]]))
+    assert round_corners(gentle, 5.0) is gentle
+
+
+@pytest.mark.parametrize("radius", [5.0, 8.0])
+def test_a_right_angle_is_rounded_to_the_radius_near_the_smallest_fillet(radius):
+    """Every circle through three points 1 m apart on the rounded L is at least the radius (to the
+    sampling's precision); the corner is cut by at least the circular fillet's R (sqrt 2 - 1), the
+    least any curve of that radius can cut it, and at most 60 % more; more than two radii (and the
+    window) from the corner nothing moves by as much as 5 mm."""
+    corner = np.array([40.0, 0.0])
+    long_l = Polyline(np.array([[0.0, 0.0], corner, [40.0, 40.0]]))
+    rounded = round_corners(long_l, radius)
+    assert sharpest_turn(rounded) <= 1.0 / radius + 1e-9
+    s = np.arange(0.0, rounded.length - 2.0, 0.25)
+    radii = [_circle_through(*rounded.position(np.array([a, a + 1.0, a + 2.0]))) for a in s]
+    assert min(radii) >= 0.97 * radius
+    cut = float(np.min(np.linalg.norm(rounded.points - corner, axis=1)))
+    fillet = radius * (math.sqrt(2.0) - 1.0)
+    assert fillet <= cut <= 1.6 * fillet
+    _, lateral = long_l.project(rounded.points)
+    far = np.max(np.abs(rounded.points - corner), axis=1) > 2.0 * radius + 4.0
+    assert np.all(np.abs(lateral[far]) < 5e-3)
+
 
 def test_wrap_angle_range_and_equivalence():
     a = np.concatenate([np.linspace(-50.0, 50.0, 10001), [np.pi, -np.pi, 3 * np.pi, 0.0]])

@@ -85,6 +85,100 @@ class Polyline:
         return s, lateral
 
 
+TURN_WINDOW = 2.0  # m of path over which a turn is measured: about a car's wheelbase
+
+
+def _tight_turns(path: Polyline, window: float, limit: float) -> tuple[float, FloatArray]:
+    """(the largest heading change over any `window` metres of the path, divided by the window; the
+    (start, end) arc lengths of every stretch of at most `window` metres whose turn exceeds `limit`
+    times the window). Exact for a polyline, whose heading changes only at its vertices: a window
+    sees the turn from segment a to segment b when the vertices between them lie within it, so no
+    sampling can miss a corner or shift the figure with where its samples fall."""
+    heading = np.unwrap(np.arctan2(path._seg_dir[:, 1], path._seg_dir[:, 0]))  # per segment
+    vertex = path._s  # vertex v joins segments v-1 and v
+    sharpest, tight = 0.0, []
+    for offset in range(1, len(heading)):
+        a = np.arange(len(heading) - offset)  # segment pairs (a, a + offset)
+        within = vertex[a + offset] - vertex[a + 1] <= window
+        if not within.any():
+            break
+        turn = np.abs(heading[a + offset] - heading[a])
+        sharpest = max(sharpest, float(np.max(turn[within])))
+        over = within & (turn > limit * window)
+        tight += [np.stack([vertex[a[over] + 1], vertex[a[over] + offset]], axis=1)]
+    return sharpest / window, np.concatenate(tight) if tight else np.zeros((0, 2))
+
+
+def sharpest_turn(path: Polyline, window: float = TURN_WINDOW) -> float:
+    """The path's largest mean curvature (1/m) over any `window` metres of it: the heading's change
+    within the window, divided by its length. A polyline's vertex turns in no length at all, so its
+    pointwise curvature says nothing; over a car's length a turn of radius R averages to 1/R."""
+    return _tight_turns(path, window, np.inf)[0]
+
+
+PINNED = 1e4  # a smoothing spline's weight on the points away from tight turns (1 near them): they stay put
+ANCHOR = 10.0  # m of pinned path fitted on either side of a stretch that is rounded, so that it joins the rest
+
+
+def _least_smoothed(stations: FloatArray, points: FloatArray, weights: FloatArray, min_radius: float) -> FloatArray:
+    """The points (K, 2) at `stations` of the least smoothed weighted cubic smoothing spline through
+    `points` that turns no tighter than `min_radius`: its penalty bracketed, then bisected."""
+    from scipy.interpolate import make_smoothing_spline  # only paths with tight turns need it
+
+    def smoothed(penalty: float) -> FloatArray:
+        return np.stack([make_smoothing_spline(stations, points[:, axis], w=weights, lam=penalty)(stations)
+                         for axis in (0, 1)], axis=1)
+
+    def too_tight(penalty: float) -> bool:
+        return sharpest_turn(Polyline(smoothed(penalty))) > 1.0 / min_radius
+
+    low, high = 0.0, 1.0
+    while too_tight(high):
+        low, high = high, 16.0 * high
+        if high > 1e12:
+            raise ValueError(f"no smoothing of the path turns no tighter than a {min_radius:g} m radius")
+    for _ in range(40):  # the penalty to 2^-40 of its bracket
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if too_tight(middle) else (low, middle)
+    return smoothed(high)
+
+
+def round_corners(path: Polyline, min_radius: float, spacing: float = 0.5) -> Polyline:
+    """`path` itself where no `TURN_WINDOW` of it turns tighter than `min_radius` (`sharpest_turn`),
+    else, as points `spacing` apart, the path with each stretch within two radii of a tight turn
+    replaced by the least smoothed cubic smoothing spline through it (scipy's
+    `make_smoothing_spline`, x and y over arc length, its penalty found by bisection) that turns no
+    tighter. The spline is fitted over the stretch and `ANCHOR` metres either side, those weighing
+    `PINNED`: a turn of that radius needs less room than two radii, so the corners are rounded and
+    the rest stays where it was (a path smoothed as a whole moves everywhere, its ends too), and the
+    cost grows with the corners, not with the path's length. It cuts a right angle about 1.5 times
+    as deep as the circular fillet, the least any curve of that radius can (test_geometry.py).
+    Raises ValueError where no such spline exists (a path turning back on itself)."""
+    limit = 1.0 / min_radius
+    _, tight = _tight_turns(path, TURN_WINDOW, limit)
+    if len(tight) == 0:
+        return path
+    stations = np.linspace(0.0, path.length, int(math.ceil(path.length / spacing)) + 1)
+    points = path.position(stations)
+    reach = 2.0 * min_radius
+    near = np.zeros(len(stations), bool)
+    for first, last in tight:
+        near[np.searchsorted(stations, first - reach):np.searchsorted(stations, last + reach, side="right")] = True
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], near.view(np.int8), [0]])))
+    starts, stops = list(edges[::2]), list(edges[1::2])  # each stretch near tight turns, [start, stop)
+    for i in range(len(starts) - 1, 0, -1):  # stretches whose anchors overlap are fitted as one
+        if stations[starts[i]] - stations[stops[i - 1] - 1] <= 2.0 * ANCHOR:
+            del starts[i], stops[i - 1]
+    for first, stop in zip(starts, stops):
+        lo = np.searchsorted(stations, stations[first] - ANCHOR)
+        hi = np.searchsorted(stations, stations[stop - 1] + ANCHOR, side="right")
+        points[lo:hi] = _least_smoothed(stations[lo:hi], points[lo:hi], np.where(near[lo:hi], 1.0, PINNED), min_radius)
+    rounded = Polyline(points)
+    if sharpest_turn(rounded) > limit:  # where a rounded stretch meets the pinned path
+        raise ValueError(f"no smoothing of the path turns no tighter than a {min_radius:g} m radius")
+    return rounded
+
+
 def box_corners(x: FloatArray | float, y: FloatArray | float, yaw: FloatArray, length: FloatArray | float,
                 width: FloatArray | float) -> FloatArray:
     """Corners (..., 4, 2) of oriented boxes, counter-clockwise."""

@@ -10,7 +10,10 @@
 - Route: the shortest chain of successor lanelets from the ego's lanelet to a lanelet of the goal
   region. Multi-lane roads: if the goal needs a lane change, the route stays in the ego's lane up
   to the lanelet beside the goal (the IDM planner cannot change lanes); if nothing is reachable,
-  the route is the longest successor chain ahead.
+  the route is the longest successor chain ahead. Where the chain's centre line turns tighter than
+  `ROUTE_MIN_RADIUS` (the lanelets of some junctions turn at 1.5-3 m radii, which no car can drive:
+  ObP's NLP was infeasible at every frame of such a turn and its ego never left the junction), its
+  corners are rounded to that radius (`geometry.round_corners`); the lanes stay as in the map.
 - Target speed (for the generated params file): the top of the goal's velocity interval, the
   fastest speed at which the ego still meets its goal (an ego given the middle drives at the
   recorded car's own speed and never closes on the traffic ahead, so no hidden vehicle matters);
@@ -33,11 +36,13 @@ import networkx as nx
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.geometry import Polyline
+from advperc_ros.core.geometry import Polyline, round_corners
 from advperc_ros.core.scenario import EgoState, Lane, Scenario, ScenarioError
 
 AGENT_HEIGHT = 1.5
 MAX_ANGLE = 1000.0  # rad: recorded orientations are within a few turns; see _check_orientations
+ROUTE_MIN_RADIUS = 5.0  # m: a passenger car's tightest turn (ObP's 2.7 m wheelbase at its 0.5 rad steering limit: 4.95 m)
+MAX_ROUTE_LENGTH = 20_000.0  # m: past it a lanelet's vertex is garbage (and rounding its corners would take minutes)
 MAX_FRAMES = 10_000  # time steps of a recording: CommonRoad's run for seconds; a bogus step would only fill memory
 
 
@@ -299,7 +304,18 @@ def _convert(cr_scenario, problems) -> ImportedScenario:
     initial = problem.initial_state
     start_xy = _finite(getattr(initial, "position", None), "planningProblem.initialState.position", 2)
     chain, note = _route(network, start_xy, problem.goal)
-    route = Polyline(np.concatenate([lanes_by_id[str(i)].centerline.points for i in chain]))
+    centre_line = Polyline(np.concatenate([lanes_by_id[str(i)].centerline.points for i in chain]))
+    if centre_line.length > MAX_ROUTE_LENGTH:
+        raise ScenarioError(f"field 'lanelet {chain[0]}': the route along its successors is {centre_line.length:.3g} m "
+                            f"long, beyond {MAX_ROUTE_LENGTH:g} m (a recording's road is a few hundred)")
+    try:
+        route = round_corners(centre_line, ROUTE_MIN_RADIUS)
+    except ValueError:  # a turn back on itself: no curve of that radius stays near it
+        route = centre_line
+        note += f"; it turns tighter than a {ROUTE_MIN_RADIUS:g} m radius where no rounding can help (as in the map)"
+    if route is not centre_line:
+        moved = float(np.max(np.abs(centre_line.project(route.points)[1])))
+        note += f"; its corners rounded to a {ROUTE_MIN_RADIUS:g} m radius, at most {moved:.2f} m off the lanes' centre line"
     s0, _ = route.project(start_xy)
     on_route = route.position(s0)
     speed = _speed(initial, "planningProblem.initialState.velocity")

@@ -118,7 +118,7 @@ def test_a_junction_tighter_than_a_car_turns_is_rounded_and_obp_drives_it(tmp_pa
     """Peachtree, a right turn whose lanelets turn at a 2.7 m radius: the route is rounded to 5 m (said
     on import) and stays within a metre of the map's centre lines, and ObP's ground truth takes the
     turn without one failed solve (before, 25 of its 51 solves failed and, with every
-    car hidden, all 51: that ego never left the junction)."""
+    car hidden, all 51: that ego never left the junction); blind, it pulls out into a car."""
     from advperc_ros.core.geometry import sharpest_turn
     from advperc_ros.importers.commonroad import ROUTE_MIN_RADIUS
 
@@ -134,10 +134,15 @@ def test_a_junction_tighter_than_a_car_turns_is_rounded_and_obp_drives_it(tmp_pa
     gaps = np.linalg.norm(scenario.route.points[:, None, :] - centres[None, :, :], axis=2).min(axis=1)
     assert gaps.max() < 1.0
     obp = load_params(tmp_path / "bag.obp.yaml")
-    result = Stack(scenario, obp).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    stack = Stack(scenario, obp)
+    result = stack.rollout(PerceptionErrors.none(*scenario.agents.shape))
     assert result.inconclusive is None and result.planner_failures == 0 and not result.collided
     heading = np.unwrap(result.ego[:, 2])
     assert heading.max() - heading.min() > 1.0  # the ego turned
+    blind = PerceptionErrors.none(*scenario.agents.shape)
+    blind.fn[:] = True  # every car hidden: the ego now pulls out, into a car's side, at its fault
+    hidden = stack.rollout(blind)
+    assert hidden.planner_failures == 0 and hidden.collided and hidden.counted.min() < 0.0
 
 
 @needs_data

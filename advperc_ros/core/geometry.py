@@ -145,13 +145,14 @@ def _least_smoothed(stations: FloatArray, points: FloatArray, weights: FloatArra
 
 def round_corners(path: Polyline, min_radius: float, spacing: float = 0.5) -> Polyline:
     """`path` itself where no `TURN_WINDOW` of it turns tighter than `min_radius` (`sharpest_turn`),
-    else, as points `spacing` apart, the path with each stretch within two radii of a tight turn
+    else the path with each stretch within two radii of a tight turn (as points `spacing` apart)
     replaced by the least smoothed cubic smoothing spline through it (scipy's
     `make_smoothing_spline`, x and y over arc length, its penalty found by bisection) that turns no
     tighter. The spline is fitted over the stretch and `ANCHOR` metres either side, those weighing
     `PINNED`: a turn of that radius needs less room than two radii, so the corners are rounded and
     the rest stays where it was (a path smoothed as a whole moves everywhere, its ends too), and the
-    cost grows with the corners, not with the path's length. It cuts a right angle about 1.5 times
+    cost grows with the corners, not with the path's length. Outside the stretches the path keeps
+    its own vertices: a planner projects onto the route every frame, at a cost per vertex. It cuts a right angle about 1.5 times
     as deep as the circular fillet, the least any curve of that radius can (test_geometry.py).
     Raises ValueError where no such spline exists (a path turning back on itself)."""
     limit = 1.0 / min_radius
@@ -169,11 +170,15 @@ def round_corners(path: Polyline, min_radius: float, spacing: float = 0.5) -> Po
     for i in range(len(starts) - 1, 0, -1):  # stretches whose anchors overlap are fitted as one
         if stations[starts[i]] - stations[stops[i - 1] - 1] <= 2.0 * ANCHOR:
             del starts[i], stops[i - 1]
+    pieces, done = [], 0.0  # the path's own vertices between the stretches, the splines' points in them
     for first, stop in zip(starts, stops):
         lo = np.searchsorted(stations, stations[first] - ANCHOR)
         hi = np.searchsorted(stations, stations[stop - 1] + ANCHOR, side="right")
-        points[lo:hi] = _least_smoothed(stations[lo:hi], points[lo:hi], np.where(near[lo:hi], 1.0, PINNED), min_radius)
-    rounded = Polyline(points)
+        fitted = _least_smoothed(stations[lo:hi], points[lo:hi], np.where(near[lo:hi], 1.0, PINNED), min_radius)
+        pieces += [path.points[(path.stations >= done) & (path.stations < stations[first])], fitted[first - lo:stop - lo]]
+        done = stations[stop - 1]
+    pieces.append(path.points[path.stations > done])
+    rounded = Polyline(np.concatenate(pieces))
     if sharpest_turn(rounded) > limit:  # where a rounded stretch meets the pinned path
         raise ValueError(f"no smoothing of the path turns no tighter than a {min_radius:g} m radius")
     return rounded

@@ -152,8 +152,9 @@ def round_corners(path: Polyline, min_radius: float, spacing: float = 0.5) -> Po
     `PINNED`: a turn of that radius needs less room than two radii, so the corners are rounded and
     the rest stays where it was (a path smoothed as a whole moves everywhere, its ends too), and the
     cost grows with the corners, not with the path's length. Outside the stretches the path keeps
-    its own vertices: a planner projects onto the route every frame, at a cost per vertex. It cuts a right angle about 1.5 times
-    as deep as the circular fillet, the least any curve of that radius can (test_geometry.py).
+    its own vertices: a planner projects onto the route every frame, at a cost per vertex. It cuts
+    a right angle about 1.5 times as deep as the circular fillet, the least any curve of that
+    radius can (test_geometry.py).
     Raises ValueError where no such spline exists (a path turning back on itself)."""
     limit = 1.0 / min_radius
     _, tight = _tight_turns(path, TURN_WINDOW, limit)

@@ -11,8 +11,8 @@
   region. Multi-lane roads: if the goal needs a lane change, the route stays in the ego's lane up
   to the lanelet beside the goal (the IDM planner cannot change lanes); if nothing is reachable,
   the route is the longest successor chain ahead. Where the chain's centre line turns tighter than
-  `ROUTE_MIN_RADIUS` (the lanelets of some junctions turn at 1.5-3 m radii, which no car can drive:
-  ObP's NLP was infeasible at every frame of such a turn and its ego never left the junction), its
+  `ROUTE_MIN_RADIUS` (the lanelets of some junctions turn at 1.7-4.2 m radii, which no car can drive:
+  ObP's NLP failed most solves there, every one with the cars hidden, and its ego never left), its
   corners are rounded to that radius (`geometry.round_corners`); the lanes stay as in the map.
 - Target speed (for the generated params file): the top of the goal's velocity interval, the
   fastest speed at which the ego still meets its goal (an ego given the middle drives at the

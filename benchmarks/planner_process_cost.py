@@ -71,15 +71,21 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _node_plan_seconds(pid: int, folder: Path) -> float:
-    """The thread CPU seconds of the planner node's plan() calls so far."""
+def node_report(pid: int, folder: Path) -> dict:
+    """What the timer wrapper of node process `pid` kept (its SIGUSR1 report, written into `folder`):
+    the tally of its plan() calls so far, and the plan() calls and marks since its last report."""
     path = folder / f"{pid}.json"
     path.unlink(missing_ok=True)
     os.kill(pid, signal.SIGUSR1)
     deadline = time.monotonic() + 10
     while not path.exists() and time.monotonic() < deadline:
         time.sleep(0.01)
-    return float(json.loads(path.read_text())[1])
+    return json.loads(path.read_text())
+
+
+def _node_plan_seconds(pid: int, folder: Path) -> float:
+    """The thread CPU seconds of the planner node's plan() calls so far."""
+    return float(node_report(pid, folder)["seconds"])
 
 
 def in_the_graph(name: str, rollouts: int, domain_id: int) -> dict[str, float]:

@@ -15,6 +15,9 @@ REPRODUCTION_TOLERANCE = 1e-9  # m: the graph's own tolerance against the embedd
 
 @dataclass(frozen=True)
 class AttackOutcome:
+    """Everything one attack produced, before anything is written: the report, the bag and the plots
+    are all made from it, so what a user reads in each cannot disagree."""
+
     scenario: Scenario
     params: AttackParams  # as run: `planner` is EXTERNAL when an external node planned
     heuristic_best: Evaluation | None  # None when no agent is influential

@@ -84,29 +84,39 @@ def _param(default: Any, description: str, **bounds: Any) -> Any:
 
 @dataclass(frozen=True)
 class EgoParams:
+    """The ego's box: the rule monitor's collisions and a planner's footprint are both measured with it."""
+
     length: float = _param(4.6, "ego box length (m)", positive=True)
     width: float = _param(1.9, "ego box width (m)", positive=True)
 
 
 @dataclass(frozen=True)
 class RuleParams:
+    """Which contacts count as a failure: every one (the paper's rule) or only the ego's fault."""
+
     at_fault_only: bool = _param(False, "count only collisions that are the ego's fault (nuPlan's at-fault "
                                  "collisions): not when the ego is stopped or hit from behind")
 
 
 @dataclass(frozen=True)
 class TrackerParams:
+    """The bundled tracker's association and deletion: what turns detections into the tracks a planner sees."""
+
     gate: float = _param(2.0, "association gate on centre distance (m)", positive=True)
     max_age: float = _param(1.0, "seconds without an observation before a track is deleted", positive=True)
 
 
 @dataclass(frozen=True)
 class HeuristicParams:
+    """The paper's first phase, which bisects each agent's drop window before any random search."""
+
     iterations: int = _param(3, "bisection iterations for each bound (paper: 3)", low=0, high=64)
 
 
 @dataclass(frozen=True)
 class JointParams:
+    """Drops of several agents at once: our step for scenarios where no single drop makes the ego collide."""
+
     max_agents: int = _param(8, "beyond the paper, when no single agent's drop collides: agents the joint drops "
                              "keep at most (README Search); 0: no joint drops (nor the blind rollout)", low=0,
                              high=1_000_000)
@@ -114,6 +124,8 @@ class JointParams:
 
 @dataclass(frozen=True)
 class ApproachParams:
+    """Our approach phase: the nearest cars displaced or hidden a while, where no drop at all collides."""
+
     steps: int = _param(120, "beyond the paper, when no drop collides (not even the blind rollout): rollouts of "
                         "the approach phase at most, which shows the cars nearest the ego displaced or hidden for a "
                         "while (README Search); 0: none",
@@ -124,6 +136,8 @@ class ApproachParams:
 
 @dataclass(frozen=True)
 class RandomParams:
+    """The paper's random search: its steps, the proposals scored per step and the size of a flip."""
+
     steps: int = _param(40, "random search steps N_steps (paper: 40)", low=0, high=1_000_000)
     # each proposal is an error tensor held at once (frames x agents x 25 bytes): 10,000 of a 44-car recording
     # take about 0.9 GB, where a million took tens of GB and ended in a MemoryError after the work had started
@@ -134,12 +148,16 @@ class RandomParams:
 
 @dataclass(frozen=True)
 class RefineParams:
+    """Our refinement of the best attack's drop starts, after the paper's search has found it."""
+
     iterations: int = _param(4, "beyond the paper: bisection iterations re-detecting the start of each dropped "
                              "run of the best attack; 0 keeps the paper's search only", low=0, high=64)
 
 
 @dataclass(frozen=True)
 class GuidedParams:
+    """The guided method's rounds: many candidates scored exactly, a few of them rolled out."""
+
     candidates: int = _param(400, "guided method: candidates scored exactly per round (held at once, as the "
                              "random search's proposals)", low=1, high=10_000)
     batch: int = _param(2, "guided method: rollouts per round (they may run at once on `workers`)", low=1, high=1024)
@@ -147,6 +165,8 @@ class GuidedParams:
 
 @dataclass(frozen=True)
 class ErrorsParams:
+    """The error space the search may use and the bounds of each kind beyond the paper's three."""
+
     kinds: str = _param("paper", "error kinds the search may use: paper (position, yaw and drop, the paper's: its "
                         "results bit for bit), all, or a comma-separated list of the kinds added to the paper's: "
                         + ", ".join(ERROR_KINDS[len(PAPER_KINDS):]) + " (docs/errors.md)", parse=parse_error_kinds)
@@ -162,6 +182,8 @@ class ErrorsParams:
 
 @dataclass(frozen=True)
 class SearchParams:
+    """The search: its method, its rollout budget and each phase's settings, grouped as the file nests them."""
+
     method: str = _param("guided", "guided: heuristic, then rounds that score many candidates and roll out the "
                          "most promising (README Search); paper: heuristic, random search, refine, as the paper",
                          choices=tuple(METHODS))
@@ -178,12 +200,17 @@ class SearchParams:
 
 @dataclass(frozen=True)
 class DdsParams:
+    """Where the bare-DDS graph talks: its domain, and whether it stays on loopback (the default)."""
+
     domain_id: int = _param(0, "DDS domain id of the graph backend (0..232)", low=0, high=232)
     localhost_only: bool = _param(True, "graph backend: DDS discovery and traffic on this host's loopback only")
 
 
 @dataclass(frozen=True)
 class GraphParams:
+    """How the graph backend runs a rollout: timeouts, who starts the nodes, how frames reach the planner and
+    which stack's messages it speaks."""
+
     timeout: float = _param(10.0, "seconds a frame's plan (graph backend: and rule value) may take before the "
                             "rollout is inconclusive; embedded, one plan call", positive=True, high=3600.0)
     spawn_nodes: bool = _param(True, "graph backend: start the five graph nodes as child processes (Cyclone DDS); "

@@ -52,6 +52,9 @@ class FoundAttack:
 
 @dataclass(frozen=True)
 class Replay:
+    """A found attack's errors rolled out again under other params (another planner, seed or
+    backend): whether the failure carries over is what a planner engineer asks of a bag first."""
+
     attack: FoundAttack
     params: AttackParams  # what the errors were replayed against
     scenario: Scenario

@@ -42,6 +42,9 @@ from advperc_ros.results import ERRORS, REPORT_JSON
 
 @dataclass(frozen=True)
 class CellResult:
+    """How one cell ended in its worker: an error is that cell's, never the campaign's, so one bad
+    scenario cannot cost the other cells their results."""
+
     name: str
     error: str | None = None  # the one-line expected failure, or a bug's traceback
     exit_code: int | None = None  # of an expected failure; None for a bug

@@ -31,6 +31,9 @@ EXIT_BUG = 1  # what Python exits with on an uncaught exception
 
 @dataclass(frozen=True)
 class CampaignRun:
+    """What a campaign run did: which cells ran now and which a resumed run found finished, so a
+    resumed campaign says how much work it saved, and the exit code a CI job acts on."""
+
     output: Path
     ran: tuple[str, ...]  # cells run now
     finished_before: tuple[str, ...]  # cells found finished and not run again

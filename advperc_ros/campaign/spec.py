@@ -77,6 +77,10 @@ class PlannerEntry:
 
 @dataclass(frozen=True)
 class Campaign:
+    """A campaign file, checked whole before any cell runs: its cells are the product of scenarios,
+    objectives, seeds and planners (replaying, of a folder's attacks and planners), with the
+    overrides every cell's params take."""
+
     source: Path
     name: str
     output: Path

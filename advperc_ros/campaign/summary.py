@@ -34,6 +34,9 @@ TEXT_COLUMNS = ("scenario", "planner", "objective", "attack", "attacked", "repla
 
 @dataclass(frozen=True)
 class CellStatus:
+    """What the summary knows of one cell (finished, failed, running or pending), read from its folder
+    or its worker, so that a summary can be written at any moment of a campaign."""
+
     cell: Cell
     report: dict | None = None  # report.json (replay.json) of a finished cell
     error: str | None = None  # why the cell failed in this run (a line, or a bug's traceback)
@@ -43,6 +46,9 @@ class CellStatus:
 
 @dataclass(frozen=True)
 class Verdict:
+    """A cell's line in the summary: failure, pass, error or pending, with the metric and threshold
+    that decided it, so a reader sees why, not just what."""
+
     outcome: str  # FAILURE, PASS, ERROR or PENDING
     text: str
     metric: float | None = None

@@ -51,6 +51,9 @@ STANDING = 1e-3  # m/s, the speed a standing ego is given to the planner's speed
 
 @dataclass(frozen=True)
 class ReactiveConfig:
+    """The third-party reactive planner's settings as our params give them; the defaults trade its
+    own planning horizon for an attack's thousands of calls."""
+
     target_speed: float = 10.0  # m/s, the planner's desired velocity
     horizon: float = 3.0  # s (the package's default is 6 s; 3 s keeps an attack's thousands of calls affordable)
     lateral: float = 3.0  # m, the largest lateral offset from the route sampled
@@ -63,6 +66,9 @@ class ReactiveConfig:
 
 
 class ReactivePlanner:
+    """TUM's commonroad-reactive-planner behind our Planner protocol: a planner we did not write, attacked
+    exactly as the bundled ones are, which shows a team's planner plugs in the same way."""
+
     def __init__(self, context: PlanningContext, **params: float) -> None:
         self.context = context
         self.config = config_from_params(ReactiveConfig, params)

@@ -25,6 +25,9 @@ from advperc_ros.ros.transport import Transport
 
 
 class ErrorInjector:
+    """The injector's logic without its process: the module docstring's node, built on any Transport,
+    so tests drive it with messages and no ROS."""
+
     def __init__(self, transport: Transport, detections: ObjectsLayer, logger: Logger) -> None:
         self._log = logger
         self._detections = detections

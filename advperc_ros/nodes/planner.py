@@ -26,6 +26,9 @@ from advperc_ros.ros.transport import Transport
 
 
 class PlannerNode:
+    """The planner node's logic without its process: any Planner of the registry behind the graph's
+    topics, built on any Transport, so the planner under attack is the same object as embedded."""
+
     def __init__(self, transport: Transport, planner: Planner, profile: Profile, logger: Logger) -> None:
         self._planner = planner
         self._log = logger

@@ -22,6 +22,9 @@ from advperc_ros.ros.transport import Transport
 
 
 class RuleMonitor:
+    """The rule monitor's logic without its process, built on any Transport: the same rule as the
+    embedded rollout's (`core.rules`), judged on the true agents, never on what the planner saw."""
+
     def __init__(self, transport: Transport, ego_length: float, ego_width: float, logger: Logger) -> None:
         self._ego_length = ego_length
         self._ego_width = ego_width

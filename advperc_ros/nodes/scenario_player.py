@@ -76,6 +76,9 @@ class _Run:
 
 
 class ScenarioPlayer:
+    """The player's logic without its process, built on any Transport: the graph's clock and the
+    judge of every frame, which alone decides when a rollout ends and why."""
+
     def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, profile: Profile,
                  by_clock: bool, logger: Logger, ego_size: tuple[float, float]) -> None:
         self.scenario = read_scenario(bag)

@@ -20,6 +20,9 @@ from advperc_ros.ros.transport import Transport
 
 
 class TrackerNode:
+    """The tracker node's logic without its process, built on any Transport: the embedded rollout's
+    tracker object behind the graph's topics, so both backends track alike."""
+
     def __init__(self, transport: Transport, tracker: ObjectTracker, detections: ObjectsLayer, tracks: ObjectsLayer,
                  logger: Logger) -> None:
         self._tracker = tracker

@@ -307,6 +307,9 @@ def lanes_of(messages: list[tuple[int, bytes]], where: str) -> tuple[Lane, ...]:
 
 
 class GroundTruthCheck(NamedTuple):
+    """A ground-truth bag checked against the contract: every problem at once, each naming the bag and
+    the topic or field, so a user fixes a bag in one pass instead of one error at a time."""
+
     scenario: Scenario | None  # None when there is any problem
     topics: dict[str, tuple[str | None, int]]  # every topic of the bag -> (type, None if its connections differ; count)
     problems: list[str]  # one line each, naming the bag, the topic or field, the frame

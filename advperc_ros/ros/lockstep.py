@@ -79,6 +79,10 @@ class RolloutReady:
 
 @dataclass(frozen=True)
 class RolloutDone:
+    """The player's /attack/done: how many frames ran and whether the rollout has a verdict; a
+    `timeout` tells a graph that failed to answer from a planner that failed, since only the first
+    restarts the nodes."""
+
     rollout: int
     frames: int
     status: Status

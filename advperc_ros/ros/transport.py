@@ -33,6 +33,8 @@ WAITABLES_PERIOD = 1.0
 
 
 class Publisher(Protocol):
+    """What a node publishes through, on either transport."""
+
     def publish(self, msg: object) -> None:
         """Send a rosbags message of the publisher's type, or its CDR payload (bytes) as it is."""
 
@@ -41,6 +43,9 @@ class Publisher(Protocol):
 
 
 class Transport(Protocol):
+    """The only interface node logic and the graph backend see, so the same nodes run over rclpy and
+    over bare Cyclone DDS, and tests can run them without ROS."""
+
     def publisher(self, topic: str, msgtype: str, latched: bool = False) -> Publisher:
         """A publisher of `topic` carrying `msgtype` (`pkg/msg/Type`)."""
 

@@ -37,7 +37,7 @@ from contextlib import ExitStack
 from pathlib import Path
 
 from graph_bench import bundled_on_graph, node_pids, rclpy_graph
-from hop_cost import available
+from hop_cost import available, load_average
 from planner_process_cost import TIMER, node_report, plan_timer
 
 from advperc_ros.backends.graph.rollouts import GraphRollouts
@@ -149,7 +149,6 @@ if __name__ == "__main__":
     parser.add_argument("--domain-id", type=int, default=184)
     options = parser.parse_args()
     keep_freed_heap()  # as `advperc attack` and the nodes do
-    print(f"== {options.scenario}: {options.rollouts} ground-truth rollouts on each, in turn; load average "
-          + " ".join(f"{x:.2f}" for x in os.getloadavg()) + " ==")
+    print(f"== {options.scenario}: {options.rollouts} ground-truth rollouts on each, in turn; {load_average()} ==")
     frame_gap(options.scenario, options.rollouts, options.domain_id)
 

@@ -126,10 +126,6 @@ def _difference(graph: RolloutResult, embedded: RolloutResult) -> float:
     return float(max(np.abs(graph.ego - embedded.ego).max(), np.abs(graph.distances - embedded.distances)[finite].max()))
 
 
-def _load() -> str:
-    return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
-
-
 def bundled_on_graph(name: str, domain_id: int) -> tuple[Path, Scenario, AttackParams, Stack]:
     """A bundled scenario's bag, scenario, params set for the graph backend on loopback with `domain_id`,
     and its embedded stack: what each side-by-side comparison starts from."""
@@ -150,11 +146,12 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
         print("(ROS 2 not sourced: the rclpy graph is left out; source ../shared/ros2/activate.sh to include it)")
     round_trip = {}
     if hops:
-        print(f"== One hop (hop_cost.py, {hops} ping-pongs); {_load()} ==")
+        print(f"== One hop (hop_cost.py, {hops} ping-pongs); {hop_cost.load_average()} ==")
         for offset, backend in enumerate(backends):
             cpu, round_trip[backend] = hop_cost.measure(backend, domain_id + 2 + offset, hops)
             print(f"{backend:8s} relay CPU {cpu * 1e6:6.1f} us/message, round trip {round_trip[backend] * 1e6:6.1f} us")
-    print(f"== Graphs (5 node processes, loopback) vs embedded rollouts, median of {repeats}, in turn; {_load()} ==")
+    print(f"== Graphs (5 node processes, loopback) vs embedded rollouts, median of {repeats}, in turn; "
+          f"{hop_cost.load_average()} ==")
     print(f"{'scenario':22s} {'errors':12s} {'frames':>6s} {'embedded s':>10s} {'spread':>6s} "
           + " ".join(f"{b + ' s':>9s} {'ratio':>6s} {'diff':>8s}" for b in backends))
     rows = []
@@ -208,7 +205,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
                       + " ".join(f"{r['graph_s']:9.3f} {r['ratio']:6.2f} {r['max_difference']:8.1e}" for r in mine))
         print(f"{name:22s} start-up (processes, discovery, warm-up rollout): "
               + ", ".join(f"{b} {s:.1f} s" for b, s in startup.items()))
-    print(f"-- graph / embedded per scenario and backend (paired, weighted by embedded time); {_load()}")
+    print(f"-- graph / embedded per scenario and backend (paired, weighted by embedded time); {hop_cost.load_average()}")
     for name in scenarios:
         for backend in backends:
             mine = [row for row in rows if row["scenario"] == name and row["backend"] == backend]

@@ -148,6 +148,12 @@ def available() -> tuple[str, ...]:
     return KINDS
 
 
+def load_average() -> str:
+    """"load average" and its three figures: every benchmark prints it, since on a shared machine the
+    ratios move with it."""
+    return "load average " + " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--messages", type=int, default=2000)
@@ -160,8 +166,7 @@ def main() -> None:
     kinds = available()
     if len(kinds) == 1:
         print("(ROS 2 not sourced: rclpy left out)")
-    print(f"== one hop: relay CPU per message and round trip, {args.messages} ping-pongs; load average "
-          + " ".join(f"{x:.2f}" for x in os.getloadavg()))
+    print(f"== one hop: relay CPU per message and round trip, {args.messages} ping-pongs; {load_average()}")
     for offset, kind in enumerate(kinds):
         cpu, wall = measure(kind, args.domain_id + offset, args.messages)
         print(f"{kind:14s} relay CPU {cpu * 1e6:6.1f} us/message, round trip {wall * 1e6:6.1f} us; per graph frame: "

@@ -53,6 +53,7 @@ def _load_timer():
 plan_timer = _load_timer()  # this process's plan() tallies
 
 from graph_bench import bundled_on_graph  # noqa: E402
+from hop_cost import load_average  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
@@ -232,7 +233,7 @@ def main() -> None:
     args = parser.parse_args()
     keep_freed_heap()  # as `advperc attack` and the nodes do
     print(f"== {args.scenario}: the planner in the graph and embedded, {args.rollouts} ground-truth rollouts each, "
-          f"in turn; load average {' '.join(f'{x:.2f}' for x in os.getloadavg())} ==")
+          f"in turn; {load_average()} ==")
     graph = in_the_graph(args.scenario, args.rollouts, args.domain_id)
     per_frame = 1e3 / graph["frames"]
     print(f"plan() CPU: embedded {graph['embedded_plan']:.3f} s, planner node {graph['node_plan']:.3f} s: "

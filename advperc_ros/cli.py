@@ -321,6 +321,25 @@ def _strengths(text: str) -> tuple[float, ...]:
     return values
 
 
+def _import_bag_epilog() -> str:
+    """What import-bag reads, listed from the interface profiles and the importer's own tables, so that
+    the help names exactly the types the decoders take."""
+    from advperc_ros.ros.drive_log import ODOMETRY_TOPICS, ODOMETRY_TYPE, RANK
+    from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
+    from advperc_ros.ros.topics import LANES, ROUTE, TOPIC_TYPES
+
+    lines = ["what it reads (topics are found by type, whatever their names):",
+             "  objects (--objects), one topic of a type an interface profile (graph.interface) speaks:"]
+    for name in BUNDLED:
+        profile = load_profile(name)
+        lines.append(f"    {name}: detections {profile.detections.msgtype}, tracks {profile.tracks.msgtype}")
+    lines.append(f"  several objects topics: the first type present of {', '.join(RANK)}")
+    lines.append(f"  ego (--odometry): {ODOMETRY_TYPE}; of several, {' then '.join(ODOMETRY_TOPICS)}")
+    lines.append(f"  road: {LANES} ({TOPIC_TYPES[LANES]}) and {ROUTE} ({TOPIC_TYPES[ROUTE]}) when the log has them, "
+                 "else a corridor around the recorded ego path")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="advperc", description="Adversarial perception error search.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -355,7 +374,8 @@ def build_parser() -> argparse.ArgumentParser:
     importer.add_argument("--params", type=_path, help="params file to write for attacking it (default <output>.yaml)")
     importer.set_defaults(func=cmd_import_commonroad)
 
-    drive = sub.add_parser("import-bag", help="a recorded drive (rosbag2 log: objects + odometry) -> ground-truth bag")
+    drive = sub.add_parser("import-bag", help="a recorded drive (rosbag2 log: objects + odometry) -> ground-truth bag",
+                           epilog=_import_bag_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
     drive.add_argument("log", help="rosbag2 bag directory (MCAP, or sqlite3) of your own drive")
     drive.add_argument("--objects", help="objects topic (default: the only one of a type an interface profile speaks)")
     drive.add_argument("--odometry", help="nav_msgs/Odometry topic of the ego (default: the only one)")

@@ -39,6 +39,7 @@ from advperc_ros.results import ERRORS, REPORT_JSON
 from advperc_ros.ros.bag import read_scenario
 
 EXECUTORS = ("process", "ray", "serial")
+FINISHED_FIELDS = ("config_hash", "collision")  # what a resume reads of a finished cell's report before the summary
 RAY_CLIENT = "ray://"  # a Ray Client address, from outside the cluster
 RAY_CURRENT_CLUSTER = Path("/tmp/ray/ray_current_cluster")  # where `ray start` writes its address (Ray's `auto`)
 RAY_REACH_TIMEOUT = 3.0  # s for a cluster's port to answer before the campaign refuses it
@@ -127,9 +128,22 @@ class Cell:
         return REPORT_JSON if self.attack is None else REPLAY_JSON
 
     def report(self, output: Path) -> dict | None:
-        """The finished cell's report, None while it is not finished."""
+        """The finished cell's report, None while it is not finished; a ParamsError naming the file when
+        it is no report of ours (truncated, not a mapping, without the fields a resume compares), which
+        a resume must not take for a finished cell nor stop on with a traceback."""
         path = output / self.name / self.report_name
-        return json.loads(path.read_text()) if path.is_file() else None
+        if not path.is_file():
+            return None
+        try:
+            report = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ParamsError(f"{path}: not a finished cell's report ({exc}): remove the cell's folder to run it "
+                              "again") from None
+        missing = [field for field in FINISHED_FIELDS if not isinstance(report, dict) or field not in report]
+        if missing:
+            raise ParamsError(f"{path}: field '{missing[0]}' missing: not a finished cell's report; remove the "
+                              "cell's folder to run it again")
+        return report
 
 
 def _fail(path: Path, field: str, text: str) -> ParamsError:

@@ -36,6 +36,8 @@ from advperc_ros.ros import bag as bags
 from advperc_ros.ros.bag import BagError, read_scenario
 
 REPLAY_JSON = "replay.json"
+# what a replay reads of the attack's report.json besides its params (older or hand-made reports may lack one)
+ATTACK_FIELDS = ("bag_sha256", "config_hash", "min_signed_distance", "planner", "scenario", "seed")
 REPLAY_MD = "replay.md"
 BEV_PLOT = "bev.png"  # the replayed rollout's last seconds, when it still collides
 
@@ -81,6 +83,9 @@ def load_attack(folder: Path) -> FoundAttack:
         values = dict(report["params"])  # AttackParams.canonical(): planner_params included
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise ParamsError(f"{report_path}: not an attack report: {exc}") from exc
+    missing = [field for field in ATTACK_FIELDS if not isinstance(report, dict) or field not in report]
+    if missing:
+        raise ParamsError(f"{report_path}: field '{missing[0]}' missing: not an attack report of advperc")
     if not report.get("collision") or not errors_path.is_file():
         raise ParamsError(f"{folder}: the search found no collision there, so there is no attack to replay")
     params = params_from_values(values, report_path)

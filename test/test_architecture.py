@@ -98,7 +98,7 @@ def test_every_exception_the_package_defines_derives_from_one_base():
             assert issubclass(kind, exceptions.AdvpercError), name
 
 
-ENTRY_POINTS = {"advperc_ros.cli", "advperc_ros.orchestrator_node"}
+ENTRY_POINTS = {"advperc_ros.cli", "advperc_ros.orchestrator_node", "advperc_ros.launch_plan"}
 APPLICATION = ("advperc_ros.application", "advperc_ros.results", "advperc_ros.report", "advperc_ros.replay",
                "advperc_ros.plots", "advperc_ros.campaign")
 

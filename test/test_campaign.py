@@ -437,3 +437,23 @@ def test_a_folder_the_campaign_did_not_make_is_refused_and_left_untouched(serial
     assert len(err.splitlines()) == 1 and err.startswith(f"advperc: error: {campaign}: field 'output' {output} is a "
                                                          "folder that campaign 'small' of this file did not make"), err
     assert _tree(output) == before
+
+
+@pytest.mark.parametrize("damage, says", [
+    (lambda text: text[: len(text) // 2], "not a finished cell's report (Unterminated string"),
+    (lambda text: "[1, 2]", "field 'config_hash' missing: not a finished cell's report"),
+    (lambda text: json.dumps({k: v for k, v in json.loads(text).items() if k != "config_hash"}),
+     "field 'config_hash' missing: not a finished cell's report"),
+])
+def test_a_resume_over_a_finished_cell_whose_report_is_damaged_is_one_line_and_exit_2(serial, campaign, tmp_path,
+                                                                                     capsys, damage, says):
+    output = tmp_path / "damaged"
+    shutil.copytree(serial, output)
+    report = output / CELLS[0] / "report.json"
+    report.write_text(damage(report.read_text()))
+    before = sorted(path.relative_to(output) for path in output.rglob("*"))
+    capsys.readouterr()
+    assert main(["campaign", str(campaign), "--output", str(output), "--quiet"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"advperc: error: {report}: ") and says in line, line
+    assert sorted(path.relative_to(output) for path in output.rglob("*")) == before

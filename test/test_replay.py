@@ -2,11 +2,13 @@
 report's figures), against a more cautious planner (it no longer does), and refusals."""
 
 import json
+import shutil
 
 import pytest
 from test_cli import write_params
 
 from advperc_ros.cli import main
+from advperc_ros.replay import ATTACK_FIELDS
 
 # a short search by the paper's method, whose attacks (the lead dropped, or displaced) these tests pin
 SHORT = {"search.method": "paper", "search.random.steps": 1, "search.random.proposals": 10,
@@ -74,3 +76,15 @@ def test_a_folder_without_an_attack_is_refused(tmp_path, capsys):
 def test_an_output_where_nothing_can_be_made_is_refused_before_the_replay(attack, capsys):
     err = _refused([str(attack), "--output", "/proc/advperc-replay"], capsys)
     assert "/proc/advperc-replay" in err and "cannot create the output folder" in err
+
+
+@pytest.mark.parametrize("field", ATTACK_FIELDS)
+def test_a_report_without_a_field_the_replay_reads_is_refused(attack, tmp_path, capsys, field):
+    copy = tmp_path / "attack"
+    shutil.copytree(attack, copy)
+    report = json.loads((copy / "report.json").read_text())
+    del report[field]
+    (copy / "report.json").write_text(json.dumps(report))
+    assert _refused([str(copy), "--output", str(tmp_path / "out")], capsys) == (
+        f"advperc: error: {copy / 'report.json'}: field '{field}' missing: not an attack report of advperc")
+    assert not (tmp_path / "out").exists()

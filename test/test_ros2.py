@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import REPO, need_program, need_ros
+from conftest import REPO, REQUIRE_ROS, need_program, need_ros
 
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 from advperc_ros.params import NODE, load_params
@@ -475,6 +475,45 @@ def test_a_launch_whose_planner_never_answers_exits_4_naming_who_is_silent(works
     assert code == 4 and len(errors) == 1, _orchestrator_lines(output)
     assert "no node publishes plans on /planning/trajectory" in errors[0], errors[0]
     assert sorted(path.name for path in tmp_path.iterdir()) == [params.name]
+
+
+@pytest.fixture(scope="module")
+def ros_only_python(tmp_path_factory) -> Path:
+    """A venv holding only what the ROS 2 tools themselves import (the kit's pip-runtime.txt), none of
+    the package's dependencies: the interpreter `ros2` runs on a machine whose team keeps those in a venv."""
+    runtime = REPO.parent / "shared" / "ros2" / "pip-runtime.txt"
+    if not runtime.is_file():
+        (pytest.fail if REQUIRE_ROS else pytest.skip)(f"{runtime} is missing: the ROS 2 kit is not beside the repository")
+    venv = tmp_path_factory.mktemp("ros-only-venv")
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, capture_output=True, timeout=TIMEOUT)
+    subprocess.run([str(venv / "bin" / "pip"), "install", "-q", *runtime.read_text().split()], check=True,
+                   capture_output=True, timeout=TIMEOUT)
+    python = venv / "bin" / "python"
+    assert subprocess.run([str(python), "-c", "import filterpy"], capture_output=True).returncode != 0
+    return python
+
+
+@pytest.mark.parametrize("arguments, code", [("", 0), ("planner:=elsewhere", 2)])
+def test_a_launch_works_when_ros2_runs_on_an_interpreter_without_the_package_s_dependencies(
+        workspace, ros_domain, tmp_path, ros_only_python, arguments, code):
+    """`ros2` on an interpreter that has ROS 2's own modules and not the package's dependencies (they
+    live in the venv that built the workspace): the launch file imports nothing of the package, its
+    `launch_plan` executable (the building interpreter's) checks the params, so the attack runs, and a
+    refusal is still one line and exit code 2 before any node starts."""
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
+    output = tmp_path / "attack"
+    ros2 = need_program("ros2")
+    launch = _in_workspace(workspace, f"{ros_only_python} {ros2} launch advperc_ros attack.launch.py params:={params} "
+                                      f"output:={output} {arguments}", ros_domain)
+    got, text = _ended(launch, timeout=TIMEOUT)
+    assert got == code, _orchestrator_lines(text)
+    if code:
+        errors = [line for line in text.splitlines() if "[ERROR]" in line]
+        assert len(errors) == 1 and errors[0].endswith("launch argument 'planner' must be ours or external, "
+                                                       "got 'elsewhere'"), text[-3000:]
+        assert "process started" not in text and not output.exists()
+    else:
+        assert _report(output)["collision"], _orchestrator_lines(text)
 
 
 _CLI_REPORTS: dict[str, dict] = {}

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.geometry import CLASS_RANGE
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
 TP_THRESHOLD = 2.0
-CLASS_RANGE = 50.0
 MIN_RECALL = 0.1
 MIN_PRECISION = 0.1
 MEAN_AP_WEIGHT = 5.0

@@ -7,9 +7,6 @@ from typing import overload
 import numpy as np
 
 FloatArray = np.ndarray
-# m around the ego within which a car counts: the nuScenes class range of cars. The metrics filter by it, the
-# perception error model draws its ghosts within it and the search's moves pick the cars near the ego by it
-CLASS_RANGE = 50.0
 
 
 @overload

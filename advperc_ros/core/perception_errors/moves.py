@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from advperc_ros.core.geometry import CLASS_RANGE
+from advperc_ros.core.boxes import CLASS_RANGE
 from advperc_ros.core.perception_errors.kind import Move, MoveContext
 from advperc_ros.core.perception_errors.runs import attacked_runs, dropped_runs
 

@@ -43,12 +43,12 @@ from advperc_ros.core.pem.defaults import default_pem
 from advperc_ros.core.pem.densities import NUM_FEATURES, RANGE_SCALE, bearings, features, to_radial, to_world
 from advperc_ros.core.pem.fit import FIT_LATENCIES, SCALE_FLOOR, fit, fit_object_frames
 from advperc_ros.core.pem.frames import ObjectFrames, object_frames
-from advperc_ros.core.pem.model import GHOST_SLOTS, PEM
-from advperc_ros.core.pem.schema import MAX_LATENCY
+from advperc_ros.core.pem.model import PEM
+from advperc_ros.core.pem.terms import GHOST_SLOTS, MAX_LATENCY, TERMS, Term
 from advperc_ros.exceptions import PEMError
 
 __all__ = [
-    "FIT_LATENCIES", "GHOST_SLOTS", "MAX_LATENCY", "NUM_FEATURES", "PEM", "RANGE_SCALE", "SCALE_FLOOR", "ObjectFrames",
-    "PEMError", "bearings", "default_pem", "features", "fit", "fit_object_frames", "object_frames", "to_radial",
-    "to_world",
+    "FIT_LATENCIES", "GHOST_SLOTS", "MAX_LATENCY", "NUM_FEATURES", "PEM", "RANGE_SCALE", "SCALE_FLOOR", "TERMS",
+    "ObjectFrames", "PEMError", "Term", "bearings", "default_pem", "features", "fit", "fit_object_frames",
+    "object_frames", "to_radial", "to_world",
 ]

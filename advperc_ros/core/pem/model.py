@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 from scipy.special import expit, gammaln, log_expit, xlogy
 
-from advperc_ros.core.boxes import CLASS_RANGE, BoxSequence, in_range
+from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.inputs import read_input_text
 from advperc_ros.core.pem.densities import (
     _flip_mixture,
-    _normal_logpdf,
     _Persistence,
     _student_t_1d_logpdf,
     _student_t_2d_logpdf,
@@ -24,10 +23,10 @@ from advperc_ros.core.pem.densities import (
 )
 from advperc_ros.core.pem.frames import ObjectFrames, object_frames
 from advperc_ros.core.pem.schema import REQUIRED, check_terms, checked
-from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors
+from advperc_ros.core.pem.terms import TERMS, Draw
+from advperc_ros.core.perception_errors import PerceptionErrors, kind_named
 from advperc_ros.exceptions import PEMError
 
-GHOST_SLOTS = ErrorSpace().ghosts  # sampled ghosts per frame at most (the attack's own bound)
 
 @dataclass(frozen=True)
 class PEM:
@@ -88,9 +87,10 @@ class PEM:
 
     @property
     def reads_beyond_the_paper(self) -> bool:
-        """Whether scoring reads more of a perception output than the paper's errors: velocities,
-        sizes or false positives (`matched_errors` reads them back only then)."""
-        return self.models_velocity or self.models_size or self.false_positive_rate > 0.0
+        """Whether scoring reads more of a perception output than the paper's errors: whether a term is
+        on whose kind the metrics read back (velocities, sizes, false positives: `matched_errors`
+        reads them back only then)."""
+        return any(term.on(self) and kind_named(term.kind).read_back is not None for term in TERMS)
 
     def _position_scales(self, phi: np.ndarray) -> np.ndarray:
         return np.stack([np.exp(self._linear(self.radial_log_scale, phi)),
@@ -117,14 +117,6 @@ class PEM:
         flipped = _student_t_1d_logpdf(wrap_angle(dyaw - np.pi), scale, self.yaw_nu)
         return _flip_mixture(straight, flipped, self.flip_probability(phi))
 
-    def velocity_log_density(self, velocity: np.ndarray):
-        return _student_t_2d_logpdf(velocity, np.zeros(2), self.velocity_radial_scale,
-                                    self.velocity_tangential_scale, 0.0, self.velocity_nu)
-
-    def size_log_density(self, log_size: np.ndarray):
-        return (_normal_logpdf(log_size[:, 0], self.length_log_loc, self.length_log_std)
-                + _normal_logpdf(log_size[:, 1], self.width_log_loc, self.width_log_std))
-
     def log_likelihoods(self, frames: ObjectFrames) -> np.ndarray:
         """Per object-frame log p(det | x) + [det] log p(errors | x), the errors taken from the truth
         the detector's latency shows."""
@@ -133,10 +125,9 @@ class PEM:
         position, dyaw, velocity = frames.lagged(self.frames_late)
         errors = (self.position_log_density(position, frames.phi, frames.previous, frames.gap)
                   + self.yaw_log_density(dyaw, frames.phi))
-        if self.models_velocity:
-            errors = errors + self.velocity_log_density(velocity)
-        if self.models_size:
-            errors = errors + self.size_log_density(frames.log_size)
+        for term in TERMS:
+            if term.log_density is not None and term.on(self):
+                errors = errors + term.log_density(self, frames, velocity)
         return out + np.where(frames.detected, errors, 0.0)
 
     def false_positive_log_likelihood(self, frames: ObjectFrames) -> float:
@@ -205,41 +196,11 @@ class PEM:
         bearing = bearings(truth, ego_xy)
         dx, dy = to_world(rt, bearing)
         kinds: dict[str, np.ndarray] = {}
-        shape = truth.shape
-        if self.models_velocity:  # the bivariate t: a normal pair over one sqrt(chi2 / nu)
-            g = rng.standard_normal((*shape, 2))
-            w = np.sqrt(rng.chisquare(self.velocity_nu, shape) / self.velocity_nu)[..., None]
-            scales = np.array([self.velocity_radial_scale, self.velocity_tangential_scale])
-            kinds["dvx"], kinds["dvy"] = to_world(scales * g / w, bearing)
-        if self.models_size:
-            kinds["length_scale"] = np.exp(rng.normal(self.length_log_loc, self.length_log_std, shape))
-            kinds["width_scale"] = np.exp(rng.normal(self.width_log_loc, self.width_log_std, shape))
-        if self.models_flips:
-            kinds["flip"] = rng.random(shape) < self.flip_probability(phi)
-        if self.frames_late:
-            kinds["latency"] = np.full(shape, self.frames_late, dtype=np.int64)
-        if self.false_positive_rate > 0.0:
-            kinds.update(self._ghosts(truth, ego_xy, rng))
+        draw = Draw(truth, ego_xy, phi, bearing)
+        for term in TERMS:  # in the kinds' order, each drawing after the paper's parts and the terms before it
+            if term.on(self):
+                kinds.update(term.sample(self, draw, rng))
         return PerceptionErrors(dx=dx, dy=dy, dyaw=dyaw, fn=~detected, **kinds)
-
-    def _ghosts(self, truth: BoxSequence, ego_xy: np.ndarray, rng: np.random.Generator) -> dict[str, np.ndarray]:
-        """Ghost detections: per frame a Poisson number with the scored mean (at most GHOST_SLOTS, the
-        attack's bound), each uniform over the disc in range around the ego, its heading uniform, moving
-        along it at the speed of a random present agent-frame: as the cars of this scene move."""
-        frames = truth.shape[0]
-        mean = self.false_positive_rate * np.count_nonzero(in_range(truth, ego_xy)) / frames
-        count = np.minimum(rng.poisson(mean, frames), GHOST_SLOTS)
-        shape = (frames, GHOST_SLOTS)
-        radius = CLASS_RANGE * np.sqrt(rng.random(shape))
-        bearing = rng.uniform(-np.pi, np.pi, shape)
-        yaw = rng.uniform(-np.pi, np.pi, shape)
-        speeds = np.hypot(truth.vx, truth.vy)[truth.valid]
-        speed = rng.choice(speeds, shape) if speeds.size else np.zeros(shape)
-        return {
-            "ghost_on": np.arange(GHOST_SLOTS) < count[:, None],
-            "ghost_x": ego_xy[:, :1] + radius * np.cos(bearing), "ghost_y": ego_xy[:, 1:2] + radius * np.sin(bearing),
-            "ghost_yaw": yaw, "ghost_vx": speed * np.cos(yaw), "ghost_vy": speed * np.sin(yaw),
-        }
 
     # ----- persistence -----
     def save(self, path: Path) -> None:

@@ -10,9 +10,8 @@ import pytest
 
 from advperc_ros.application import attack_to_folder
 from advperc_ros.cli import main
-from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, ErrorSpace, PerceptionErrors
-from advperc_ros.core.search import extended
-from advperc_ros.core.search.extended import MoveContext
+from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, ErrorSpace, MoveContext, PerceptionErrors
+from advperc_ros.core.perception_errors.kinds import flip, ghost, latency, size, velocity
 from advperc_ros.core.search.guided import MOVES, candidate, moves_of
 from advperc_ros.core.search.config import GuidedConfig
 from advperc_ros.exceptions import ParamsError
@@ -57,25 +56,25 @@ def test_each_move_changes_its_kind_only_within_its_bounds(lane_following, conte
     parent = PerceptionErrors.none(*shape)
     parent.fn[10:30, 1] = True  # an attacked run, as the heuristic leaves one
     for _ in range(30):
-        c = extended.faster_or_slower(parent, shape[0], rng, context)
+        c = velocity.faster_or_slower(parent, shape[0], rng, context)
         assert _changed(c, parent) <= {"dvx", "dvy", "fn"} and np.hypot(c.dvx, c.dvy).max() <= 3.0
         j = np.flatnonzero((c.dvx != 0).any(axis=0))
         assert j.size == 1 and not c.fn[c.dvx[:, j[0]] != 0, j[0]].any()  # a car shown, with its velocity wrong
-        c = extended.resized(parent, shape[0], rng, context)
+        c = size.resized(parent, shape[0], rng, context)
         assert _changed(c, parent) <= {"length_scale", "width_scale", "fn"}
         assert 0.7 <= c.length_scale.min() and c.width_scale.max() <= 1.6
-        c = extended.turned_around(parent, shape[0], rng, context)
+        c = flip.turned_around(parent, shape[0], rng, context)
         assert _changed(c, parent) <= {"flip", "fn"} and c.flip.any()
-        c = extended.late(parent, shape[0], rng, context)
+        c = latency.late(parent, shape[0], rng, context)
         assert _changed(c, parent) <= {"latency", "fn"} and 1 <= c.latency.max() <= 4
-        c = extended.ghost_ahead(parent, shape[0], rng, context)
+        c = ghost.ghost_ahead(parent, shape[0], rng, context)
         assert _changed(c, parent) <= {name for name in c.arrays() if name.startswith("ghost_")} and c.ghost_on.any()
         k, g = np.argwhere(c.ghost_on)[0]
-        assert abs(c.ghost_y[k, g]) <= extended.GHOST_ASIDE and c.ghost_x[k, g] >= context.ego[k, 0]  # in its way
-        gone = extended.ghost_gone(c, shape[0], rng, context)
+        assert abs(c.ghost_y[k, g]) <= ghost.GHOST_ASIDE and c.ghost_x[k, g] >= context.ego[k, 0]  # in its way
+        gone = ghost.ghost_gone(c, shape[0], rng, context)
         assert 0 < gone.ghost_on.sum() < c.ghost_on.sum() or c.ghost_on.sum() == 1 and not gone.ghost_on.any()
         PerceptionErrors.from_arrays(c.arrays())  # every candidate is a tensor a file or message may hold
-    assert extended.ghost_gone(parent, shape[0], rng, context) is None  # no ghost to take away
+    assert ghost.ghost_gone(parent, shape[0], rng, context) is None  # no ghost to take away
 
 
 def test_a_candidate_of_an_extended_move_without_its_context_is_refused(lane_following):

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from advperc_ros.core.pem import NUM_FEATURES, PEM, _student_t_1d_logpdf, _student_t_2d_logpdf, fit
+from advperc_ros.core.pem import NUM_FEATURES, PEM, fit
+from advperc_ros.core.pem.densities import _student_t_1d_logpdf, _student_t_2d_logpdf
 
 TRUE = PEM(
     detection=(3.0, -2.0, -1.0, -2.5, 0.2),

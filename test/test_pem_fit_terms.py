@@ -7,7 +7,8 @@ import pytest
 from pem_scenes import EXTENDED, moving_scene
 from scipy.optimize import approx_fprime
 
-from advperc_ros.core.pem import NUM_FEATURES, _position_objective, _yaw_objective, fit_object_frames
+from advperc_ros.core.pem import NUM_FEATURES, fit_object_frames
+from advperc_ros.core.pem.fit import _position_objective, _yaw_objective
 from advperc_ros.core.pem_fit import MIN_FOLLOWING, fit_pem, training_set
 from advperc_ros.core.perception_errors import inject
 from advperc_ros.exceptions import BagError

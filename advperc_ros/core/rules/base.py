@@ -9,7 +9,7 @@ import it (as the planners' base.py).
 """
 
 from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any, ClassVar, Protocol
+from typing import TYPE_CHECKING, Any, ClassVar, Protocol, cast
 
 import numpy as np
 
@@ -36,7 +36,8 @@ class ParameterInfo:
 
 def parameter_info(parameters_type: "type[DataclassInstance]") -> tuple[ParameterInfo, ...]:
     """The parameters of a rule's parameters dataclass, with their defaults and sources."""
-    return tuple(ParameterInfo(f.name, f.default, f.metadata["source"]) for f in fields(parameters_type))
+    # every field is a `parameter`, so every one has its default
+    return tuple(ParameterInfo(f.name, cast(float, f.default), f.metadata["source"]) for f in fields(parameters_type))
 
 
 @dataclass(frozen=True)

@@ -188,6 +188,9 @@ def test_progress_is_the_share_of_the_ground_truths_progress_along_the_route():
     assert value("progress", truth, truth).value == pytest.approx(0.8)
     halfway = value("progress", drive(5.0 * DT * np.arange(51), v=5.0), truth)
     assert halfway.per_frame[-1] == pytest.approx(0.5 - 0.2)
+    # a rollout that ended early (a contact) is compared at its own frames
+    ended = value("progress", drive(np.zeros(21), v=0.0), truth)
+    assert ended.per_frame.size == 21 and ended.per_frame[-1] == pytest.approx(2.0 / 20.0 - 0.2)
 
 
 # ---------------------------------------------------------------- rules read from a rollout

@@ -69,7 +69,7 @@ class RolloutResult:
     # the frames whose plan the planner's fallback answered (its failures rose during that plan call),
     # for the rulebook's planner_failure rule; None when not known, as `planner_failures`
     fallback_frames: tuple[int, ...] | None = None
-    # (K, N) where a contact would not be the ego's fault (`rules.excusable`), when only at-fault ones
+    # (K, N) where a contact would not be the ego's fault (`rules.contact.excusable`), when only at-fault ones
     # count (`judge`); None: every contact counts
     excusable: np.ndarray | None = None
 

@@ -51,3 +51,9 @@ def rule_inputs(result: RolloutResult, scenario: Scenario, config: RolloutConfig
         ego_length=config.ego_length, ego_width=config.ego_width, plan_valid=plan_valid,
         fallback_frames=result.fallback_frames,
     )
+
+
+def held(values: np.ndarray, frames: int) -> np.ndarray:
+    """A reference rollout's per-frame `values` at frames 0..frames-1, its last value held beyond its
+    end: a ground truth and an attacked rollout may end at different frames (a contact ends one)."""
+    return np.concatenate([values, np.full(max(frames - values.size, 0), values[-1])])[:frames]

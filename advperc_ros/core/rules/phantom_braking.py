@@ -9,8 +9,9 @@ braking in the window (m/s^2); +inf where a true agent ahead explains the brakin
 Defaults: the bound is nuPlan's comfort min_lon_accel (-4.05 m/s^2, as hard_braking); the time
 gap is the common two-second following rule (a driver keeps at least 2 s behind the vehicle ahead,
 e.g. the UK Highway Code rule 126), so braking for an agent nearer than that is explained; the
-window is 1 s either side, the delay a perception error may put on a braking the ground truth also
-has (the tracker confirms a track within a few frames, the planners replan every frame). An agent
+window is 1 s either side, a judgment: wide enough that a braking the ground truth also has, come
+a few frames earlier or later under perception errors, is not counted, short against a scenario's
+tens of seconds. An agent
 is in the ego's path when its centre lies ahead of the ego's front bumper and within half the two
 widths of the ego's heading line.
 """
@@ -22,7 +23,7 @@ from scipy.ndimage import minimum_filter1d
 
 from advperc_ros.core.rules.base import ParameterisedRule, parameter
 from advperc_ros.core.rules.hard_braking import MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE
-from advperc_ros.core.rules.inputs import RuleInputs
+from advperc_ros.core.rules.inputs import RuleInputs, held
 from advperc_ros.core.rules.motion import longitudinal_acceleration
 
 
@@ -32,7 +33,7 @@ class PhantomBrakingParameters:
 
     min_lon_acceleration: float = parameter(MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE)
     time_gap: float = parameter(2.0, "the two-second following rule (UK Highway Code rule 126) (s)")
-    window: float = parameter(1.0, "the delay a perception error may put on a braking the ground truth has (s)")
+    window: float = parameter(1.0, "a judgment: a few frames' shift of a braking the ground truth has (s)")
 
 
 class PhantomBraking(ParameterisedRule):
@@ -52,8 +53,8 @@ class PhantomBraking(ParameterisedRule):
         acceleration = longitudinal_acceleration(inputs)
         half = int(round(p.window / inputs.dt))
         truth = longitudinal_acceleration(reference)
-        # the ground truth's hardest braking within the window of each frame (its last value beyond its end)
-        truth = np.concatenate([truth, np.full(max(inputs.num_frames - truth.size, 0), truth[-1])])
+        # the ground truth's hardest braking within the window of each frame, its frames beyond ours included
+        truth = held(truth, max(truth.size, inputs.num_frames))
         truth_hardest = minimum_filter1d(truth, size=2 * half + 1, mode="nearest")[: inputs.num_frames]
         excused = np.minimum(p.min_lon_acceleration, truth_hardest)
         return np.where(agent_ahead_within(inputs, p.time_gap), np.inf, acceleration - excused)

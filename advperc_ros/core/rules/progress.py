@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.rules.base import ParameterisedRule, parameter
-from advperc_ros.core.rules.inputs import RuleInputs
+from advperc_ros.core.rules.inputs import RuleInputs, held
 
 
 @dataclass(frozen=True)
@@ -43,8 +43,7 @@ class Progress(ParameterisedRule):
         assert reference is not None  # base.evaluate checks it
         p = self.parameters
         ego = route_progress(inputs)
-        truth = route_progress(reference)
-        truth = np.concatenate([truth, np.full(max(ego.size - truth.size, 0), truth[-1])])[: ego.size]
+        truth = held(route_progress(reference), ego.size)
         floor = p.score_progress_threshold
         ratio = np.minimum(1.0, np.maximum(ego, floor) / np.maximum(truth, floor))
         return np.where(ego < -floor, 0.0, ratio) - p.min_progress_ratio

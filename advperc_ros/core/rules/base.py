@@ -20,14 +20,14 @@ if TYPE_CHECKING:
 
 
 def parameter(default: float, source: str) -> Any:
-    """A rule parameter's field: its default and where that default comes from (shown by the
-    registry, the docs and the tests)."""
+    """A rule parameter's field: its default and where that default comes from (`parameter_info`
+    lists both, for the docs and the tests)."""
     return field(default=default, metadata={"source": source})
 
 
 @dataclass(frozen=True)
 class ParameterInfo:
-    """One parameter of a rule, as the registry lists it: its default and the default's source."""
+    """One parameter of a rule: its default and the default's source, so no default is a bare number."""
 
     name: str
     default: float
@@ -76,6 +76,7 @@ class Rule(Protocol):
     unit: ClassVar[str]  # r's unit
     needs_reference: ClassVar[bool]  # reads the ground truth's rollout
     Parameters: ClassVar["type[DataclassInstance]"]  # its frozen parameters dataclass, every field a `parameter`
+    parameters: Any  # an instance of Parameters: what this rule was built with
 
     def __init__(self, parameters: Any = None) -> None: ...
 

@@ -9,8 +9,9 @@ import re
 from pathlib import Path
 
 import pytest
-
 from conftest import REPO
+
+from advperc_ros.core.rules.registry import RULES
 
 PACKAGE = REPO / "advperc_ros"
 
@@ -126,6 +127,9 @@ def test_no_arrow_runs_back_up(graph, layer, may_not_import):
             assert not up, f"{module} imports {up}"
 
 
+RULE_MODULES = tuple(target.partition(":")[0] for target in RULES.values())
+
+
 @pytest.mark.parametrize("interface, implementations", [
     ("advperc_ros.core.search.method", ("advperc_ros.core.search.paper", "advperc_ros.core.search.guided",
                                         "advperc_ros.core.search.registry")),
@@ -133,6 +137,8 @@ def test_no_arrow_runs_back_up(graph, layer, may_not_import):
     ("advperc_ros.core.planners.base", ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp",
                                         "advperc_ros.core.planners.registry")),
     ("advperc_ros.core.planners.registry", ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp")),
+    ("advperc_ros.core.rules.base", (*RULE_MODULES, "advperc_ros.core.rules.registry")),
+    ("advperc_ros.core.rules.registry", RULE_MODULES),
     ("advperc_ros.backends.base", ("advperc_ros.backends.embedded", "advperc_ros.backends.graph",
                                    "advperc_ros.backends.resumed", "advperc_ros.backends.registry")),
     ("advperc_ros.backends.registry", ("advperc_ros.backends.embedded", "advperc_ros.backends.graph")),

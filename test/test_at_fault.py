@@ -10,7 +10,7 @@ import pytest
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge, rollout
-from advperc_ros.core.rules import STOPPED_SPEED
+from advperc_ros.core.rules.contact import STOPPED_SPEED
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker
 from advperc_ros.configs import rollout_config

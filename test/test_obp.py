@@ -182,6 +182,8 @@ def test_failures_of_a_rollout_reach_the_search_log(scenario, params):
     assert stats.failures == starved.planner.failures == sum(starved.planner.fallbacks.values())
     assert len(stats.solve_times) == evaluation.rollout.num_frames  # a call per frame: replan_period 0, no collision
     assert planner_stats(starved.planner) == stats
+    # a plan call solves once, so each failure is a frame of its own the rollout records (planner_failure rule)
+    assert len(evaluation.rollout.fallback_frames) == stats.failures
 
 
 def test_failed_solve_uses_previous_plan_shifted_when_it_is_still_safe(scenario):

@@ -15,7 +15,7 @@ from advperc_ros.core.geometry import box_corners, signed_box_distance, wrap_ang
 from advperc_ros.core.planners.base import PlanningContext, Trajectory
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.rollout import RolloutConfig, rollout
-from advperc_ros.core.rules import CollisionRule
+from advperc_ros.core.rules.contact import CollisionRule
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker

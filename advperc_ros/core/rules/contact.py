@@ -1,4 +1,8 @@
-"""Driving rules as real-valued functions: r < 0 is a violation.
+"""The collision rule's measure, in the form the rollout's per-frame path needs: r < 0 is a contact.
+
+The rulebook's `collision` and `at_fault_collision` rules (collision.py, at_fault_collision.py) read
+what these compute; the rollout (core.rollout) and the graph's rule monitor call them directly, so
+the min signed distance and the stop at contact stay one fast numpy pass per frame.
 
 The collision rule is the signed distance between the ego's box and each agent's box: the gap
 when apart, minus the penetration depth when they overlap. r(tau) is its minimum over the rollout.
@@ -55,11 +59,12 @@ class CollisionRule:
         return np.where(agents.valid[frames], distance, np.inf)
 
 
-def excusable(ego: np.ndarray, ego_length: float, agents: BoxSequence) -> np.ndarray:
+def excusable(ego: np.ndarray, ego_length: float, agents: BoxSequence,
+              stopped_speed: float = STOPPED_SPEED) -> np.ndarray:
     """(K, N) where a contact would not be the ego's fault, from the ego's states `ego` (K, 4: x, y,
-    yaw, v) at frames 0..K-1: the ego stopped, or the agent behind its rear bumper."""
+    yaw, v) at frames 0..K-1: the ego stopped (below `stopped_speed`), or the agent behind its rear bumper."""
     frames = ego.shape[0]
     x, y, yaw, v = (ego[:, i : i + 1] for i in range(4))
     along = (agents.x[:frames] - x) * np.cos(yaw) + (agents.y[:frames] - y) * np.sin(yaw)
-    return (v < STOPPED_SPEED) | (along < -ego_length / 2)
+    return (v < stopped_speed) | (along < -ego_length / 2)
 

@@ -23,15 +23,15 @@ from advperc_ros.core.search.problem import (
 )
 from advperc_ros.core.staging import staged_folder
 from advperc_ros.exceptions import GroundTruthFails
-from advperc_ros.outcome import AttackOutcome
 from advperc_ros.params import (
     AttackParams,
     ParamsError,
     params_from_values,
     resolve_bag,
 )
-from advperc_ros.report import report_scores, rounded, versions
-from advperc_ros.results import ERRORS, REPORT_JSON, load_errors
+from advperc_ros.results.folder import ERRORS, REPORT_JSON, load_errors
+from advperc_ros.results.outcome import AttackOutcome
+from advperc_ros.results.report import report_scores, rounded, versions
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros.bag import BagError, read_scenario
 
@@ -174,7 +174,7 @@ def replay_markdown(report: dict) -> str:
 def write_replay(output: Path, replayed: Replay) -> dict:
     """The replay folder, written atomically: replay.json, replay.md and, when it still collides,
     bev.png; returns the report."""
-    from advperc_ros import plots
+    from advperc_ros.results import plots
 
     output = Path(output)
     if output.exists():

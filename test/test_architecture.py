@@ -99,8 +99,7 @@ def test_every_exception_the_package_defines_derives_from_one_base():
 
 
 ENTRY_POINTS = {"advperc_ros.cli", "advperc_ros.orchestrator_node"}
-APPLICATION = ("advperc_ros.application", "advperc_ros.results", "advperc_ros.report", "advperc_ros.replay",
-               "advperc_ros.plots", "advperc_ros.campaign")
+APPLICATION = ("advperc_ros.application", "advperc_ros.results", "advperc_ros.replay", "advperc_ros.campaign")
 
 
 def _within(module: str, packages) -> bool:

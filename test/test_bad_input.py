@@ -23,7 +23,7 @@ from advperc_ros.cli import main
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.params import load_params
-from advperc_ros.paths import exclusive
+from advperc_ros.results.destination import exclusive
 from advperc_ros.ros.bag import read_scenario
 from conftest import REPO
 from test_check_bag import boxes, write_bag
@@ -404,7 +404,7 @@ def campaign_file(**fields) -> Callable[[Path], list[str]]:
 
 def _disk_with_one_mib_free(monkeypatch: pytest.MonkeyPatch) -> None:
     usage = shutil.disk_usage("/")
-    monkeypatch.setattr("advperc_ros.paths.shutil.disk_usage", lambda place: type(usage)(10 << 20, 9 << 20, 1 << 20))
+    monkeypatch.setattr("advperc_ros.results.destination.shutil.disk_usage", lambda place: type(usage)(10 << 20, 9 << 20, 1 << 20))
 
 
 def _link(path: Path, target: str) -> None:

@@ -23,7 +23,7 @@ from advperc_ros import application
 from advperc_ros.application import output_lock
 from advperc_ros.backends.resumed import ROLLOUTS, Checkpoint, checkpoint_folder
 from advperc_ros.cli import main
-from advperc_ros.paths import exclusive
+from advperc_ros.results.destination import exclusive
 
 SHORT = {"search.heuristic.iterations": 1, "search.random.steps": 2}  # a real search of 18 rollouts
 FRAMES, AGENTS = 251, 5  # idm_lane_following's

@@ -13,7 +13,7 @@ from mcap_ros2.reader import read_ros2_messages
 from advperc_ros.cli import main
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.scenario_spec import load_scenario_spec
-from advperc_ros.results import load_errors
+from advperc_ros.results.folder import load_errors
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros import topics

@@ -40,7 +40,7 @@ def uninterrupted(tmp_path_factory):
 
 def test_a_disk_without_room_for_the_estimate_is_refused_before_any_work(tmp_path, capsys, monkeypatch):
     params = write_params(tmp_path / "p.yaml", REPO)
-    monkeypatch.setattr("advperc_ros.paths.shutil.disk_usage", lambda place: Usage(10 * 2**20, 9 * 2**20, 2**20))
+    monkeypatch.setattr("advperc_ros.results.destination.shutil.disk_usage", lambda place: Usage(10 * 2**20, 9 * 2**20, 2**20))
     before = sorted(tmp_path.rglob("*"))
     assert main(["attack", str(params), "--output", str(tmp_path / "out"), "--quiet"]) == 2
     err = capsys.readouterr().err.strip()

@@ -186,7 +186,7 @@ def test_a_tensor_of_every_kind_survives_every_way_it_travels(tmp_path):
         lockstep.RolloutErrors(7, errors, np.arange(3), np.arange(6) * 100)))
     assert back.errors.equals(errors) and back.errors.kinds == ERROR_KINDS
     np.savez(tmp_path / "e.npz", **errors.arrays())
-    from advperc_ros.results import load_errors
+    from advperc_ros.results.folder import load_errors
     assert load_errors(tmp_path / "e.npz").equals(errors)
     assert _digest(errors) != _digest(replace(errors, latency=None, ghost_on=None, ghost_x=None, ghost_y=None,
                                               ghost_yaw=None, ghost_vx=None, ghost_vy=None))
@@ -209,7 +209,7 @@ def test_a_broken_tensor_is_refused_naming_its_field(change, words, tmp_path):
         PerceptionErrors.from_arrays(arrays)
     np.savez(tmp_path / "e.npz", **arrays)
     from advperc_ros.exceptions import BagError
-    from advperc_ros.results import load_errors
+    from advperc_ros.results.folder import load_errors
     with pytest.raises(BagError, match=words) as caught:
         load_errors(tmp_path / "e.npz")
     assert str(caught.value).startswith(str(tmp_path / "e.npz"))

@@ -17,7 +17,7 @@ from advperc_ros.core.search.guided import MOVES, candidate, moves_of
 from advperc_ros.core.search.config import GuidedConfig
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.params import load_params
-from advperc_ros.results import load_errors
+from advperc_ros.results.folder import load_errors
 from advperc_ros.ros.bag import read_scenario
 from conftest import REPO
 

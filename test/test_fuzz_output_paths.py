@@ -1,4 +1,4 @@
-"""Fuzzing the output gate every command passes (`paths.check_output`) with paths a clumsy or hostile
+"""Fuzzing the output gate every command passes (`results.destination.check_output`) with paths a clumsy or hostile
 user gives: made of folders, files, FIFOs, symbolic links (to nothing, to themselves, in a loop of
 two, to a folder, to a file), names over 255 bytes, `.`, `..` and names still to be made. Either the
 gate refuses in one line naming the path, having changed nothing, or a folder (or, for a file output,
@@ -13,7 +13,7 @@ from hypothesis import strategies as st
 from mutations import one_line_naming
 
 from advperc_ros.params import ParamsError
-from advperc_ros.paths import check_output
+from advperc_ros.results.destination import check_output
 
 FUZZ = settings(max_examples=300, deadline=5000, suppress_health_check=list(HealthCheck))  # deadline: hang guard
 KINDS = ("folder", "file", "fifo", "link to nothing", "link to itself", "loop of two", "link to folder",

@@ -12,7 +12,7 @@ from PIL import Image
 from test_cli import write_params
 from toy_scenarios import FOLLOW_SPEC, RUNAWAY_LEAD_SPEC, rotated
 
-from advperc_ros import plots
+from advperc_ros.results import plots
 from advperc_ros.application import run_attack
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.scenario_spec import build_scenario

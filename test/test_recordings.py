@@ -24,7 +24,7 @@ from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.params import load_params
-from advperc_ros.results import load_errors
+from advperc_ros.results.folder import load_errors
 from advperc_ros.ros.bag import read_scenario
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "commonroad"

@@ -7,7 +7,7 @@ from test_cli import write_params
 
 from advperc_ros.cli import main
 from advperc_ros.core.planners.idm import IDMPlanner
-from advperc_ros.report import NOT_REPRODUCED
+from advperc_ros.results.report import NOT_REPRODUCED
 
 
 class PlannerWithAMemory(IDMPlanner):

@@ -10,7 +10,7 @@ from toy_scenarios import CLOSING_LEAD_SPEC, RUNAWAY_LEAD_SPEC
 
 from advperc_ros.cli import main
 from advperc_ros.core.scenario_spec import build_scenario
-from advperc_ros.results import FOXGLOVE_LAYOUT, foxglove_layout
+from advperc_ros.results.folder import FOXGLOVE_LAYOUT, foxglove_layout
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import topics
 from advperc_ros.ros.bag import write_ground_truth_bag
@@ -71,7 +71,7 @@ def test_the_layout_looks_at_the_collision(attack):
 def test_the_shipped_layout_is_the_one_attacks_write(repo):
     shipped = json.loads((repo / "config" / "foxglove_layout.json").read_text())
     assert shipped == foxglove_layout(), (
-        "regenerate: python -c \"from pathlib import Path; from advperc_ros.results import foxglove_layout, "
+        "regenerate: python -c \"from pathlib import Path; from advperc_ros.results.folder import foxglove_layout, "
         "write_foxglove_layout; write_foxglove_layout(Path('config/foxglove_layout.json'), foxglove_layout())\"")
 
 

@@ -32,9 +32,9 @@ from advperc_ros.params import (
     read_yaml,
     resolve_bag,
 )
-from advperc_ros.paths import check_output
 from advperc_ros.replay import REPLAY_JSON, load_attack
-from advperc_ros.results import ERRORS, REPORT_JSON
+from advperc_ros.results.destination import check_output
+from advperc_ros.results.folder import ERRORS, REPORT_JSON
 from advperc_ros.ros.bag import read_scenario
 
 EXECUTORS = ("process", "ray", "serial")

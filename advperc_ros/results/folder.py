@@ -1,4 +1,4 @@
-"""The results folder of an attack: bag, report (JSON and Markdown, built by `advperc_ros.report`),
+"""The results folder of an attack: bag, report (JSON and Markdown, built by `advperc_ros.results.report`),
 search log, plots; and reading one back (`read_attack`).
 
 Everything is written into a hidden staging folder that is renamed into place at the end, so an
@@ -18,9 +18,9 @@ from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import LogRow
 from advperc_ros.core.search.registry import method_class
 from advperc_ros.core.staging import staged_folder
-from advperc_ros.outcome import AttackOutcome
+from advperc_ros.results.outcome import AttackOutcome
 from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, ParamsError, find_bag, nest, parse_params
-from advperc_ros.report import build_report, report_markdown
+from advperc_ros.results.report import build_report, report_markdown
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr, topics
 from advperc_ros.ros import messages as msgs
@@ -219,7 +219,7 @@ def _ego(row: np.ndarray) -> EgoState:
 
 def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
     """Write the whole folder atomically; returns the report."""
-    from advperc_ros import plots
+    from advperc_ros.results import plots
 
     with staged_folder(Path(output)) as staging:
         staging.mkdir()

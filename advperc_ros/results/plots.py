@@ -24,7 +24,7 @@ from advperc_ros.core.perception_errors import inject
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.search.problem import LogRow, Phase
 from advperc_ros.core.search.registry import every_phase
-from advperc_ros.outcome import AttackOutcome
+from advperc_ros.results.outcome import AttackOutcome
 
 METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
 # the metric plot's (colour, line) of a search method's phase; a phase not here takes the next of OTHER_LINES

@@ -1,6 +1,6 @@
 """The report of an attack: report.json's fields and report.md's text, built from its outcome.
 
-What the report holds is fixed here; `advperc_ros.results` writes it into the results folder with
+What the report holds is fixed here; `advperc_ros.results.folder` writes it into the results folder with
 the bag, the search log and the plots, and `advperc_ros.replay` reuses its scores and rounding.
 """
 
@@ -14,7 +14,7 @@ from advperc_ros import __version__
 from advperc_ros.core.perception_errors import parse_error_kinds
 from advperc_ros.core.search.diagnosis import listed_ids, why_no_collision
 from advperc_ros.core.search.problem import Evaluation, kind_costs
-from advperc_ros.outcome import AttackOutcome
+from advperc_ros.results.outcome import AttackOutcome
 from advperc_ros.ros import bag as bags
 
 WALL_CLOCK_FIELDS = ("wall_time_s",)

@@ -22,7 +22,7 @@ import yaml
 
 pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; the graph backend needs it")
 
-from conftest import bare_dds_domains, need_ros  # noqa: E402
+from conftest import REPO, bare_dds_domains, need_ros  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
@@ -35,7 +35,6 @@ from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
 from advperc_ros.ros.lockstep import RolloutClock  # noqa: E402
 
-REPO = Path(__file__).resolve().parent.parent
 BAG = REPO / "bags" / "idm_lane_following"
 TOLERANCE = 1e-9  # m, m/s, rad: graph against embedded (docs/graph.md)
 ARM = "ADVPERC_TEST_HANG"  # env var naming the file that arms HangingPlanner

@@ -1,6 +1,6 @@
 """Every kind of bad input we know of, across every command: one line naming the file and the
 field, exit code 2, and nothing written. The table of them in docs/commands.md is produced from
-`CASES` (`ADVPERC_WRITE_DOCS=1 python -m pytest test/test_bad_input.py` rewrites it), so it cannot drift.
+`CASES` (`ADVPERC_WRITE_DOCS=1 python -m pytest test/cli/test_bad_input.py` rewrites it), so it cannot drift.
 """
 
 import dataclasses
@@ -30,7 +30,7 @@ from test_check_bag import boxes, write_bag
 
 GOOD_BAG = REPO / "bags" / "idm_lane_following"
 DOCS_PAGE = Path("docs") / "commands.md"  # the Commands page, section "Bad input"
-TABLE_START = "<!-- bad-input table: test/test_bad_input.py -->"
+TABLE_START = "<!-- bad-input table: test/cli/test_bad_input.py -->"
 TABLE_END = "<!-- end of bad-input table -->"
 
 

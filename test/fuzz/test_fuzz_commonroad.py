@@ -15,12 +15,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
+from conftest import REPO
 from hypothesis import strategies as st
 from mutations import one_line_naming
 
 from advperc_ros.core.scenario import ScenarioError
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "commonroad"
+DATA = REPO.parent / "shared" / "data" / "commonroad"
 SEEDS = ("USA_US101-1_1_T-1", "USA_Peach-4_3_T-1", "USA_Lanker-1_6_T-1")  # the quickest to read, 2 to 34 vehicles
 # hang guard, not a timing: reading a seed takes a tenth of a second
 FUZZ = settings(max_examples=40, deadline=20_000, suppress_health_check=[HealthCheck.too_slow])

@@ -5,11 +5,12 @@ with a reason when that folder or commonroad-io is absent.
 """
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+
+from conftest import REPO
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
@@ -19,7 +20,7 @@ from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "commonroad"
+DATA = REPO.parent / "shared" / "data" / "commonroad"
 # sample -> (recorded vehicles, frames, outcome of an attack with the IDM planner)
 SAMPLES = {
     "USA_US101-1_1_T-1": (2, 61, "no influential agent"),

@@ -20,6 +20,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from conftest import REPO
+
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
 from advperc_ros.core.perception_errors import PerceptionErrors
@@ -27,7 +29,7 @@ from advperc_ros.params import load_params
 from advperc_ros.results.folder import load_errors
 from advperc_ros.ros.bag import read_scenario
 
-DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "commonroad"
+DATA = REPO.parent / "shared" / "data" / "commonroad"
 EVERYTHING = os.environ.get("ADVPERC_ALL_RECORDINGS") == "1"
 SMALL = ("USA_US101-1_1_T-1", "USA_Peach-3_2_T-1", "USA_Lanker-1_6_T-1")  # 2, 8, 34 vehicles; 1 s to 6 s
 RECORDINGS = sorted(p.stem for p in DATA.glob("*.xml")) if EVERYTHING and DATA.is_dir() else list(SMALL)

@@ -9,7 +9,6 @@ import os
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,9 +21,8 @@ from advperc_ros.ros import dds, dds_types  # noqa: E402
 from advperc_ros.ros import messages as msgs  # noqa: E402
 from advperc_ros.ros.topics import TRACKING  # noqa: E402
 from advperc_ros.ros.topics import LATCHED, PERCEPTION, SUMMARY, TOPIC_TYPES
-from conftest import bare_dds_domains  # noqa: E402
+from conftest import REPO, bare_dds_domains  # noqa: E402
 
-REPO = Path(__file__).resolve().parent.parent
 T0 = 1_700_000_000_123_456_789
 TIMEOUT = 5.0
 _domain_ids = bare_dds_domains(0)

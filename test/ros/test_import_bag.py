@@ -11,6 +11,7 @@ import pytest
 import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
 
+from conftest import REPO
 from test_cli import SMALL_SEARCH
 
 from advperc_ros.backends.embedded import Stack
@@ -25,7 +26,7 @@ from advperc_ros.ros.drive_log import import_drive
 from advperc_ros.ros.interfaces import autoware, vision
 from advperc_ros.ros.topics import LANES, ROUTE
 
-BUNDLED = Path(__file__).resolve().parent.parent / "bags" / "idm_lane_following"
+BUNDLED = REPO / "bags" / "idm_lane_following"
 ODOMETRY = "/localization/kinematic_state"
 OBJECTS = "/perception/object_recognition/objects"
 

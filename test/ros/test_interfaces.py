@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import need_ros
+from conftest import REPO, need_ros
 
 from advperc_ros.core.boxes import BOX_FIELDS
 from advperc_ros.core.ego_motion import follow_plan
@@ -224,7 +224,7 @@ def test_a_plan_whose_poses_are_a_rounding_error_apart_is_refused_not_followed_a
 
 def test_the_docs_profile_table_is_the_registry_s():
     """docs/stacks.md's table lists every profile's topics and types as the code has them."""
-    page = (Path(__file__).resolve().parent.parent / "docs" / "stacks.md").read_text()
+    page = (REPO / "docs" / "stacks.md").read_text()
     table = page.split("<!-- profiles table")[1].split("<!-- end of profiles table")[0]
     rows = {}
     for line in table.splitlines()[3:]:
@@ -263,7 +263,7 @@ def _three_frames(profile_name: str, transport=None, said=None, ahead=False):
     from advperc_ros.ros.lockstep import RolloutReady, ready_message, rule_diagnostics
     from advperc_ros.ros.topics import READY, RULE_DIAGNOSTICS
 
-    bag = Path(__file__).resolve().parent.parent / "bags" / "idm_lane_following"
+    bag = REPO / "bags" / "idm_lane_following"
     transport = transport or _Recorder()
     profile = load_profile(profile_name)
     warn = said.append if said is not None else print

@@ -8,15 +8,16 @@ kinds beyond them: ghosts, size, velocity and heading-flip errors, and all of th
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
+from conftest import REPO
+
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, greedy_match, nds
 
-FIXTURES = Path(__file__).parent / "fixtures" / "nds"
+FIXTURES = REPO / "test" / "fixtures" / "nds"
 CASES = json.loads((FIXTURES / "devkit_cases.json").read_text())
 KIND_CASES = json.loads((FIXTURES / "devkit_cases_kinds.json").read_text())
 GHOST = -1  # agent id of a prediction no agent explains

@@ -15,16 +15,15 @@ from typing import NoReturn
 
 import numpy as np
 
-from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
-from advperc_ros.core.scenario import Scenario, ScenarioError
+from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
+from advperc_ros.exceptions import BagError, ParamsError, ScenarioError, ScenarioRejected
 from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.heap import keep_freed_heap
-from advperc_ros.params import ParamsError, load_params
-from advperc_ros.ros.bag import BagError
+from advperc_ros.params import load_params
 
 
 def cmd_attack(args: argparse.Namespace) -> int:

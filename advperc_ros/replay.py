@@ -22,18 +22,13 @@ from advperc_ros.core.search.problem import (
     Phase,
 )
 from advperc_ros.core.staging import staged_folder
-from advperc_ros.exceptions import GroundTruthFails
-from advperc_ros.params import (
-    AttackParams,
-    ParamsError,
-    params_from_values,
-    resolve_bag,
-)
+from advperc_ros.exceptions import BagError, GroundTruthFails, ParamsError
+from advperc_ros.params import AttackParams, params_from_values, resolve_bag
 from advperc_ros.results.folder import ERRORS, REPORT_JSON, load_errors
 from advperc_ros.results.outcome import AttackOutcome
 from advperc_ros.results.report import report_scores, rounded, versions
 from advperc_ros.ros import bag as bags
-from advperc_ros.ros.bag import BagError, read_scenario
+from advperc_ros.ros.bag import read_scenario
 
 REPLAY_JSON = "replay.json"
 REPLAY_MD = "replay.md"

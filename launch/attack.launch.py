@@ -34,9 +34,10 @@ from launch.events import Shutdown
 from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
+from advperc_ros.exceptions import ParamsError
 from advperc_ros.exits import EXIT_INPUT
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
-from advperc_ros.params import INTERFACES, SCHEMA, ParamsError, load_params, resolve_bag
+from advperc_ros.params import INTERFACES, SCHEMA, load_params, resolve_bag
 from launch import LaunchDescription
 
 PACKAGE = "advperc_ros"

@@ -18,14 +18,13 @@ from pathlib import Path
 from typing import Any
 
 from advperc_ros.backends.embedded import Stack
-from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.search.problem import OBJECTIVES
+from advperc_ros.exceptions import ParamsError, PlannerError
 from advperc_ros.exits import INPUT_ERRORS
 from advperc_ros.params import (
     EXECUTION,
     PLANNER_PARAMS,
     AttackParams,
-    ParamsError,
     find_bag,
     load_params,
     params_from_values,

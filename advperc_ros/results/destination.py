@@ -10,8 +10,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from advperc_ros.exceptions import OutOfSpace
-from advperc_ros.params import ParamsError
+from advperc_ros.exceptions import OutOfSpace, ParamsError
 
 MIB = 1 << 20
 FULL = (errno.ENOSPC, errno.EDQUOT)  # a full disk, and a full quota: the same to the user

@@ -18,13 +18,13 @@ from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import LogRow
 from advperc_ros.core.search.registry import method_class
 from advperc_ros.core.staging import staged_folder
+from advperc_ros.exceptions import BagError, ParamsError
+from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, find_bag, nest, parse_params
 from advperc_ros.results.outcome import AttackOutcome
-from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, ParamsError, find_bag, nest, parse_params
 from advperc_ros.results.report import build_report, report_markdown
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr, topics
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.bag import BagError
 from advperc_ros.ros.interfaces.base import ObjectsLayer, PlanLayer, Profile
 from advperc_ros.ros.interfaces.registry import load_profile
 

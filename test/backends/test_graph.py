@@ -29,7 +29,8 @@ from advperc_ros.cli import main as advperc  # noqa: E402
 from advperc_ros.core.perception_errors import ERROR_KINDS, PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
-from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
+from advperc_ros.params import load_params, node_values  # noqa: E402
+from advperc_ros.exceptions import MessageError, ParamsError  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
 from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
@@ -135,7 +136,7 @@ def test_running_ahead_is_the_orchestrator_s_word_and_off_unless_said():
         assert lockstep.parse_ready(lockstep.ready_message(lockstep.RolloutReady(4, ahead))) == lockstep.RolloutReady(4, ahead)
     silent = lockstep.msgs.string(json_module.dumps({"rollout": 4}))
     assert lockstep.parse_ready(silent) == lockstep.RolloutReady(4, False)
-    with pytest.raises(lockstep.MessageError, match="'ahead' must be bool"):
+    with pytest.raises(MessageError, match="'ahead' must be bool"):
         lockstep.parse_ready(lockstep.msgs.string(json_module.dumps({"rollout": 4, "ahead": 1})))
 
 

@@ -27,6 +27,7 @@ from advperc_ros.core.perception_errors import (
     latency_source,
     parse_error_kinds,
 )
+from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import lockstep
 from advperc_ros.ros import messages as msgs
 
@@ -217,5 +218,5 @@ def test_a_broken_tensor_is_refused_naming_its_field(change, words, tmp_path):
         return
     document = {"rollout": 1, "agent_ids": [1, 2, 3], "stamps_ns": list(range(6)),
                 **{name: np.asarray(a).tolist() for name, a in arrays.items()}}
-    with pytest.raises(lockstep.MessageError, match="/attack/errors: field"):
+    with pytest.raises(MessageError, match="/attack/errors: field"):
         lockstep.parse_errors(msgs.string(json.dumps(document)))

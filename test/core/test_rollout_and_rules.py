@@ -9,7 +9,8 @@ import pytest
 import shapely
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.core.ego_motion import follow_plan
+from advperc_ros.exceptions import PlanError
 from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.geometry import box_corners, signed_box_distance, wrap_angle
 from advperc_ros.core.planners.base import PlanningContext, Trajectory

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.scenario import ScenarioError
 from advperc_ros.core.scenario_spec import build_scenario, connector
+from advperc_ros.exceptions import ScenarioError
 
 
 def test_connector_joins_end_to_start_with_matching_headings():

@@ -16,8 +16,9 @@ from test_check_bag import DT, LANE, boxes, write_bag
 
 from advperc_ros.core.boxes import BOX_FIELDS
 from advperc_ros.core.geometry import wrap_angle
+from advperc_ros.exceptions import BagError
 from advperc_ros.ros import topics
-from advperc_ros.ros.bag import BagError, check_ground_truth, read_scenario, read_topics
+from advperc_ros.ros.bag import check_ground_truth, read_scenario, read_topics
 
 # hang guard, not a timing: writing and reading one small bag takes milliseconds
 FUZZ = settings(max_examples=60, deadline=10_000, suppress_health_check=[HealthCheck.too_slow])

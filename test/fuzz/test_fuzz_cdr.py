@@ -13,6 +13,7 @@ from mutations import damaged
 
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import cdr, lockstep
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.topics import RULE_DIAGNOSTICS
@@ -63,7 +64,7 @@ def test_decoders_answer_a_value_or_one_message_error(name, data):
     decode, payload = DECODERS[name]
     try:
         decode(data.draw(damaged(payload, word=4, arbitrary=True)), "where")
-    except cdr.MessageError as exc:
+    except MessageError as exc:
         one_line_naming(exc, "where: ")
         assert str(exc).startswith("where: ")
 
@@ -73,7 +74,7 @@ def test_decoders_answer_a_value_or_one_message_error(name, data):
 def test_objects_decoder_keeps_every_id_or_names_the_repeated_one(ids):
     data = cdr.encode_objects(objects(ids), 5, "ground_truth")
     if len(set(ids)) < len(ids):
-        with pytest.raises(cdr.MessageError) as caught:
+        with pytest.raises(MessageError) as caught:
             cdr.decode_objects(data, "where")
         one_line_naming(caught.value, "where: ", "field 'id'", "appears twice")
     else:
@@ -142,7 +143,7 @@ def test_control_parsers_answer_a_value_or_one_message_error(topic, data):
     text = data.draw(control_text(document))
     try:
         parsed = parse(msgs.string(text))
-    except cdr.MessageError as exc:
+    except MessageError as exc:
         one_line_naming(exc, topic)
     else:
         check_control(parsed, topic)
@@ -169,7 +170,7 @@ def test_errors_message_round_trips():
 ])
 def test_errors_message_names_the_wrong_field(field, value, words):
     document = dict(CONTROL[lockstep.ERRORS][1], **{field: value})
-    with pytest.raises(cdr.MessageError) as caught:
+    with pytest.raises(MessageError) as caught:
         lockstep.parse_errors(msgs.string(json.dumps(document)))
     one_line_naming(caught.value, lockstep.ERRORS, *words)
 
@@ -196,7 +197,7 @@ statuses = st.builds(cdr.Status, st.integers(0, 127), st.sampled_from([lockstep.
 def test_rule_diagnostics_parser_answers_distances_or_one_message_error(statuses):
     try:
         stamp, minimum, per_agent = lockstep.parse_rule_diagnostics(diagnostics_of(statuses))
-    except cdr.MessageError as exc:
+    except MessageError as exc:
         one_line_naming(exc, RULE_DIAGNOSTICS)
     else:
         assert stamp == 77 and not math.isnan(minimum)
@@ -208,7 +209,7 @@ def test_rule_diagnostics_parser_answers_distances_or_one_message_error(statuses
 def test_plan_parser_answers_a_trajectory_or_one_message_error(data):
     try:
         _, plan = lockstep.plan_from_cdr(data.draw(damaged(PATH, word=4, arbitrary=True)), 0, "where")
-    except cdr.MessageError as exc:
+    except MessageError as exc:
         one_line_naming(exc, "where: ")
     else:
         assert isinstance(plan, Trajectory) and len(plan.t) == len(plan.x) == len(plan.y) == len(plan.yaw)

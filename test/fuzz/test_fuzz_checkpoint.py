@@ -24,7 +24,8 @@ from test_fuzz_params import one_line_naming
 
 from advperc_ros.backends.resumed import FIELDS, PARAMS, ROLLOUTS, Checkpoint, Stored, checkpoint_folder
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.params import AttackParams, ParamsError, load_params
+from advperc_ros.exceptions import ParamsError
+from advperc_ros.params import AttackParams, load_params
 from advperc_ros.ros.bag import read_scenario
 
 FUZZ = settings(max_examples=40, deadline=5000, suppress_health_check=[HealthCheck.too_slow])  # deadline: hang guard

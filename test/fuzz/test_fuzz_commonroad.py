@@ -19,7 +19,7 @@ from conftest import REPO
 from hypothesis import strategies as st
 from mutations import one_line_naming
 
-from advperc_ros.core.scenario import ScenarioError
+from advperc_ros.exceptions import ScenarioError
 
 DATA = REPO.parent / "shared" / "data" / "commonroad"
 SEEDS = ("USA_US101-1_1_T-1", "USA_Peach-4_3_T-1", "USA_Lanker-1_6_T-1")  # the quickest to read, 2 to 34 vehicles

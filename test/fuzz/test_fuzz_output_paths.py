@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mutations import one_line_naming
 
-from advperc_ros.params import ParamsError
+from advperc_ros.exceptions import ParamsError
 from advperc_ros.results.destination import check_output
 
 FUZZ = settings(max_examples=300, deadline=5000, suppress_health_check=list(HealthCheck))  # deadline: hang guard

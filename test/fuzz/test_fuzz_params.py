@@ -11,8 +11,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mutations import damaged
 
+from advperc_ros.exceptions import ParamsError
 from advperc_ros.exits import EXIT_INPUT, expected_failure
-from advperc_ros.params import NODE, PLANNER_PARAMS, SCHEMA, ParamsError, load_params, nest
+from advperc_ros.params import NODE, PLANNER_PARAMS, SCHEMA, load_params, nest
 
 FUZZ = settings(max_examples=150, deadline=5000, suppress_health_check=[HealthCheck.too_slow])  # deadline: hang guard
 NAMES = sorted(SCHEMA)

@@ -12,7 +12,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from advperc_ros.core.pem import NUM_FEATURES, PEM, PEMError, default_pem
+from advperc_ros.core.pem import NUM_FEATURES, PEM, default_pem
+from advperc_ros.exceptions import PEMError
 
 FUZZ = settings(max_examples=200, deadline=2000, suppress_health_check=[HealthCheck.too_slow])  # deadline: hang guard
 pytestmark = pytest.mark.filterwarnings("ignore:overflow:RuntimeWarning")  # finite but absurd weights

@@ -13,8 +13,9 @@ from hypothesis import strategies as st
 from pem_scenes import moving_scene
 from test_fuzz_pem import json_values, numbers, one_line_naming
 
-from advperc_ros.core.pem import PEM, PEMError, default_pem
+from advperc_ros.core.pem import PEM, default_pem
 from advperc_ros.core.perception_errors import ERROR_KINDS
+from advperc_ros.exceptions import PEMError
 
 FUZZ = settings(max_examples=100, deadline=2000, suppress_health_check=[HealthCheck.too_slow])
 # finite but absurd values (degrees of freedom of 1e-300 draw infinite errors, as the paper's terms' do)

@@ -9,6 +9,7 @@ import pytest
 
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.scenario import EgoState
+from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.lockstep import plan_from_cdr
@@ -122,13 +123,13 @@ def test_objects_decoder_reads_any_marker_array_in_either_byte_order():
 
 def test_objects_decoder_names_what_is_wrong():
     data = cdr.encode_objects(boxes(2, scored=False), T0, "tracking")
-    with pytest.raises(cdr.MessageError, match="where: a MarkerArray cut short"):
+    with pytest.raises(MessageError, match="where: a MarkerArray cut short"):
         cdr.decode_objects(data[:-40], "where")
-    with pytest.raises(cdr.MessageError, match="where: not a plain CDR payload"):
+    with pytest.raises(MessageError, match="where: not a plain CDR payload"):
         cdr.decode_objects(b"\x00\x03" + data[2:], "where")
     msg = msgs.objects_to_markers(boxes(1, scored=False), T0, "tracking")
     msg.markers[1].text = "high"
-    with pytest.raises(cdr.MessageError, match="where: field 'text' of marker .* 'high'"):
+    with pytest.raises(MessageError, match="where: field 'text' of marker .* 'high'"):
         cdr.decode_objects(bytes(TS.serialize_cdr(msg, cdr.MARKER_ARRAY)), "where")
     assert cdr.decode_objects(bytes(TS.serialize_cdr(T["visualization_msgs/msg/MarkerArray"](markers=[]), cdr.MARKER_ARRAY)),
                               "where")[0] is None
@@ -166,11 +167,11 @@ def test_path_decoder_reads_any_path_in_either_byte_order():
         stamp, poses, stamps = cdr.decode_path(data, "test")
         assert stamp == T0 and list(stamps) == [T0, T0 + 1, T0 + 2]
         np.testing.assert_allclose(poses, [[1.0, 4.0, 0.6], [2.0, 5.0, 0.6], [3.0, 6.0, 0.6]], rtol=0, atol=1e-12)
-        with pytest.raises(cdr.MessageError, match="where: .*Path"):
+        with pytest.raises(MessageError, match="where: .*Path"):
             cdr.decode_path(data[:-8], "where")
     bogus = bytearray(cdr.encode_path([1.0, 2.0], [1.0, 2.0], [0.0, 0.0], [T0, T0 + 1], T0))
     bogus[32:36] = (2**31).to_bytes(4, "little")  # first pose: encapsulation, header, count, stamp, then this
-    with pytest.raises(cdr.MessageError, match="where: a Path cut short"):
+    with pytest.raises(MessageError, match="where: a Path cut short"):
         cdr.decode_path(bytes(bogus), "where")
 
 
@@ -198,7 +199,7 @@ def test_odometry_decoder_reads_any_odometry_in_either_byte_order():
         data = bytes(TS.serialize_cdr(msg, cdr.ODOMETRY, little_endian=little_endian))
         stamp, (x, y, yaw, speed) = cdr.decode_odometry(data, "test")
         assert (stamp, x, y, speed) == (T0, 1.5, -2.0, 8.25) and yaw == pytest.approx(0.7, abs=1e-15)
-    with pytest.raises(cdr.MessageError, match="where: an Odometry cut short"):
+    with pytest.raises(MessageError, match="where: an Odometry cut short"):
         cdr.decode_odometry(bytes(TS.serialize_cdr(msg, cdr.ODOMETRY))[:-400], "where")
 
 
@@ -221,7 +222,7 @@ def test_diagnostics_are_rosbags_bytes_and_read_in_either_byte_order():
     for little_endian in (True, False):
         data = bytes(TS.serialize_cdr(msg, cdr.DIAGNOSTICS, little_endian=little_endian))
         assert cdr.decode_diagnostics(data, "test") == (T0, expected)
-    with pytest.raises(cdr.MessageError, match="where: a DiagnosticArray cut short"):
+    with pytest.raises(MessageError, match="where: a DiagnosticArray cut short"):
         cdr.decode_diagnostics(bytes(TS.serialize_cdr(msg, cdr.DIAGNOSTICS))[:-9], "where")
 
 

@@ -16,7 +16,8 @@ from advperc_ros.cli import main
 from advperc_ros.ros import topics
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.bag import BagError, check_ground_truth, read_objects, read_scenario
+from advperc_ros.ros.bag import check_ground_truth, read_objects, read_scenario
+from advperc_ros.exceptions import BagError
 
 DT = 100_000_000
 SIZE_FIELDS = ("length", "width", "height")

@@ -17,6 +17,7 @@ pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; th
 
 from advperc_ros.core.planners.base import Trajectory  # noqa: E402
 from advperc_ros.core.scenario import EgoState  # noqa: E402
+from advperc_ros.exceptions import DdsError  # noqa: E402
 from advperc_ros.ros import dds, dds_types  # noqa: E402
 from advperc_ros.ros import messages as msgs  # noqa: E402
 from advperc_ros.ros.topics import TRACKING  # noqa: E402
@@ -224,7 +225,7 @@ def test_latched_topic_reaches_late_subscriber_and_callbacks_spin(domain_id):
 def test_topic_type_mismatch_is_an_error(domain_id):
     with dds.DdsTransport(domain_id) as transport:
         transport.publisher("/clock", "rosgraph_msgs/msg/Clock")
-        with pytest.raises(dds.DdsError, match="/clock"):
+        with pytest.raises(DdsError, match="/clock"):
             transport.subscriber("/clock", "std_msgs/msg/String")
 
 

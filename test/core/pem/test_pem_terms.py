@@ -18,8 +18,9 @@ from test_scores import random_case
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, in_range, nds
 from advperc_ros.core.metrics.scores import matched_errors, score
-from advperc_ros.core.pem import PEM, PEMError, bearings, default_pem, features
+from advperc_ros.core.pem import PEM, bearings, default_pem, features
 from advperc_ros.core.perception_errors import PerceptionErrors, inject
+from advperc_ros.exceptions import PEMError
 
 # ---------------------------------------------------------------- a frozen copy of the PEM before its new terms
 

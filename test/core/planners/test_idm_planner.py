@@ -11,10 +11,11 @@ import pytest
 
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext, Trajectory, planner_stats
+from advperc_ros.core.planners.base import Planner, PlanningContext, Trajectory, planner_stats
 from advperc_ros.core.planners.idm import IDMConfig, IDMPlanner
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario import EgoState
+from advperc_ros.exceptions import PlannerError
 
 DT = 0.1
 EGO_LENGTH, EGO_WIDTH = 4.6, 1.9

@@ -10,13 +10,14 @@ import yaml
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.perception_errors import PerceptionErrors
-from advperc_ros.core.planners.base import Planner, PlannerError, PlannerStats, PlanningContext, planner_stats
+from advperc_ros.core.planners.base import Planner, PlannerStats, PlanningContext, planner_stats
 from advperc_ros.core.planners.obp import OBPPlanner
 from advperc_ros.core.planners.obp.dynamics import NUMERIC, SYMBOLIC, bicycle_rk4
 from advperc_ros.core.planners.obp.prediction import ellipse_axes
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
+from advperc_ros.exceptions import PlannerError
 from advperc_ros.params import load_params
 
 STATIONARY, ONCOMING = 0, 1  # agent slots in scenarios/obp_overtake.yaml

@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 
 from advperc_ros.core.perception_errors import PerceptionErrors
-from advperc_ros.core.planners.base import PlannerError, PlanningContext, planner_stats
+from advperc_ros.core.planners.base import PlanningContext, planner_stats
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutConfig, rollout
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker
+from advperc_ros.exceptions import PlannerError
 
 REACTIVE = "advperc_ros.contrib.reactive:ReactivePlanner"
 # the ego at 10 m/s, a car stopped in its lane 45 m ahead, the oncoming lane free

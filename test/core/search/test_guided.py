@@ -20,8 +20,7 @@ from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_
 from advperc_ros.core.search.config import SearchConfig
 from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
-from advperc_ros.exceptions import ParamsError
-from advperc_ros.exits import Interrupted
+from advperc_ros.exceptions import Interrupted, ParamsError
 from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario
 from conftest import REPO

@@ -22,7 +22,7 @@ from advperc_ros.core.search.problem import (
     Phase,
 )
 from advperc_ros.core.staging import staged_folder
-from advperc_ros.exceptions import BagError, GroundTruthFails, ParamsError
+from advperc_ros.exceptions import BagError, GroundTruthFails, OutputError, ParamsError, ResultsError
 from advperc_ros.params import AttackParams, params_from_values, resolve_bag
 from advperc_ros.results.folder import ERRORS, REPORT_JSON, load_errors
 from advperc_ros.results.outcome import AttackOutcome
@@ -66,18 +66,18 @@ class Replay:
 
 
 def load_attack(folder: Path) -> FoundAttack:
-    """The attack of a results folder; ParamsError when it is not one of an attack that collided."""
+    """The attack of a results folder; ResultsError when it is not one of an attack that collided."""
     folder = Path(folder)
     report_path, errors_path = folder / REPORT_JSON, folder / ERRORS
     if not report_path.is_file():
-        raise ParamsError(f"{report_path}: missing; replay needs the results folder of an attack")
+        raise ResultsError(f"{report_path}: missing; replay needs the results folder of an attack")
     try:
         report = json.loads(report_path.read_text())
         values = dict(report["params"])  # AttackParams.canonical(): planner_params included
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ParamsError(f"{report_path}: not an attack report: {exc}") from exc
+        raise ResultsError(f"{report_path}: not an attack report: {exc}") from exc
     if not report.get("collision") or not errors_path.is_file():
-        raise ParamsError(f"{folder}: the search found no collision there, so there is no attack to replay")
+        raise ResultsError(f"{folder}: the search found no collision there, so there is no attack to replay")
     params = params_from_values(values, report_path)
     return FoundAttack(folder, report, load_errors(errors_path), params)
 
@@ -173,7 +173,7 @@ def write_replay(output: Path, replayed: Replay) -> dict:
 
     output = Path(output)
     if output.exists():
-        raise ParamsError(f"{output}: output folder exists already; choose another output")
+        raise OutputError(f"{output}: output folder exists already; choose another output")
     with staged_folder(output) as staging:
         staging.mkdir()
         report = replay_report(replayed)

@@ -19,7 +19,7 @@ from typing import Any
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.search.problem import OBJECTIVES
-from advperc_ros.exceptions import ParamsError, PlannerError
+from advperc_ros.exceptions import OutputError, ParamsError, PlannerError
 from advperc_ros.exits import INPUT_ERRORS
 from advperc_ros.params import (
     EXECUTION,
@@ -326,7 +326,7 @@ def plan(campaign: Campaign) -> list[Cell]:
     if not campaign.output.is_dir():  # a folder there is a campaign to resume
         try:
             check_output(campaign.output, "output folder")
-        except ParamsError as exc:
+        except OutputError as exc:
             raise campaign.fail("output", str(exc)) from None
     cells = _replay_cells(campaign, campaign.replay) if campaign.replay is not None else _attack_cells(campaign)
     names = [cell.name for cell in cells]

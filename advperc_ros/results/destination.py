@@ -10,7 +10,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from advperc_ros.exceptions import OutOfSpace, ParamsError
+from advperc_ros.exceptions import OutOfSpace, OutputError
 
 MIB = 1 << 20
 FULL = (errno.ENOSPC, errno.EDQUOT)  # a full disk, and a full quota: the same to the user
@@ -24,36 +24,36 @@ def check_output(output: Path, kind: str = "output folder") -> None:
     longest = max(output.parts, key=lambda part: len(os.fsencode(part)), default="")
     name_max = os.pathconf(output.anchor or ".", "PC_NAME_MAX")
     if len(os.fsencode(longest)) > name_max:  # before any look at the path, which fails on such a name
-        raise ParamsError(f"{str(output)[:60]}...: cannot create the {kind}: a name in its path is longer than the "
+        raise OutputError(f"{str(output)[:60]}...: cannot create the {kind}: a name in its path is longer than the "
                           f"file system allows ({name_max} bytes)")
     if output.name in ("", ".."):  # '..' names a folder that exists (or will, once the ones before it are made)
-        raise ParamsError(f"{output}: the {kind} must be named by its own name, not by '..' or a root")
+        raise OutputError(f"{output}: the {kind} must be named by its own name, not by '..' or a root")
     for climb in (index for index, part in enumerate(output.parts) if part == ".."):
         before = Path(*output.parts[:climb])
         if not before.is_dir():  # the writer's making of `before` would make the output's name before it
-            raise ParamsError(f"{output}: the {kind}'s path climbs with '..' out of {before}, which is not a folder "
+            raise OutputError(f"{output}: the {kind}'s path climbs with '..' out of {before}, which is not a folder "
                               f"yet; name the place without '..'")
     if output.is_symlink():
-        raise ParamsError(f"{output}: the {kind} is a symbolic link; name the place it should be itself")
+        raise OutputError(f"{output}: the {kind} is a symbolic link; name the place it should be itself")
     try:
         output.resolve()
     except (RuntimeError, OSError):  # Python 3.11 and 3.12 raise RuntimeError on a loop, 3.13 OSError
-        raise ParamsError(f"{output}: cannot create the {kind}: its path runs through a symbolic link loop") from None
+        raise OutputError(f"{output}: cannot create the {kind}: its path runs through a symbolic link loop") from None
     if output.exists() and (kind.endswith("folder") or output.is_dir()):
-        raise ParamsError(f"{output}: {kind} exists already; choose another")
+        raise OutputError(f"{output}: {kind} exists already; choose another")
     parent = output.parent
     while not parent.exists():
         if parent.is_symlink():
-            raise ParamsError(f"{output}: cannot create the {kind}: {parent} is a symbolic link to nothing")
+            raise OutputError(f"{output}: cannot create the {kind}: {parent} is a symbolic link to nothing")
         parent = parent.parent
     if not parent.is_dir():
-        raise ParamsError(f"{output}: cannot create the {kind}: {parent} is not a folder")
+        raise OutputError(f"{output}: cannot create the {kind}: {parent} is not a folder")
     if not os.access(parent, os.W_OK | os.X_OK):
-        raise ParamsError(f"{output}: cannot create the {kind}: {parent} is not writable")
+        raise OutputError(f"{output}: cannot create the {kind}: {parent} is not writable")
     try:  # root passes access() everywhere: only making something there proves it (/proc, read-only mounts)
         os.rmdir(tempfile.mkdtemp(prefix=".advperc-probe-", dir=parent))
     except OSError as exc:
-        raise ParamsError(f"{output}: cannot create the {kind} in {parent}: {exc.strerror}") from None
+        raise OutputError(f"{output}: cannot create the {kind} in {parent}: {exc.strerror}") from None
 
 
 def _existing(path: Path) -> Path:
@@ -88,7 +88,7 @@ def full_disk_said(output: Path, then: str) -> Iterator[None]:
 @contextmanager
 def exclusive(lock: Path, busy: str) -> Iterator[None]:
     """Hold the file `lock` (made if need be) for this run alone while the block runs, else a
-    ParamsError saying `busy`. An flock, so the kernel releases it however the run ends (SIGKILL
+    OutputError saying `busy`. An flock, so the kernel releases it however the run ends (SIGKILL
     too) and a killed run never blocks the next. The file goes when the block ends; a run that
     opened it just before finds, once it holds its lock, that the name no longer leads to the file
     it locked, and opens the name again."""
@@ -96,12 +96,12 @@ def exclusive(lock: Path, busy: str) -> Iterator[None]:
         try:
             fd = os.open(lock, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o644)
         except OSError as exc:
-            raise ParamsError(f"{lock}: cannot make the lock file: {exc.strerror}") from None
+            raise OutputError(f"{lock}: cannot make the lock file: {exc.strerror}") from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
-            raise ParamsError(busy) from None
+            raise OutputError(busy) from None
         if _names(lock, fd):
             break
         os.close(fd)  # the lock of a file its last holder removed: it guards nothing

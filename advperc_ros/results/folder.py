@@ -18,7 +18,7 @@ from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import LogRow
 from advperc_ros.core.search.registry import method_class
 from advperc_ros.core.staging import staged_folder
-from advperc_ros.exceptions import BagError, ParamsError
+from advperc_ros.exceptions import BagError, ResultsError
 from advperc_ros.params import NODE, PLANNER_PARAMS, AttackParams, find_bag, nest, parse_params
 from advperc_ros.results.outcome import AttackOutcome
 from advperc_ros.results.report import build_report, report_markdown
@@ -181,16 +181,16 @@ def write_errors(path: Path, outcome: AttackOutcome) -> None:
 
 
 def load_errors(path: Path) -> PerceptionErrors:
-    """The error tensor of a results folder; one BagError line if the file is not one."""
+    """The error tensor of a results folder; one ResultsError line if the file is not one."""
     try:
         with np.load(path) as data:
             arrays = {name: data[name] for name in data.files if name not in ("agent_ids", "stamps_ns")}
     except (OSError, ValueError, KeyError, EOFError) as exc:
-        raise BagError(f"{path}: not an error tensor (npz with dx, dy, dyaw, fn): {exc}") from None
+        raise ResultsError(f"{path}: not an error tensor (npz with dx, dy, dyaw, fn): {exc}") from None
     try:
         return PerceptionErrors.from_arrays(arrays)
     except ValueError as exc:
-        raise BagError(f"{path}: {exc}") from None
+        raise ResultsError(f"{path}: {exc}") from None
 
 
 def read_attack(results: Path) -> tuple[AttackParams, Path, PerceptionErrors]:
@@ -199,12 +199,12 @@ def read_attack(results: Path) -> tuple[AttackParams, Path, PerceptionErrors]:
     report_path, errors_path = results / REPORT_JSON, results / ERRORS
     for needed in (report_path, errors_path):
         if not needed.is_file():
-            raise ParamsError(f"{needed}: missing; this needs the results folder of an attack that collided")
+            raise ResultsError(f"{needed}: missing; this needs the results folder of an attack that collided")
     try:
         report = json.loads(report_path.read_text())
         flat = dict(report["params"])
     except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError) as exc:
-        raise ParamsError(f"{report_path}: not the report of an attack (no 'params'): {exc}") from None
+        raise ResultsError(f"{report_path}: not the report of an attack (no 'params'): {exc}") from None
     planner_params = flat.pop(PLANNER_PARAMS, {})
     params = parse_params({NODE: {"ros__parameters": {**nest(flat), PLANNER_PARAMS: planner_params}}}, str(report_path))
     bag = find_bag(params.bag, None)

@@ -27,7 +27,7 @@ from advperc_ros.core.perception_errors import (
     latency_source,
     parse_error_kinds,
 )
-from advperc_ros.exceptions import MessageError
+from advperc_ros.exceptions import MessageError, ResultsError
 from advperc_ros.ros import lockstep
 from advperc_ros.ros import messages as msgs
 
@@ -209,9 +209,8 @@ def test_a_broken_tensor_is_refused_naming_its_field(change, words, tmp_path):
     with pytest.raises(ValueError, match=words):
         PerceptionErrors.from_arrays(arrays)
     np.savez(tmp_path / "e.npz", **arrays)
-    from advperc_ros.exceptions import BagError
     from advperc_ros.results.folder import load_errors
-    with pytest.raises(BagError, match=words) as caught:
+    with pytest.raises(ResultsError, match=words) as caught:
         load_errors(tmp_path / "e.npz")
     assert str(caught.value).startswith(str(tmp_path / "e.npz"))
     if "speed" in change:  # a message's other fields are the sender's business (as its rollout number is)

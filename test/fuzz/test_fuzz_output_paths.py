@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from mutations import one_line_naming
 
-from advperc_ros.exceptions import ParamsError
+from advperc_ros.exceptions import OutputError
 from advperc_ros.results.destination import check_output
 
 FUZZ = settings(max_examples=300, deadline=5000, suppress_health_check=list(HealthCheck))  # deadline: hang guard
@@ -76,7 +76,7 @@ def test_the_gate_refuses_in_one_line_or_the_output_can_be_made(steps, kind, tmp
     before = _tree(root)
     try:
         check_output(path, kind)
-    except ParamsError as exc:
+    except OutputError as exc:
         one_line_naming(exc)
         assert str(exc).startswith(str(path)[:60]), (str(path), str(exc))
         assert _tree(root) == before, "the gate changed something"

@@ -15,16 +15,15 @@ from typing import NoReturn
 
 import numpy as np
 
-from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
-from advperc_ros.core.scenario import Scenario, ScenarioError
+from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
+from advperc_ros.exceptions import BagError, ParamsError, ScenarioError, ScenarioRejected
 from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.heap import keep_freed_heap
-from advperc_ros.params import ParamsError, load_params
-from advperc_ros.ros.bag import BagError
+from advperc_ros.params import load_params
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
@@ -46,7 +45,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
 
 def cmd_make_bags(args: argparse.Namespace) -> int:
     from advperc_ros.core.scenario_spec import load_scenario_spec
-    from advperc_ros.paths import check_output
+    from advperc_ros.results.destination import check_output
     from advperc_ros.ros.bag import write_ground_truth_bag
 
     specs = [Path(p) for p in args.scenarios] or sorted(Path("scenarios").glob("*.yaml"))
@@ -87,7 +86,7 @@ def _write_imported(command: str, source: str, scenario: Scenario, params_of: Ca
 
     from advperc_ros.core.feasibility import unavoidable_collision
     from advperc_ros.params import SCHEMA
-    from advperc_ros.paths import check_output
+    from advperc_ros.results.destination import check_output
     from advperc_ros.ros.bag import write_ground_truth_bag
 
     reason = unavoidable_collision(scenario, SCHEMA["ego.length"].default, SCHEMA["ego.width"].default)
@@ -161,13 +160,13 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     import csv
     from dataclasses import asdict, fields
 
-    from advperc_ros import plots
     from advperc_ros.backends.embedded import Stack
     from advperc_ros.core.robustness import RobustnessPoint, robustness_curve
     from advperc_ros.core.search.problem import AttackProblem
     from advperc_ros.core.staging import staging_path
-    from advperc_ros.paths import check_output
-    from advperc_ros.results import ERRORS, read_attack
+    from advperc_ros.results import plots
+    from advperc_ros.results.destination import check_output
+    from advperc_ros.results.folder import ERRORS, read_attack
     from advperc_ros.ros.bag import read_scenario
 
     results = Path(args.results)
@@ -194,8 +193,8 @@ def cmd_robustness(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from advperc_ros.paths import check_output
     from advperc_ros.replay import load_attack, replay, replay_params, replay_report, write_replay
+    from advperc_ros.results.destination import check_output
 
     attack = load_attack(Path(args.results))
     params = replay_params(attack, load_params(args.params) if args.params else None)
@@ -240,7 +239,7 @@ def cmd_pem_fit(args: argparse.Namespace) -> int:
     from advperc_ros.core.pem_fit import fit_pem
     from advperc_ros.core.staging import staging_path
     from advperc_ros.importers.nuscenes import load_pairs
-    from advperc_ros.paths import check_output
+    from advperc_ros.results.destination import check_output
     from advperc_ros.ros.bag import aligned_objects
 
     check_output(Path(args.output), "model file")

@@ -42,7 +42,8 @@ from advperc_ros.core.perception_errors import PAPER_ARRAYS, PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.staging import staging_path
-from advperc_ros.params import AttackParams, ParamsError
+from advperc_ros.exceptions import ParamsError
+from advperc_ros.params import AttackParams
 
 PARAMS = "params.json"
 ROLLOUTS = "rollouts.jsonl"

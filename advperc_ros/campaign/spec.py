@@ -19,23 +19,22 @@ from pathlib import Path
 from typing import Any
 
 from advperc_ros.backends.embedded import Stack
-from advperc_ros.core.planners.base import PlannerError
 from advperc_ros.core.search.problem import OBJECTIVES
+from advperc_ros.exceptions import OutputError, ParamsError, PlannerError
 from advperc_ros.exits import INPUT_ERRORS
 from advperc_ros.params import (
     EXECUTION,
     PLANNER_PARAMS,
     AttackParams,
-    ParamsError,
     find_bag,
     load_params,
     params_from_values,
     read_yaml,
     resolve_bag,
 )
-from advperc_ros.paths import check_output
 from advperc_ros.replay import REPLAY_JSON, load_attack
-from advperc_ros.results import ERRORS, REPORT_JSON
+from advperc_ros.results.destination import check_output
+from advperc_ros.results.folder import ERRORS, REPORT_JSON
 from advperc_ros.ros.bag import read_scenario
 
 EXECUTORS = ("process", "ray", "serial")
@@ -375,7 +374,7 @@ def plan(campaign: Campaign) -> list[Cell]:
     if not campaign.output.is_dir():  # a folder there is a campaign to resume
         try:
             check_output(campaign.output, "output folder")
-        except ParamsError as exc:
+        except OutputError as exc:
             raise campaign.fail("output", str(exc)) from None
     cells = _replay_cells(campaign, campaign.replay) if campaign.replay is not None else _attack_cells(campaign)
     names = [cell.name for cell in cells]

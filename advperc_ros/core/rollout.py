@@ -23,13 +23,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.perception_errors import PerceptionErrors, inject
 from advperc_ros.core.planners.base import Planner, ReportsStats, Trajectory, planner_stats
 from advperc_ros.core.rules.contact import CollisionRule, excusable
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import ObjectTracker
-from advperc_ros.exceptions import PlanTimeout
+from advperc_ros.exceptions import PlanError, PlanTimeout
 
 STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes following the plan
 

@@ -36,9 +36,9 @@ import numpy as np
 
 from advperc_ros.core.perception_errors import PerceptionErrors, registry
 from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.cdr import MessageError
 from advperc_ros.ros.topics import DONE, ERRORS, PRESENCE, READY, RULE_DIAGNOSTICS
 
 RULE_STATUS = "collision"

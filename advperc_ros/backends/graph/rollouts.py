@@ -147,7 +147,8 @@ class GraphRollouts:
         """The given transport, or a Cyclone participant of our own (`_own_transport`, closed with the graph)."""
         if self._given_transport is not None:
             return self._given_transport
-        from advperc_ros.ros.dds import DdsError, DdsTransport
+        from advperc_ros.exceptions import DdsError
+        from advperc_ros.ros.dds import DdsTransport
 
         try:
             self._own_transport = DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only,

@@ -8,7 +8,8 @@ import importlib
 from collections.abc import Mapping
 from typing import Any
 
-from advperc_ros.core.planners.base import Planner, PlannerError, PlanningContext
+from advperc_ros.core.planners.base import Planner, PlanningContext
+from advperc_ros.exceptions import PlannerError
 
 BUNDLED = {
     "idm": "advperc_ros.core.planners.idm:IDMPlanner",

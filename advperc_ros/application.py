@@ -178,7 +178,8 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
                          recorded=recorded, log=problem.log, wall_time_s=time.perf_counter() - started,
                          planner_node=attacked.node, tracker_node=attacked.tracker_node,
                          planner_version=attacked.version, joint=result.joint,
-                         approach=result.approach)
+                         approach=result.approach, ground_truth=problem.truth.rollout if problem.truth else None,
+                         rollout_config=configs.rollout)
 
 
 def default_output(params: AttackParams, scenario_name: str) -> Path:

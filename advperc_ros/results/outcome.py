@@ -1,9 +1,9 @@
 """What an attack comes to: the search's result and log, and the best attack recorded; what the
 results folder, its pictures and the report are written from."""
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
-from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.rollout import RolloutConfig, RolloutResult
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.approach import Approach
 from advperc_ros.core.search.joint import Joint
@@ -33,6 +33,9 @@ class AttackOutcome:
     joint: Joint | None = None
     # when no drop collided: the approach phase, with the closest margin it reached
     approach: Approach | None = None
+    ground_truth: RolloutResult | None = None  # perfect perception's rollout (None: the search ended before it)
+    # what the rollouts ran with: the ego's footprint, which the rules read
+    rollout_config: RolloutConfig = field(default_factory=RolloutConfig)
 
     @property
     def attack(self) -> Evaluation:

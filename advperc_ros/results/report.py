@@ -12,6 +12,9 @@ from pathlib import Path
 
 from advperc_ros import __version__
 from advperc_ros.core.perception_errors import parse_error_kinds
+from advperc_ros.core.rules.base import RuleValue
+from advperc_ros.core.rules.inputs import rule_inputs
+from advperc_ros.core.rules.registry import evaluate_rulebook
 from advperc_ros.core.search.diagnosis import listed_ids, why_no_collision
 from advperc_ros.core.search.problem import Evaluation, kind_costs
 from advperc_ros.results.outcome import AttackOutcome
@@ -41,6 +44,29 @@ def rounded(name: str, value):
 def report_scores(evaluation: Evaluation) -> dict:
     """An evaluation's scores as report.json holds them (NaN as null, rounded as `rounded`)."""
     return {k: rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
+
+
+def rule_entry(value: RuleValue) -> dict:
+    """One rule's verdict on a rollout as report.json holds it: its value (null where nothing can bring it near a
+    violation, as a rule with no agent to meet), whether it is violated and the first frame that violates it.
+    Rounded as the trajectory's floats, so both backends write the same report."""
+    finite = value.value if math.isfinite(value.value) else None
+    return {"value": None if finite is None else float(f"{finite:.{REPORT_DIGITS}g}"), "violated": value.violated,
+            "frame": value.first_violation}
+
+
+def rulebook(outcome: AttackOutcome) -> dict:
+    """report.json's `rules` (every registered rule on the attack's rollout, null without an attack) and
+    `ground_truth_rules` (on perfect perception's rollout, null if the search ended before it)."""
+    if outcome.ground_truth is None:
+        return {"rules": None, "ground_truth_rules": None}
+    scenario, config = outcome.scenario, outcome.rollout_config
+    truth = rule_inputs(outcome.ground_truth, scenario, config)
+    judged = {"ground_truth_rules": {name: rule_entry(value) for name, value in evaluate_rulebook(truth, truth).items()}}
+    if outcome.recorded is None:
+        return {"rules": None, **judged}
+    attacked = evaluate_rulebook(rule_inputs(outcome.recorded, scenario, config), truth)
+    return {"rules": {name: rule_entry(value) for name, value in attacked.items()}, **judged}
 
 
 def versions() -> dict[str, str]:
@@ -96,6 +122,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric),
                                **report_scores(outcome.heuristic_best)}
+    report.update(rulebook(outcome))
     # no single drop collided: the agents the joint drops' failure mode hides together ([]: none found)
     report["joint_agents"] = list(outcome.joint.agents) if outcome.joint is not None else None
     report.update(
@@ -126,7 +153,7 @@ def report_markdown(report: dict) -> str:
     """report.md: the report as the paper's Table 1 row, or why no collision was found."""
     layer = ", errors on the tracked objects" if report["attacked_layer"] == "tracks" else ""
     title = f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']}{layer})"
-    lines = [title, ""] + (_table(report) if report["collision"] else _no_collision(report)) + [
+    lines = [title, ""] + (_table(report) if report["collision"] else _no_collision(report)) + _rules_table(report) + [
         "",
         f"- seed {report['seed']}, config hash {report['config_hash']}, {report['rollouts']} rollouts, "
         f"wall time {report['wall_time_s']:.1f} s",
@@ -161,6 +188,24 @@ def _table(report: dict) -> list[str]:
         _kinds_line(report),
         "- TP/FN: ground-truth cars within 50 m matched / not matched at 4 m; MPE and MAOE over TPs",
     ]
+
+
+def _rules_table(report: dict) -> list[str]:
+    """Every rule of the rulebook on the attack's rollout and on the ground truth's: r (< 0 a violation, from
+    its first frame on)."""
+    truth, attack = report.get("ground_truth_rules"), report.get("rules")
+    if truth is None:
+        return []
+
+    def cell(entry: dict | None) -> str:
+        if entry is None:
+            return ""
+        value = "no violation possible" if entry["value"] is None else f"{entry['value']:.3f}"
+        return f"**{value} (violated from frame {entry['frame']})**" if entry["violated"] else value
+
+    lines = ["", "| rule | attack | ground truth |", "|---|---|---|"]
+    return lines + [f"| {name} | {cell(attack[name] if attack else None)} | {cell(entry)} |"
+                     for name, entry in truth.items()]
 
 
 def _kinds_line(report: dict) -> str:

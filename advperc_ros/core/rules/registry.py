@@ -5,7 +5,8 @@ Adding a rule: a module with a class that has the `base.Rule` protocol, and one 
 
 import importlib
 
-from advperc_ros.core.rules.base import Rule
+from advperc_ros.core.rules.base import Rule, RuleValue, evaluate
+from advperc_ros.core.rules.inputs import RuleInputs
 
 RULES = {
     "collision": "advperc_ros.core.rules.collision:Collision",
@@ -28,3 +29,10 @@ def rule_class(name: str) -> type[Rule]:
     module_name, _, class_name = RULES[name].partition(":")
     return getattr(importlib.import_module(module_name), class_name)
 
+
+
+def evaluate_rulebook(inputs: RuleInputs, reference: RuleInputs) -> dict[str, RuleValue]:
+    """Every registered rule, at its default parameters, on the rollout `inputs`, those that compare with the
+    ground truth against `reference` (the ground truth's own inputs, for the ground truth itself): what a
+    report says of a rollout whichever rule was attacked, so a collision found also shows it braked hard."""
+    return {name: evaluate(rule_class(name)(), inputs, reference) for name in RULES}

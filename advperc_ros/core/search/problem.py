@@ -111,6 +111,7 @@ class AttackProblem:
     kinds: tuple[str, ...] = PAPER_KINDS  # the error kinds the search may use: PEM LL's model (`perception_scores`)
     log: list[LogRow] = field(default_factory=list)
     best: Evaluation | None = None
+    truth: Evaluation | None = None  # the first ground-truth rollout logged: perfect perception, for the report's rules
     _reference: RolloutResult | None = field(default=None, repr=False)
     _reference_phi: np.ndarray | None = field(default=None, repr=False)
 
@@ -163,6 +164,8 @@ class AttackProblem:
     def _record(self, errors: PerceptionErrors, result: RolloutResult, phase: Phase, agent: int) -> Evaluation:
         scores = self.scores(errors, result.num_frames, result.ego_xy)
         evaluation = Evaluation(errors, result, scores, getattr(scores, self.objective))
+        if phase == Phase.GROUND_TRUTH and self.truth is None:
+            self.truth = evaluation
         if evaluation.adversarial and (self.best is None or evaluation.metric > self.best.metric):
             self.best = evaluation
         row = LogRow(

@@ -8,13 +8,15 @@ whatever it finds (the phantom obstacles, when ghosts are on) and the method's s
 any failure mode: it is counted from the first rollout on, so the total does not jump when the first
 drop collides, and a drop not rolled out yet is counted with the bisections it would run. The joint
 drops and the approach phase run only when nothing collided, and are counted from their first
-rollout (ahead of time they would add their hundred-odd rollouts to every search's estimate). Past
-the stage that ran, a stage owes nothing; the whole is capped by the budget in force.
+rollout (ahead of time they would add their hundred-odd rollouts to every search's estimate). A
+stage before the one running owes nothing; the whole is capped by the budget in force.
 
-So the total never exceeds the budget, and it never rises but at the first rollout of the joint drops
-and of the approach phase, or when the paper's random search changes the number of dropped runs its
-refine phase will bisect; with the guided method, which spends its share, a search whose drops or
-phantom obstacles collide ends at the total it showed from the first rollout on, or below it.
+So the total never exceeds the budget in force. Where a drop or a phantom obstacle collides, every
+figure is a worst case given the rows logged (but the paper's refine share, should its random search
+leave the best attack more dropped runs than the two the bound counts), so the total shown from the
+first rollout on only falls, and never below the rollouts the search goes on to run; with the guided
+method, whose rounds spend their share unless no candidate scores above the best attack, it ends at
+them. It rises only at the first rollout of the joint drops and of the approach phase.
 """
 
 import math

@@ -2,7 +2,6 @@
 orchestrator node both call, so both choose the same output folder, check it before any work,
 run the same search and write the same report."""
 
-import math
 import sys
 import time
 from collections.abc import Callable
@@ -18,14 +17,11 @@ from advperc_ros.backends.registry import open_rollouts
 from advperc_ros.backends.resumed import Checkpoint, ResumedRollouts
 from advperc_ros.configs import CoreConfigs, core_configs
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.search import phantom
-from advperc_ros.core.search.config import SearchConfig, budget
+from advperc_ros.core.search.books import Estimate
+from advperc_ros.core.search.config import SearchConfig, largest_budget, smallest_budget
 from advperc_ros.core.search.diagnosis import inconclusive_search
-from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.pipeline import run_search
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
-from advperc_ros.core.search.refine import dropped_runs
-from advperc_ros.core.search.registry import search_method
+from advperc_ros.core.search.problem import AttackProblem
 from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch, Interrupted, ParamsError
 from advperc_ros.params import AttackParams, resolve_bag
 from advperc_ros.results.destination import MIB, check_free_space, check_output, exclusive, full_disk_said
@@ -35,92 +31,35 @@ from advperc_ros.ros.bag import read_scenario
 
 
 class RolloutProgress:
-    """The progress bar of a search, counting the rollouts that run. Its total is the rollouts run
-    so far plus those still to come as far as the search has shown them: every agent's drop, the
-    bisections (2 x iterations at most) of each agent whose drop collided, and once an agent is
-    influential what the search method still owes (`SearchMethod.still_owed`: the paper's random
-    steps and refine's bisections of the best attack's dropped runs; the guided method's share of
-    the bound, and once its rounds begin the rest of its budget, which it spends), never past the
-    budget; the joint drops, when no single drop collided, show one rollout at a time. The paper's
-    bound would leave the bar at 12-39 %: most agents are not influential, and a bisection or a
-    random step can end early; `close` ends the bar at the count."""
+    """The progress bar of a search, which draws what the search says after each rollout
+    (`books.Estimate`: the rollouts run, the total it expects at most, the phase, the best so far) and,
+    for a log that is not a terminal, prints a line per rollout; `close` ends the bar at the count."""
 
-    def __init__(self, name: str, config: SearchConfig, num_agents: int, best: Callable[[], Evaluation | None],
-                 enabled: bool = True, say: Callable[[str], None] | None = None, objective: str = "metric") -> None:
-        self.name, self.config, self.num_agents, self.best = name, config, num_agents, best
-        self.say, self.objective = say, objective  # a line per rollout, for a log that is not a terminal
-        self.collisions = 0
-        self.run = 0  # rollouts counted so far (the bar's own count stays 0 when the bar is off)
-        self.total = 1 + num_agents  # the estimate the bar shows
-        self.method = search_method(config)
-        self.drops = self.influential = self.bisections = self.random = self.refined = self.refine_runs = 0
-        self.phantoms = 0  # phantom obstacles run (ghosts on)
-        self.bisections_owed = 0  # bisections run plus those the influential agents' drops still owe
-        self.joint = False  # a joint drop has run
-        self.approach = False  # the approach phase has run (no drop collided)
-        self.began: int | None = None  # the rollouts run before the method's own phases began
-        self.bar = tqdm(total=1 + num_agents, desc=name, unit="rollout", disable=not enabled, file=sys.stderr,
-                        mininterval=1.0)
+    def __init__(self, name: str, enabled: bool = True, say: Callable[[str], None] | None = None,
+                 objective: str = "metric") -> None:
+        self.name, self.objective = name, objective
+        self.say = say  # a line per rollout, for a log that is not a terminal
+        self.run = 0  # rollouts run so far (the bar's own count stays 0 when the bar is off)
+        self.bar = tqdm(desc=name, unit="rollout", disable=not enabled, file=sys.stderr, mininterval=1.0)
 
-    def __call__(self, row: LogRow) -> None:
-        phase = row.phase
-        if phase == Phase.HEURISTIC_DROP:
-            self.drops += 1
-            if not self.method.batched_heuristic:  # it bisects an agent before dropping the next: those are done
-                self.bisections_owed = self.bisections
-            self.bisections_owed += 2 * self.config.heuristic_iterations * row.collided  # batched: after all drops
-            self.influential += row.collided
-        elif phase == Phase.PHANTOM:  # ghosts are on: the phantom obstacles run after the drops
-            self.phantoms += 1
-            self.influential += row.collided
-        elif phase == Phase.JOINT:  # no single drop collided: the joint drops run, within their own bound
-            self.joint = True
-            self.influential += row.collided
-        elif phase == Phase.APPROACH:  # no drop collided: the approach phase runs, within its own bound
-            self.joint = self.approach = True
-            self.influential += row.collided
-        elif phase in (Phase.HEURISTIC_START, Phase.HEURISTIC_END):
-            self.bisections += 1
-        elif phase == Phase.RANDOM:
-            self.random += 1
-        elif phase == Phase.REFINE:
-            self.refined += 1
-        best = self.best()
-        if phase != Phase.REFINE and best is not None:  # refine bisects the runs of the best before it
-            self.refine_runs = len(dropped_runs(best.errors.fn[: best.rollout.num_frames]))
-        self.total = self.bar.total = self.run + 1 + self._still_to_run(phase)
-        name = "heuristic" if phase.heuristic else self.method.phases.get(phase, str(phase))
-        self.bar.set_description(f"{self.name} ({name})", refresh=False)
-        self.bar.set_postfix(best="none yet" if best is None else f"{best.metric:.4f}", refresh=False)
+    def __call__(self, estimate: Estimate) -> None:
+        self.bar.total = estimate.total
+        self.bar.set_description(f"{self.name} ({estimate.label})", refresh=False)
+        self.bar.set_postfix(best="none yet" if estimate.best is None else f"{estimate.best:.4f}", refresh=False)
         self.bar.update()
-        self.run += 1
-        self.collisions += row.collided and not row.inconclusive
+        self.run = estimate.run
         if self.say is not None:
-            self.say(self.line(row))
+            self.say(self.line(estimate))
 
-    def line(self, row: LogRow) -> str:
+    def line(self, estimate: Estimate) -> str:
         """The rollout just run, as a person reads it in a log (ros2 launch's): the count against the
         total the bar shows, its verdict, the best attack so far and the collisions found."""
+        row = estimate.row
         verdict = (f"inconclusive ({row.inconclusive})" if row.inconclusive
                    else "collision" if row.collided else "no collision")
-        best = "no attack yet" if math.isnan(row.best_metric) else f"best {self.objective} {row.best_metric:.4f}"
-        return (f"rollout {self.run} of about {self.total}: {verdict}; {best}; "
-                f"{self.collisions} collision{'s' * (self.collisions != 1)} so far")
-
-    def _still_to_run(self, phase: Phase) -> int:
-        left = budget(self.config, self.num_agents, self.joint, self.approach) - self.run - 1
-        if phase in self.method.phases:
-            if self.began is None:
-                self.began = self.run
-            return min(left, self.method.still_owed(phase, self._progress()))
-        bisections = max(0, self.bisections_owed - self.bisections)
-        tail = self.method.still_owed(None, self._progress()) if self.influential else 0
-        phantoms = phantom.worst_case(self.config.errors) - self.phantoms
-        return min(left, self.num_agents - self.drops + phantoms + bisections + tail)
-
-    def _progress(self) -> Progress:
-        return Progress(run=self.run, began=self.began, random=self.random, refined=self.refined,
-                        refine_runs=self.refine_runs)
+        best = "no attack yet" if estimate.best is None else f"best {self.objective} {estimate.best:.4f}"
+        return (f"rollout {estimate.run} of about {estimate.total}: {verdict}; {best}; "
+                f"{estimate.collisions} collision{'s' * (estimate.collisions != 1)} so far")
 
     def close(self) -> None:
         self.bar.total = self.run
@@ -130,7 +69,7 @@ class RolloutProgress:
 def check_budget(params: AttackParams, scenario: Scenario) -> None:
     """Refuse a `search.budget` below the ground truth and one drop of each agent: such a search cannot
     try every agent once, and the guided method's first batch (all of them) did not fit it at all."""
-    needed = 1 + scenario.agents.shape[1]
+    needed = smallest_budget(scenario.agents.shape[1])
     if 0 < params.search.budget < needed:
         raise ParamsError(f"{params.source or 'params'}: parameter 'search.budget' is {params.search.budget}, below the "
                           f"{needed} rollouts that try each of the scenario's {needed - 1} agents once (and the ground "
@@ -153,16 +92,11 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     else:
         backend = rollouts
     config = configs.search
-    problem: AttackProblem | None = None
-
-    def best() -> Evaluation | None:
-        return problem.best if problem is not None else None
-
-    counter = RolloutProgress(scenario.name, config, scenario.agents.shape[1], best, progress, say, params.objective)
-    problem = AttackProblem(scenario, backend.rollout, params.objective, on_rollout=counter,
+    counter = RolloutProgress(scenario.name, progress, say, params.objective)
+    problem = AttackProblem(scenario, backend.rollout, params.objective,
                             run_rollouts=getattr(backend, "rollout_many", None), kinds=config.errors.kinds)
     try:
-        result = run_search(problem, config)
+        result = run_search(problem, config, on_estimate=counter)
     finally:
         counter.close()
         if own is not None:  # this function's own stack: its worker pool ends here
@@ -203,7 +137,7 @@ def output_bytes(scenario: Scenario, search: SearchConfig, bag_path: Path) -> in
     """A generous estimate of the disk an attack uses: its checkpoint (a line per rollout of the
     search's bound: the ego and each agent's distance per frame) and its results folder."""
     frames, agents = scenario.agents.shape
-    rollouts = budget(search, agents, joint=True, approach=True)
+    rollouts = largest_budget(search, agents)
     present = int(scenario.agents.valid.sum())
     line = (4 * frames + present) * CHECKPOINT_BYTES_PER_NUMBER + (frames * agents - present) * CHECKPOINT_BYTES_PER_ABSENCE
     bag = sum(part.stat().st_size for part in Path(bag_path).rglob("*") if part.is_file()) if Path(bag_path).is_dir() \

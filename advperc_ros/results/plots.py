@@ -22,14 +22,13 @@ from PIL import Image
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.perception_errors import inject
 from advperc_ros.core.rollout import RolloutResult
-from advperc_ros.core.search.problem import LogRow, Phase
+from advperc_ros.core.search.books import SHARED_PHASES
+from advperc_ros.core.search.heuristic import LABEL as HEURISTIC
+from advperc_ros.core.search.problem import LogRow, Phase, PhaseLabel
 from advperc_ros.core.search.registry import every_phase
 from advperc_ros.results.outcome import AttackOutcome
 
 METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
-# the metric plot's (colour, line) of a search method's phase; a phase not here takes the next of OTHER_LINES
-PHASE_LINES = {Phase.RANDOM: ("tab:cyan", "--"), Phase.REFINE: ("tab:green", ":"), Phase.GUIDED: ("tab:purple", "-.")}
-OTHER_LINES = (("tab:olive", "--"), ("tab:pink", "-."), ("tab:gray", ":"))
 # one style per layer, shared by the bird's-eye view and the animation (the bag's colours where it has them)
 BOX_STYLES: dict[str, dict[str, Any]] = {  # matplotlib keyword arguments
     "truth": dict(facecolor="none", edgecolor="black", linewidth=1.2, label="ground truth"),
@@ -48,9 +47,9 @@ GIF_MAX_FRAMES = 80  # a longer scenario plays faster rather than costing more
 GIF_WINDOW = ((-15.0, 45.0), (-15.0, 15.0))  # m, ego frame: x ahead, y left
 
 
-def metric_figure(log: list[LogRow], objective: str, phases: Mapping[Phase, str] | None = None) -> Figure:
+def metric_figure(log: list[LogRow], objective: str, phases: Mapping[Phase, PhaseLabel] | None = None) -> Figure:
     """The paper's figure 3 when the search found a collision, else why it did not (closest approaches).
-    `phases`: the search method's phases and their names (`SearchMethod.phases`; default: every
+    `phases`: the search method's phases and how to show them (`SearchMethod.phases`; default: every
     registered method's)."""
     fig, ax = plt.subplots(figsize=(6, 4))
     index = np.array([row.rollout for row in log])
@@ -67,24 +66,22 @@ def metric_figure(log: list[LogRow], objective: str, phases: Mapping[Phase, str]
 
 
 def _best_metric(ax, log: list[LogRow], index: np.ndarray, collided: np.ndarray, objective: str,
-                 phases: Mapping[Phase, str]) -> None:
-    """Best adversarial metric after each rollout; heuristic solid, the approach phase (when no drop
-    collided) solid brown, and each of the method's phases as the method names it: random search
-    dashed, refine dotted, guided rounds dash-dotted (refine may run between two stretches of rounds)."""
+                 phases: Mapping[Phase, PhaseLabel]) -> None:
+    """Best adversarial metric after each rollout, each stretch of rollouts shown as its phase's stage
+    shows it (`PhaseLabel`): the heuristic's solid, the approach phase's (when no drop collided) solid
+    brown; the paper's random search dashed, refine dotted, guided rounds dash-dotted (refine may run
+    between two stretches of rounds)."""
     best = np.array([row.best_metric for row in log])
-    styles = {str(Phase.APPROACH): ("approach", "tab:brown", "-")}
-    for i, (phase, name) in enumerate(phases.items()):
-        styles[str(phase)] = (name, *PHASE_LINES.get(phase, OTHER_LINES[i % len(OTHER_LINES)]))
-    kinds = [str(row.phase) if str(row.phase) in styles else "" for row in log]  # "": the heuristic's
-    styles[""] = ("heuristic", "tab:orange", "-")
+    styles = {str(phase): label for phase, label in {**SHARED_PHASES, **phases}.items()}  # a log read back has str phases
+    kinds = [styles.get(str(row.phase), HEURISTIC) for row in log]
     starts = [i for i, kind in enumerate(kinds) if i == 0 or kind != kinds[i - 1]]  # each stretch of one phase
     labelled = set()
     for start, end in zip(starts, [*starts[1:], len(log)]):
-        label, color, line = styles[kinds[start]]
+        label = kinds[start]
         first = max(start - 1, 0)  # join the previous stretch's curve
-        ax.step(index[first:end], best[first:end], where="post", color=color, linestyle=line,
-                label=None if label in labelled else label)
-        labelled.add(label)
+        ax.step(index[first:end], best[first:end], where="post", color=label.color, linestyle=label.line,
+                label=None if label.name in labelled else label.name)
+        labelled.add(label.name)
     metric = np.array([row.metric for row in log])
     ax.scatter(index[collided], metric[collided], s=10, color="tab:red", label="adversarial rollout", zorder=3)
     if (~collided).any():
@@ -121,7 +118,8 @@ def _closest_approaches(ax, log: list[LogRow], index: np.ndarray) -> None:
     ax.set_title(f"No collision found in {len(log)} rollouts")
 
 
-def metric_vs_rollouts(path: Path, log: list[LogRow], objective: str, phases: Mapping[Phase, str] | None = None) -> None:
+def metric_vs_rollouts(path: Path, log: list[LogRow], objective: str,
+                       phases: Mapping[Phase, PhaseLabel] | None = None) -> None:
     _save(metric_figure(log, objective, phases), path, dpi=120)
 
 

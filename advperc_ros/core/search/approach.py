@@ -26,6 +26,7 @@ back for metric, as after a drop.
 """
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cmp_to_key
 
@@ -34,9 +35,10 @@ import numpy as np
 from advperc_ros.core.perception_errors import ErrorSpace, MoveContext, PerceptionErrors, kind_named
 from advperc_ros.core.search.heuristic import bisect
 from advperc_ros.core.search.joint import relevance
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase, PhaseLabel
 from advperc_ros.core.search.random_search import RandomSearchConfig, pick_segment, propose
 
+PHASES = {Phase.APPROACH: PhaseLabel("approach", "tab:brown", "-")}
 MIN_GAIN = 0.01  # m a candidate must bring the ego nearer to be kept: a planner's numerical noise is no progress
 NEAREST = 4  # cars a candidate may show displaced: the nearest to the ego, in the ground truth or current rollout
 
@@ -59,6 +61,11 @@ def worst_case(steps: int, num_agents: int) -> int:
     """Rollouts the phase runs at most: its steps and, after a collision, the bisection for the fewest
     nearest cars whose errors alone still collide."""
     return steps + math.ceil(math.log2(max(num_agents, 1))) if steps > 0 else 0
+
+
+def still_owed(logged: Sequence[LogRow], steps: int, num_agents: int) -> int:
+    """Rollouts `approach` may still run, at most, having logged `logged`."""
+    return worst_case(steps, num_agents) - len(logged)
 
 
 def nearest(truth: Evaluation, current: Evaluation) -> np.ndarray:

@@ -54,12 +54,26 @@ def bound(config: SearchConfig, num_agents: int, joint: bool = False, approach: 
             + approach_worst + after_failure_bound(config))
 
 
+REFINED_RUNS = 2  # dropped runs of the best attack whose bisections `bound` counts (refine_iterations rollouts a run)
+
+
 def after_failure_bound(config: SearchConfig) -> int:
     """The share of `bound` that follows the failure mode: the random steps (one rollout each at
-    most) and refine's bisections of two dropped runs (`refine_iterations` rollouts a run)."""
-    return config.random.steps + 2 * config.refine_iterations
+    most) and refine's bisections of `REFINED_RUNS` dropped runs (`refine_iterations` rollouts a run)."""
+    return config.random.steps + REFINED_RUNS * config.refine_iterations
 
 
 def budget(config: SearchConfig, num_agents: int, joint: bool = False, approach: bool = False) -> int:
     """Rollouts the search runs at most: `config.budget`, or `bound` when 0."""
     return config.budget or bound(config, num_agents, joint, approach)
+
+
+def largest_budget(config: SearchConfig, num_agents: int) -> int:
+    """Rollouts the search runs at most, whichever phases it comes to: what its checkpoint may hold."""
+    return budget(config, num_agents, joint=True, approach=True)
+
+
+def smallest_budget(num_agents: int) -> int:
+    """The fewest rollouts a `search.budget` may give: the ground truth and one drop of each agent (the
+    guided method's first batch, which a smaller budget does not fit; the paper's tries every agent once)."""
+    return 1 + num_agents

@@ -25,6 +25,7 @@ the paper's on (`errors.kinds`), each kind's moves (its `ErrorKind.moves`) join 
 collision model learns them as it learns the paper's.
 """
 
+from collections.abc import Sequence
 from typing import ClassVar
 
 import numpy as np
@@ -32,9 +33,9 @@ import numpy as np
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
 from advperc_ros.core.perception_errors import ErrorSpace, MoveContext, PerceptionErrors, registry
 from advperc_ros.core.perception_errors.runs import attacked_runs, run_edge
+from advperc_ros.core.search import refine
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig, after_failure_bound
-from advperc_ros.core.search.method import Progress
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase, PhaseLabel
 from advperc_ros.core.search.random_search import propose
 from advperc_ros.core.search.refine import refine_drops
 
@@ -396,7 +397,8 @@ class GuidedMethod:
 
     name = "guided"
     batched_heuristic = True
-    phases: ClassVar[dict[Phase, str]] = {Phase.GUIDED: "guided search", Phase.REFINE: "refine"}
+    phases: ClassVar[dict[Phase, PhaseLabel]] = {Phase.GUIDED: PhaseLabel("guided search", "tab:purple", "-."),
+                                                 Phase.REFINE: refine.LABEL}
 
     def __init__(self, config: SearchConfig) -> None:
         self.config = config
@@ -412,8 +414,7 @@ class GuidedMethod:
         guided_search(problem, rng, self.config.guided, problem.rollouts_allowed, self.config.refine_iterations,
                       self.config.errors)
 
-    def still_owed(self, phase: Phase | None, progress: Progress) -> int:
-        """Before its rounds, `after_failure_bound`; once they began, the rest of its budget, which it spends."""
-        if progress.began is None:
-            return after_failure_bound(self.config)
-        return self.tail_budget(progress.began, 0) - progress.run - 1
+    def still_owed(self, logged: Sequence[LogRow], share: int, best: Evaluation | None) -> int:
+        """The rest of its share, which its rounds spend (they stop short only when no candidate
+        scores above the best attack, after the refine phase has run)."""
+        return share - len(logged)

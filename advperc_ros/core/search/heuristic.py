@@ -5,17 +5,20 @@ that runs to the end, then the earliest end of a drop from that start. Bisection
 only on a definite verdict: an inconclusive rollout ends that bisection where it stands.
 """
 
-from collections.abc import Callable, Generator
+from collections import Counter
+from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass
 from typing import TypeVar
 
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase, PhaseLabel
 from advperc_ros.exceptions import GroundTruthFails
 
 Segments = dict[int, tuple[int, int]]  # slot -> (first, last) dropped frame, inclusive
 T = TypeVar("T")
+LABEL = PhaseLabel("heuristic", "tab:orange", "-")  # Algorithm 1, and the phantom obstacles and joint drops beside it
+PHASES = dict.fromkeys((Phase.GROUND_TRUTH, Phase.HEURISTIC_DROP, Phase.HEURISTIC_START, Phase.HEURISTIC_END), LABEL)
 
 
 @dataclass(frozen=True)
@@ -157,3 +160,27 @@ def heuristic_search(problem: AttackProblem, iterations: int = 3, batched: bool 
         if drops[-1].adversarial:
             modes.append(narrow(problem, {j: (0, num_frames - 1)}, j, iterations, drops[-1])[1])
     return Heuristic(truth, drops, modes)
+
+
+def still_owed(logged: Sequence[LogRow], num_agents: int, iterations: int, batched: bool) -> int:
+    """Rollouts `heuristic_search` may still run, at most, having logged `logged`: the ground truth,
+    each agent's drop not rolled out yet with the 2 x `iterations` bisections it runs should it
+    collide, and what the bisections of the drops that collided may still run. `batched`: every drop
+    rolls out before any bisection; else an agent's bisections are over once the next agent's drop is."""
+    drops = [row for row in logged if row.phase == Phase.HEURISTIC_DROP]
+    owed = (not any(row.phase == Phase.GROUND_TRUTH for row in logged)) + (num_agents - len(drops)) * (1 + 2 * iterations)
+    bisected = {Phase.HEURISTIC_START: Counter[int](), Phase.HEURISTIC_END: Counter[int]()}  # rollouts per agent
+    ended = set()  # (agent, phase) of the bisections an inconclusive rollout ended
+    for row in logged:
+        if row.phase in bisected:
+            bisected[row.phase][row.agent] += 1
+            if row.inconclusive:
+                ended.add((row.agent, row.phase))
+    starts, ends = bisected[Phase.HEURISTIC_START], bisected[Phase.HEURISTIC_END]
+    for drop in drops if batched else drops[-1:]:
+        if drop.collided:
+            agent = drop.agent
+            start_over = ends[agent] > 0 or (agent, Phase.HEURISTIC_START) in ended
+            end_over = (agent, Phase.HEURISTIC_END) in ended
+            owed += (0 if start_over else iterations - starts[agent]) + (0 if end_over else iterations - ends[agent])
+    return owed

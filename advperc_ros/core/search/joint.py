@@ -18,12 +18,16 @@ most one rollout of the kept set and ceil(log2 N) of the bisection; a set rolled
 """
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
+from advperc_ros.core.search import heuristic
 from advperc_ros.core.search.heuristic import Heuristic, dropping, narrow
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
+
+PHASES = {Phase.JOINT: heuristic.LABEL}  # Algorithm 1 for several agents at once, shown as it
 
 
 @dataclass(frozen=True)
@@ -45,6 +49,20 @@ def worst_case(max_agents: int, num_agents: int) -> int:
     if max_agents == 0 or num_agents < 2:
         return 0
     return max_agents * (1 + math.ceil(math.log2(num_agents)))
+
+
+def still_owed(logged: Sequence[LogRow], max_agents: int, num_agents: int, iterations: int) -> int:
+    """Rollouts `joint_drops` may still run, at most, having logged `logged` (the blind rollout
+    first): none once the blind rollout did not collide; else what the reduction may (`worst_case`
+    of the agents it may keep, `max_agents` or all; its rollouts are of no one agent) until the first
+    bisection of the set's segments, and those bisections, 2 x `iterations` an agent of the set (more
+    agents only when the reduction stopped at `max_agents`)."""
+    if logged and not logged[0].collided:
+        return 0
+    kept = min(max_agents, num_agents)
+    narrowed = sum(row.agent != -1 for row in logged)
+    reduction = 0 if narrowed else max(0, worst_case(kept, num_agents) - len(logged))
+    return reduction + max(0, 2 * iterations * kept - narrowed)
 
 
 def relevance(truth: Evaluation, blind: Evaluation) -> list[int]:

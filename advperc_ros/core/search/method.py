@@ -5,31 +5,19 @@ heuristic (Algorithm 1), the joint drops and the approach phase when no drop col
 is what comes after, from the failure mode found to the attack reported; the paper's (random
 search and refine, `paper.PaperMethod`) and the guided search (`guided.GuidedMethod`) are two.
 
-The progress bar, the plots and the report ask a method what they need (its phases' names, what it
-still owes) rather than branching on its name, so adding one is one module and one line of
+The progress bar, the plots and the report ask a method what they need (how to show its phases,
+what it still owes) rather than branching on its name, so adding one is one module and one line of
 `registry.METHODS`. This module is the interface only: it imports no method, so any module may
 import it (as nuPlan's AbstractPlanner).
 """
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
 from typing import ClassVar, Protocol
 
 import numpy as np
 
 from advperc_ros.core.search.config import SearchConfig
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
-
-
-@dataclass(frozen=True)
-class Progress:
-    """What a progress bar has counted of a search, for a method to tell what it still owes."""
-
-    run: int  # rollouts run before the one being counted
-    began: int | None  # rollouts run before the method's own phases began; None: not yet begun
-    random: int  # rollouts of the random-search phase so far
-    refined: int  # rollouts of the refine phase so far
-    refine_runs: int  # dropped runs of the best attack so far, which a refine phase would bisect
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase, PhaseLabel
 
 
 class SearchMethod(Protocol):
@@ -37,7 +25,7 @@ class SearchMethod(Protocol):
 
     name: ClassVar[str]  # as `search.method` and `advperc attack --method` name it
     batched_heuristic: ClassVar[bool]  # the heuristic drops every agent before bisecting any (rollouts at once)
-    phases: ClassVar[Mapping[Phase, str]]  # the phases it logs rollouts under, in order, and what to call them
+    phases: ClassVar[Mapping[Phase, PhaseLabel]]  # the phases it logs rollouts under, in order, and how to show them
 
     def __init__(self, config: SearchConfig) -> None: ...
 
@@ -50,6 +38,8 @@ class SearchMethod(Protocol):
         the budget and keeps the best) with the search's random draws `rng`; the attack reported is
         the problem's best. It may end by running out of budget (`BudgetSpent`)."""
 
-    def still_owed(self, phase: Phase | None, progress: Progress) -> int:
-        """Rollouts its phases may still run, at most, in `phase` (one of `phases`, or None before
-        they began); the progress bar's total comes from it."""
+    def still_owed(self, logged: Sequence[LogRow], share: int, best: Evaluation | None) -> int:
+        """Rollouts it may still run, at most, having logged `logged` (the rows of its phases, none
+        before it began) of the `share` of the budget it has (`tail_budget` less the rollouts run
+        before it), `best` being the best attack so far (None before a failure mode is found); the
+        search's estimate of the rollouts to come (`books.Estimate`) counts it from the first rollout."""

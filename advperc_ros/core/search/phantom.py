@@ -17,19 +17,28 @@ search method moves from the best of them all. With the paper's kinds nothing ru
 stay the paper's to the bit.
 """
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.core.search import heuristic
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 
 PROBES = 8  # phantom obstacles tried, at starts spread evenly over the ground-truth rollout
 PROBE_LEAD = 0.8  # s ahead of the ego on its ground-truth path: nearer than its planner's comfortable stop
 PROBE_SPAN = 2.5  # s the ghost stands there: longer than the tracker's coasting, so the planner acts on it
+PHASES = {Phase.PHANTOM: heuristic.LABEL}  # failure modes beside Algorithm 1's, shown as its
 
 
 def worst_case(space: ErrorSpace) -> int:
     """Rollouts the probes run: `PROBES` when the ghost kind is on, else none."""
     return PROBES if "ghost" in space.kinds else 0
+
+
+def still_owed(logged: Sequence[LogRow], space: ErrorSpace) -> int:
+    """Probes still to roll out, at most, having logged `logged` (fewer run on a short rollout)."""
+    return worst_case(space) - len(logged)
 
 
 def probes(truth: Evaluation, shape: tuple[int, int], dt: float, space: ErrorSpace) -> list[PerceptionErrors]:

@@ -4,15 +4,19 @@ does, then the search method `config.method`
 names (`registry.METHODS`: the paper's random search and refine phase, or the guided search).
 What `advperc attack` and the orchestrator node run, whatever backend rolls out."""
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from advperc_ros.core.search import approach as approach_phase
+from advperc_ros.core.search import books
 from advperc_ros.core.search.approach import Approach
+from advperc_ros.core.search.books import Estimate
 from advperc_ros.core.search.config import SearchConfig, budget
 from advperc_ros.core.search.heuristic import heuristic_search
 from advperc_ros.core.search.joint import Joint, joint_drops
+from advperc_ros.core.search.method import SearchMethod
 from advperc_ros.core.search.phantom import phantom_modes
 from advperc_ros.core.search.problem import AttackProblem, Evaluation
 from advperc_ros.core.search.registry import search_method
@@ -31,13 +35,20 @@ class SearchResult:
     approach: Approach | None = None  # the approach phase, when it ran to the end (no drop collided)
 
 
-def run_search(problem: AttackProblem, config: SearchConfig) -> SearchResult:
+def run_search(problem: AttackProblem, config: SearchConfig,
+               on_estimate: Callable[[Estimate], None] | None = None) -> SearchResult:
     """All phases in order; the problem counts and logs every rollout and tracks the best. A search
-    that reaches its budget ends there with the best attack so far."""
+    that reaches its budget ends there with the best attack so far. `on_estimate`: told after every
+    rollout what the search still owes (`books.Estimate`), for a progress bar."""
+    method = search_method(config)
+    with books.kept(problem, config, method, on_estimate):
+        return _phases(problem, config, method)
+
+
+def _phases(problem: AttackProblem, config: SearchConfig, method: SearchMethod) -> SearchResult:
     problem.budget = budget(config, problem.scenario.agents.shape[1])
     heuristic = joint = approached = None
     num_agents = problem.scenario.agents.shape[1]
-    method = search_method(config)
     try:
         found = heuristic_search(problem, config.heuristic_iterations, batched=method.batched_heuristic)
         probed, phantoms = phantom_modes(problem, found.truth, config.errors)

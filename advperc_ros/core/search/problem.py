@@ -41,6 +41,17 @@ class Phase(str, Enum):
 
 
 @dataclass(frozen=True)
+class PhaseLabel:
+    """How a phase of the search is shown, which the stage that runs it chooses: what the progress bar
+    and the metric plot's legend call it, and its stretch of the plot's best-metric curve (so the
+    plots name no phase, and a new search method brings its own)."""
+
+    name: str
+    color: str  # a matplotlib colour
+    line: str  # a matplotlib line style
+
+
+@dataclass(frozen=True)
 class Evaluation:
     """One rollout of an error tensor, with its perception scores over the rollout's frames."""
 

@@ -11,7 +11,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.perception_errors import PerceptionErrors
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase, PhaseLabel
+
+LABEL = PhaseLabel("random search", "tab:cyan", "--")  # as the paper's method shows it
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,9 @@ where the remaining gains are.
 
 from advperc_ros.core.perception_errors.runs import dropped_runs
 from advperc_ros.core.search.heuristic import bisect
-from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
+from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase, PhaseLabel
+
+LABEL = PhaseLabel("refine", "tab:green", ":")  # as the methods that run it show it
 
 
 def refine_drops(problem: AttackProblem, best: Evaluation, iterations: int = 4) -> Evaluation:

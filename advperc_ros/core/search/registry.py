@@ -9,7 +9,7 @@ import importlib
 
 from advperc_ros.core.search.config import SearchConfig
 from advperc_ros.core.search.method import SearchMethod
-from advperc_ros.core.search.problem import Phase
+from advperc_ros.core.search.problem import Phase, PhaseLabel
 
 # paper: the paper's Algorithms 1 and 2 and the refine phase; guided: Algorithm 1, then the guided search
 METHODS = {
@@ -31,6 +31,6 @@ def search_method(config: SearchConfig) -> SearchMethod:
     return method_class(config.method)(config)
 
 
-def every_phase() -> dict[Phase, str]:
-    """Every registered method's phases and their names: for a log whose method is not known."""
-    return {phase: name for method in METHODS for phase, name in method_class(method).phases.items()}
+def every_phase() -> dict[Phase, PhaseLabel]:
+    """Every registered method's phases and how to show them: for a log whose method is not known."""
+    return {phase: label for method in METHODS for phase, label in method_class(method).phases.items()}

@@ -3,12 +3,11 @@ on 1 and 2 workers, resumable mid-batch, and the paper's method unchanged."""
 
 import json
 from dataclasses import replace
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
-from advperc_ros.application import RolloutProgress, attack_to_folder, run_attack
+from advperc_ros.application import attack_to_folder, run_attack
 from advperc_ros.configs import core_configs
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.perception_errors import PerceptionErrors
@@ -17,9 +16,8 @@ from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.search import guided
 from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_still_fails, merge, next_radius,
                                             pick_batch, push, shown, trust_region, wrongness)
-from advperc_ros.core.search.config import SearchConfig
 from advperc_ros.core.search.pipeline import run_search
-from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
+from advperc_ros.core.search.problem import AttackProblem, Phase
 from advperc_ros.exceptions import Interrupted, ParamsError
 from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario
@@ -310,40 +308,3 @@ def test_the_trust_region_keeps_the_second_pick_between_the_noise_floor_and_the_
     assert trust_region(gain, 0.001, [0.005]).tolist() == [False, False, True, False, False]
     assert trust_region(gain, 0.005, [0.003]).tolist() == [False, False, True, False, False]  # none between: the nearest
     assert trust_region(gain, np.inf, [0.5]).tolist() == [False, False, False, False, True]  # at most the largest
-
-
-def _progress_totals(method: str, rows: list[tuple[Phase, bool]]) -> list[int]:
-    """The bar's total after each row of a search of 3 agents (heuristic 2 iterations, refine 2),
-    whose best attack has one dropped run."""
-    config = SearchConfig(heuristic_iterations=2, refine_iterations=2, method=method)
-    errors = PerceptionErrors.none(50, 3)
-    errors.fn[10:20, 0] = True
-    best = SimpleNamespace(errors=errors, rollout=SimpleNamespace(num_frames=50), metric=0.9)
-    progress = RolloutProgress("test", config, 3, lambda: best)  # a disabled bar counts nothing
-    totals = []
-    for rollout, (phase, collided) in enumerate(rows):
-        progress(LogRow(rollout, phase, -1, 0.0, 0.0, 0.0, 1.0, collided, "", 0, collided, float("nan")))
-        totals.append(progress.bar.total)
-    progress.close()
-    return totals + [progress.bar.total]
-
-
-DROP, HIT, START, END = ((Phase.HEURISTIC_DROP, False), (Phase.HEURISTIC_DROP, True), (Phase.HEURISTIC_START, False),
-                         (Phase.HEURISTIC_END, False))
-
-
-def test_the_progress_bar_knows_the_guided_total_from_the_last_influential_drop_on():
-    """Batched: the ground truth and 3 drops (2 collide), then both agents' 4 bisections each in
-    lockstep, then the rounds' 40 + 2 x 2: 56 rollouts, the total from the second collision on."""
-    rows = [(Phase.GROUND_TRUTH, False), HIT, HIT, DROP] + [START, START, END, END] * 2 + [(Phase.GUIDED, False)] * 44
-    totals = _progress_totals("guided", rows)
-    assert totals[2:] == [56] * (len(rows) - 1)
-
-
-def test_the_progress_bar_knows_the_paper_s_total_from_the_last_influential_drop_on():
-    """Each agent bisected before the next drop; 39 random steps (one rolled nothing out) and
-    refine's 2 of its one dropped run: 53 rollouts, 54 shown until refine begins."""
-    rows = ([(Phase.GROUND_TRUTH, False), HIT, START, START, END, END, HIT, START, START, END, END, DROP]
-            + [(Phase.RANDOM, False)] * 39 + [(Phase.REFINE, False)] * 2)
-    totals = _progress_totals("paper", rows)
-    assert totals[6:-3] == [54] * (len(rows) - 8) and totals[-3:] == [53] * 3

@@ -2,7 +2,7 @@
 
 import pytest
 
-from advperc_ros import params as params_module
+from advperc_ros.params import install as params_module
 from advperc_ros.params import SCHEMA, ParamsError, find_bag, load_params, params_from_values
 
 

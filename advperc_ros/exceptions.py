@@ -30,8 +30,9 @@ class ScenarioError(AdvpercError, ValueError):
     """Ground truth that cannot be used; the message names the offending field."""
 
 
-class PlannerError(AdvpercError, ValueError):
-    """A planner that cannot be found or built; the message names it."""
+class PluginError(AdvpercError, ValueError):
+    """A plug-in (planner, search method, interface profile, backend) that cannot be found, imported or
+    built, or is not what its registry takes; the message names it (`advperc_ros.core.plugins`)."""
 
 
 class PEMError(AdvpercError, ValueError):
@@ -40,10 +41,6 @@ class PEMError(AdvpercError, ValueError):
 
 class MessageError(AdvpercError, ValueError):
     """A message that does not follow the topic contract; the text names the field."""
-
-
-class UnknownProfile(AdvpercError, ValueError):
-    """An interface name that names no bundled interface profile."""
 
 
 class OutOfSpace(AdvpercError, OSError):

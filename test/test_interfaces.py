@@ -8,13 +8,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import need_ros
 
 from advperc_ros.core.boxes import BOX_FIELDS
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.planners.base import EMPTY_PLAN, Trajectory
-from advperc_ros.exceptions import MessageError, UnknownProfile
+from advperc_ros.exceptions import MessageError, PluginError
 from advperc_ros.params import SCHEMA
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
@@ -170,7 +169,7 @@ def test_two_objects_with_one_uuid_are_refused():
 
 def test_the_schema_offers_exactly_the_registered_profiles():
     assert SCHEMA["graph.interface"].choices == tuple(BUNDLED)
-    with pytest.raises(UnknownProfile, match="unknown interface 'ros1' \\(interfaces: advperc, autoware"):
+    with pytest.raises(PluginError, match="unknown interface 'ros1' \\(interfaces: advperc, autoware"):
         load_profile("ros1")
 
 

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from advperc_ros.configs import core_configs
 from advperc_ros.core.pem import NUM_FEATURES, PEM, _student_t_1d_logpdf, _student_t_2d_logpdf, fit
 
 TRUE = PEM(
@@ -81,9 +82,9 @@ def test_samples_follow_the_model_marginals():
 def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
     from toy_scenarios import FOLLOW_SPEC
 
-    from advperc_ros.core.perception_errors import PerceptionErrors
     from advperc_ros.core.metrics.nds import in_range
     from advperc_ros.core.pem import default_pem, features
+    from advperc_ros.core.perception_errors import PerceptionErrors
     from advperc_ros.core.scenario_spec import build_scenario
 
     scenario = build_scenario(FOLLOW_SPEC)
@@ -119,7 +120,7 @@ def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path,
     paths = []
     for name in ("idm_lane_following", "idm_overtake_follow"):
         scenario = read_scenario(repo / "bags" / name)
-        ego = Stack(scenario, load_params(repo / "config" / f"{name}.yaml")).rollout(
+        ego = Stack(scenario, core_configs(load_params(repo / "config" / f"{name}.yaml"))).rollout(
             PerceptionErrors.none(*scenario.agents.shape)).ego
         for copy in range(6):
             perceived = inject(scenario.agents, TRUE.sample(scenario.agents, ego[:, :2], rng))
@@ -166,7 +167,7 @@ def test_pem_fit_from_nuscenes_detection_results(tmp_path, repo):
     gt, results = {}, {}
     for name in ("idm_lane_following", "idm_overtake_follow"):
         scenario = read_scenario(repo / "bags" / name)
-        ego = Stack(scenario, load_params(repo / "config" / f"{name}.yaml")).rollout(
+        ego = Stack(scenario, core_configs(load_params(repo / "config" / f"{name}.yaml"))).rollout(
             PerceptionErrors.none(*scenario.agents.shape)).ego_xy
         for copy in range(6):
             seen = inject(scenario.agents, TRUE.sample(scenario.agents, ego, rng))

@@ -300,8 +300,8 @@ PROFILE = Profile(
     name="autoware",
     description="Autoware's types and topic names: DetectedObjects in, PredictedObjects to the planner, "
                 "Trajectory back, Odometry on /localization/kinematic_state",
-    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTED, encode_detected, decode_detected),
-    tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted),
+    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTED, encode_detected, decode_detected, import_rank=3),
+    tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted, import_rank=0),
     plan=PlanLayer(TRAJECTORY_TOPIC, TRAJECTORY, encode_trajectory, decode_trajectory),
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,
@@ -313,7 +313,7 @@ TRACKED_PROFILE = Profile(
     description="as autoware, but the tracked objects go out as TrackedObjects on "
                 "/perception/object_recognition/tracking/objects, for a team that brings its own prediction node",
     detections=PROFILE.detections,
-    tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked),
+    tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked, import_rank=1),
     plan=PROFILE.plan,
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,

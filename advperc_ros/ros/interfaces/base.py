@@ -39,12 +39,15 @@ class ObjectsLayer:
 
     `encode(objects, stamp_ns, kind)` gives the CDR payload (`kind` is ground_truth, perception or
     tracking: only a display type uses it); `decode(data, where)` gives (its stamp, or None when the
-    message carries none; the boxes), raising `MessageError` prefixed by `where` on bad input."""
+    message carries none; the boxes), raising `MessageError` prefixed by `where` on bad input.
+    `import_rank` orders the types import-bag reads from a team's drive log when it holds several:
+    lower first, so what the planner saw (predictions, tracks) wins over detections."""
 
     topic: str
     msgtype: str
     encode: Callable[[Objects, int, str], bytes]
     decode: Callable[[Cdr, str], tuple[int | None, Objects]]
+    import_rank: int
     carries_velocity: bool = True  # False: the type has no velocity field, so decoded vx, vy are 0
 
 

@@ -66,7 +66,8 @@ PROFILE = Profile(
     name="vision_msgs",
     description="detections as vision_msgs/Detection3DArray on /perception/detections_3d (no velocity); "
                 "tracks, plan and ego as in advperc",
-    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTIONS, encode_detections, decode_detections, carries_velocity=False),
+    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTIONS, encode_detections, decode_detections, import_rank=4,
+                            carries_velocity=False),
     tracks=advperc.PROFILE.tracks,
     plan=advperc.PROFILE.plan,
     ego_topic=advperc.PROFILE.ego_topic,

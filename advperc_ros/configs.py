@@ -12,7 +12,6 @@ core config's default is the schema's default for the same parameter, so the two
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 from advperc_ros.core.perception_errors import ErrorSpace, parse_error_kinds
@@ -108,7 +107,8 @@ class PlannerSpec:
 @dataclass(frozen=True)
 class ExecutionConfig:
     """How rollouts are executed, not what they compute (`params.EXECUTION`): which backend, the
-    embedded backend's workers, and the graph backend's nodes, timeouts and DDS domain. `node_values`
+    embedded backend's workers, and the graph backend's nodes, how long a silent graph is waited for
+    (`graph.timeout`, which is also the rollout's `plan_timeout`) and DDS domain. `node_values`
     is what the graph's node processes are configured from (every dotted value and planner_params;
     each node takes its own), since they run apart from the process that read the params."""
 
@@ -134,7 +134,6 @@ class CoreConfigs:
     planner: PlannerSpec
     profile: Profile
     execution: ExecutionConfig
-    source: Path | None  # the params file, for messages
 
     def planning_context(self, scenario: Scenario) -> PlanningContext:
         """What the planner is built with: the scenario's road and period, the params' ego footprint."""
@@ -149,5 +148,4 @@ def core_configs(params: AttackParams) -> CoreConfigs:
                        footprint=Footprint(**_fields(EGO, values)),
                        planner=PlannerSpec(params.planner, node_values[PLANNER_PARAMS]),
                        profile=load_profile(params.graph.interface),
-                       execution=ExecutionConfig(**_fields(EXECUTION, values), node_values=node_values),
-                       source=params.source)
+                       execution=ExecutionConfig(**_fields(EXECUTION, values), node_values=node_values))

@@ -19,7 +19,6 @@ from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.interfaces import autoware
 from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
-from advperc_ros.ros.stack_types import DEFINITIONS
 
 T = cdr.TYPESTORE.types
 STAMP = 1_700_000_123_456_789_012
@@ -177,6 +176,10 @@ def _share(package: str) -> Path:
     from ament_index_python.packages import get_package_share_directory
 
     return Path(get_package_share_directory(package))
+
+
+DEFINITIONS = {msgtype: text for name in BUNDLED for msgtype, text in load_profile(name).message_types.items()}
+"""Every stack's own message type a bundled profile carries."""
 
 
 @pytest.mark.parametrize("msgtype", sorted(DEFINITIONS))

@@ -246,7 +246,7 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
     """The attack with its checkpoint, its report written into `output`; the caller holds the output's
     lock. A disk that fills on the way ends it in one line, the checkpoint kept for --resume."""
     source = params.source or "PARAMS"
-    checkpoint = Checkpoint(output, params, scenario, resume)
+    checkpoint = Checkpoint(output, configs.canonical, scenario, resume)
     finished = False
     with full_disk_said(output, f"the checkpoint keeps every rollout done; free some space, then: advperc attack {source} "
                                 f"--resume {output}"):

@@ -10,6 +10,7 @@ Which parameter fills which field is written once, in the tables below; a test c
 core config's default is the schema's default for the same parameter, so the two cannot drift.
 """
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -134,6 +135,7 @@ class CoreConfigs:
     planner: PlannerSpec
     profile: Profile
     execution: ExecutionConfig
+    canonical: str  # the params that determine the results (`AttackParams.canonical`) as JSON: a checkpoint's identity
 
     def planning_context(self, scenario: Scenario) -> PlanningContext:
         """What the planner is built with: the scenario's road and period, the params' ego footprint."""
@@ -148,4 +150,5 @@ def core_configs(params: AttackParams) -> CoreConfigs:
                        footprint=Footprint(**_fields(EGO, values)),
                        planner=PlannerSpec(params.planner, node_values[PLANNER_PARAMS]),
                        profile=load_profile(params.graph.interface),
-                       execution=ExecutionConfig(**_fields(EXECUTION, values), node_values=node_values))
+                       execution=ExecutionConfig(**_fields(EXECUTION, values), node_values=node_values),
+                       canonical=json.dumps(params.canonical(), sort_keys=True))

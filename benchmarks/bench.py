@@ -39,13 +39,13 @@ sys.path.insert(0, str(REPO))  # time this checkout, not whichever advperc_ros i
 from advperc_ros.application import run_attack  # noqa: E402
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.configs import core_configs  # noqa: E402
-from advperc_ros.core.metrics.nds import nds  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors, inject  # noqa: E402
-from advperc_ros.core.rollout import STAGES  # noqa: E402
-from advperc_ros.core.search.problem import OBJECTIVES  # noqa: E402
 from advperc_ros.core.search.registry import METHODS  # noqa: E402
-from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors  # noqa: E402
+from advperc_ros.core.search.problem import OBJECTIVES  # noqa: E402
 from advperc_ros.exceptions import GroundTruthFails  # noqa: E402
+from advperc_ros.core.metrics.nds import nds  # noqa: E402
+from advperc_ros.core.rollout import STAGES  # noqa: E402
+from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
 

@@ -30,9 +30,10 @@ sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ro
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.configs import core_configs  # noqa: E402
-from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, TP_METRICS, TP_THRESHOLD, ap_bound, in_range, nds_score  # noqa: E402
-from advperc_ros.core.metrics.scores import nds_t_score  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
+from advperc_ros.core.metrics.nds import (DIST_THRESHOLDS, TP_METRICS, TP_THRESHOLD, ap_bound,  # noqa: E402
+                                          in_range, nds_score)
+from advperc_ros.core.metrics.scores import nds_t_score  # noqa: E402
 from advperc_ros.core.search.guided import AXES, displacement  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402

@@ -7,8 +7,8 @@ import pytest
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
-from advperc_ros.core.metrics.nds import in_range
 from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.metrics.nds import in_range
 from advperc_ros.core.scenario_spec import load_scenario_spec
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
 from advperc_ros.params import load_params

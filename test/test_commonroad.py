@@ -14,8 +14,8 @@ import yaml
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
 from advperc_ros.configs import core_configs
-from advperc_ros.core.feasibility import unavoidable_collision
 from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.feasibility import unavoidable_collision
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario

@@ -25,16 +25,16 @@ pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; th
 from conftest import bare_dds_domains, need_ros  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
-from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
-from advperc_ros.cli import main as advperc  # noqa: E402
 from advperc_ros.configs import core_configs  # noqa: E402
+from advperc_ros.cli import main as advperc  # noqa: E402
 from advperc_ros.core.perception_errors import ERROR_KINDS, PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
+from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.params import ParamsError, load_params, node_values  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
+from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
 from advperc_ros.ros.lockstep import RolloutClock  # noqa: E402
-from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 BAG = REPO / "bags" / "idm_lane_following"

@@ -7,35 +7,24 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from conftest import REPO
 
 from advperc_ros.application import RolloutProgress, attack_to_folder, run_attack
-from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
-from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
+from advperc_ros.backends.embedded import Stack
 from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.search import guided
+from advperc_ros.core.search.guided import (MOVES, PRIOR_WEIGHT, _features, fit_still_fails, merge, next_radius,
+                                            pick_batch, push, shown, trust_region, wrongness)
 from advperc_ros.core.search.config import SearchConfig
-from advperc_ros.core.search.guided import (
-    MOVES,
-    PRIOR_WEIGHT,
-    _features,
-    fit_still_fails,
-    merge,
-    next_radius,
-    pick_batch,
-    push,
-    shown,
-    trust_region,
-    wrongness,
-)
 from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, LogRow, Phase
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.exits import Interrupted
 from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario
+from conftest import REPO
 
 # idm_lane_following: ground truth, 5 drops (one batch under the guided method), 6 bisections
 HEURISTIC_ROLLOUTS = 12

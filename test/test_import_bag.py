@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import yaml
 from rosbags.rosbag2 import StoragePlugin, Writer
+
 from test_cli import SMALL_SEARCH
 
 from advperc_ros.backends.embedded import Stack

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+
 from conftest import need_ros
 
 from advperc_ros.core.boxes import BOX_FIELDS

@@ -6,8 +6,8 @@ import pytest
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
-from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
 from advperc_ros.params import load_params
 from advperc_ros.ros.bag import read_scenario

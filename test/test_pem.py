@@ -4,7 +4,6 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from advperc_ros.configs import core_configs
 from advperc_ros.core.pem import NUM_FEATURES, PEM, _student_t_1d_logpdf, _student_t_2d_logpdf, fit
 
 TRUE = PEM(
@@ -82,9 +81,9 @@ def test_samples_follow_the_model_marginals():
 def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
     from toy_scenarios import FOLLOW_SPEC
 
+    from advperc_ros.core.perception_errors import PerceptionErrors
     from advperc_ros.core.metrics.nds import in_range
     from advperc_ros.core.pem import default_pem, features
-    from advperc_ros.core.perception_errors import PerceptionErrors
     from advperc_ros.core.scenario_spec import build_scenario
 
     scenario = build_scenario(FOLLOW_SPEC)
@@ -108,6 +107,7 @@ def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
 def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path, repo):
     """Detections sampled from a known PEM into bags; `advperc pem fit` gets the model back."""
     from advperc_ros.backends.embedded import Stack
+    from advperc_ros.configs import core_configs
     from advperc_ros.cli import main
     from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.core.scenario import EgoState
@@ -148,6 +148,7 @@ def test_pem_fit_from_nuscenes_detection_results(tmp_path, repo):
     import json
 
     from advperc_ros.backends.embedded import Stack
+    from advperc_ros.configs import core_configs
     from advperc_ros.cli import main
     from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.params import load_params

@@ -1,6 +1,7 @@
 """ament_python package definition; also a plain `pip install .` off ROS."""
 
 from glob import glob
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
@@ -21,19 +22,8 @@ setup(
         *[(f"share/{PACKAGE}/{bag}", glob(f"{bag}/*")) for bag in glob("bags/*")],
     ],
     python_requires=">=3.10",
-    install_requires=[
-        "numpy>=1.26",
-        "scipy>=1.11",
-        "casadi>=3.6",
-        "pyyaml>=6",
-        "filterpy>=1.4.5",
-        "rosbags>=0.11.2",
-        "mcap>=1.1",
-        "mcap-ros2-support>=0.5",
-        "matplotlib>=3.6",
-        "tqdm>=4.60",
-        "cyclonedds>=0.10.5",
-    ],
+    # the runtime dependencies, in requirements.txt so that a venv can take them without a copy of the package
+    install_requires=(Path(__file__).parent / "requirements.txt").read_text().split(),
     extras_require={
         "commonroad": ["commonroad-io>=2023.1"],
         # ray pins protobuf>=3.20.3 and commonroad-io protobuf==3.20.2: they cannot share one environment, so
@@ -58,6 +48,7 @@ setup(
         "console_scripts": [
             "advperc = advperc_ros.cli:main",
             f"orchestrator = {PACKAGE}.orchestrator_node:main",  # an entry point like the CLI, above the backends
+            f"launch_plan = {PACKAGE}.launch_plan:main",  # what attack.launch.py starts, decided in our interpreter
             *[f"{node} = {PACKAGE}.nodes.{node}:main" for node in NODES if node != "orchestrator"],
         ],
     },

@@ -26,12 +26,11 @@ from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase
 from advperc_ros.core.search.refine import dropped_runs
 from advperc_ros.core.search.registry import search_method
-from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch
-from advperc_ros.exits import Interrupted
-from advperc_ros.outcome import AttackOutcome
-from advperc_ros.params import AttackParams, ParamsError, resolve_bag
-from advperc_ros.paths import MIB, check_free_space, check_output, exclusive, full_disk_said
-from advperc_ros.results import write_results
+from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch, Interrupted, ParamsError
+from advperc_ros.params import AttackParams, resolve_bag
+from advperc_ros.results.destination import MIB, check_free_space, check_output, exclusive, full_disk_said
+from advperc_ros.results.folder import write_results
+from advperc_ros.results.outcome import AttackOutcome
 from advperc_ros.ros.bag import read_scenario
 
 

@@ -16,16 +16,15 @@ from typing import NoReturn
 import numpy as np
 
 from advperc_ros.configs import core_configs
-from advperc_ros.core.feasibility import ScenarioRejected
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
-from advperc_ros.core.scenario import Scenario, ScenarioError
+from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
+from advperc_ros.exceptions import BagError, ParamsError, ScenarioError, ScenarioRejected
 from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.heap import keep_freed_heap
-from advperc_ros.params import ParamsError, load_params
-from advperc_ros.ros.bag import BagError
+from advperc_ros.params import load_params
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
@@ -47,7 +46,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
 
 def cmd_make_bags(args: argparse.Namespace) -> int:
     from advperc_ros.core.scenario_spec import load_scenario_spec
-    from advperc_ros.paths import check_output
+    from advperc_ros.results.destination import check_output
     from advperc_ros.ros.bag import write_ground_truth_bag
 
     specs = [Path(p) for p in args.scenarios] or sorted(Path("scenarios").glob("*.yaml"))
@@ -88,7 +87,7 @@ def _write_imported(command: str, source: str, scenario: Scenario, params_of: Ca
 
     from advperc_ros.core.feasibility import unavoidable_collision
     from advperc_ros.params import SCHEMA
-    from advperc_ros.paths import check_output
+    from advperc_ros.results.destination import check_output
     from advperc_ros.ros.bag import write_ground_truth_bag
 
     reason = unavoidable_collision(scenario, SCHEMA["ego.length"].default, SCHEMA["ego.width"].default)
@@ -163,13 +162,13 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     import csv
     from dataclasses import asdict, fields
 
-    from advperc_ros import plots
     from advperc_ros.backends.embedded import Stack
     from advperc_ros.core.robustness import RobustnessPoint, robustness_curve
     from advperc_ros.core.search.problem import AttackProblem
     from advperc_ros.core.staging import staging_path
-    from advperc_ros.paths import check_output
-    from advperc_ros.results import ERRORS, read_attack
+    from advperc_ros.results import plots
+    from advperc_ros.results.destination import check_output
+    from advperc_ros.results.folder import ERRORS, read_attack
     from advperc_ros.ros.bag import read_scenario
 
     results = Path(args.results)
@@ -197,8 +196,8 @@ def cmd_robustness(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    from advperc_ros.paths import check_output
     from advperc_ros.replay import load_attack, replay, replay_params, replay_report, write_replay
+    from advperc_ros.results.destination import check_output
 
     attack = load_attack(Path(args.results))
     params = replay_params(attack, load_params(args.params) if args.params else None)
@@ -243,7 +242,7 @@ def cmd_pem_fit(args: argparse.Namespace) -> int:
     from advperc_ros.core.pem_fit import fit_pem
     from advperc_ros.core.staging import staging_path
     from advperc_ros.importers.nuscenes import load_pairs
-    from advperc_ros.paths import check_output
+    from advperc_ros.results.destination import check_output
     from advperc_ros.ros.bag import aligned_objects
 
     check_output(Path(args.output), "model file")
@@ -324,6 +323,25 @@ def _strengths(text: str) -> tuple[float, ...]:
     return values
 
 
+def _import_bag_epilog() -> str:
+    """What import-bag reads, listed from the interface profiles and the importer's own tables, so that
+    the help names exactly the types the decoders take."""
+    from advperc_ros.ros.drive_log import ODOMETRY_TOPICS, ODOMETRY_TYPE, object_decoders
+    from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
+    from advperc_ros.ros.topics import LANES, ROUTE, TOPIC_TYPES
+
+    lines = ["what it reads (topics are found by type, whatever their names):",
+             "  objects (--objects), one topic of a type an interface profile (graph.interface) speaks:"]
+    for name in BUNDLED:
+        profile = load_profile(name)
+        lines.append(f"    {name}: detections {profile.detections.msgtype}, tracks {profile.tracks.msgtype}")
+    lines.append(f"  several objects topics: the first type present of {', '.join(object_decoders())}")
+    lines.append(f"  ego (--odometry): {ODOMETRY_TYPE}; of several, {' then '.join(ODOMETRY_TOPICS)}")
+    lines.append(f"  road: {LANES} ({TOPIC_TYPES[LANES]}) and {ROUTE} ({TOPIC_TYPES[ROUTE]}) when the log has them, "
+                 "else a corridor around the recorded ego path")
+    return "\n".join(lines)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(prog="advperc", description="Adversarial perception error search.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -358,7 +376,8 @@ def build_parser() -> argparse.ArgumentParser:
     importer.add_argument("--params", type=_path, help="params file to write for attacking it (default <output>.yaml)")
     importer.set_defaults(func=cmd_import_commonroad)
 
-    drive = sub.add_parser("import-bag", help="a recorded drive (rosbag2 log: objects + odometry) -> ground-truth bag")
+    drive = sub.add_parser("import-bag", help="a recorded drive (rosbag2 log: objects + odometry) -> ground-truth bag",
+                           epilog=_import_bag_epilog(), formatter_class=argparse.RawDescriptionHelpFormatter)
     drive.add_argument("log", help="rosbag2 bag directory (MCAP, or sqlite3) of your own drive")
     drive.add_argument("--objects", help="objects topic (default: the only one of a type an interface profile speaks)")
     drive.add_argument("--odometry", help="nav_msgs/Odometry topic of the ego (default: the only one)")

@@ -43,6 +43,17 @@ class MessageError(AdvpercError, ValueError):
     """A message that does not follow the topic contract; the text names the field."""
 
 
+class OutputError(AdvpercError, ValueError):
+    """An output place a run cannot write or may not take (a path that cannot become the folder or file
+    asked for, one that exists already, one another run holds); the message names the path. Found
+    before any work, so no long run is lost to it."""
+
+
+class ResultsError(AdvpercError, ValueError):
+    """A results folder another command reads (replay, the report's pictures, a replay campaign) whose
+    report.json or errors.npz is missing or not what an attack writes; the message names the file."""
+
+
 class OutOfSpace(AdvpercError, OSError):
     """The output's disk is too full for the run: refused before the work when the estimate does not
     fit, or stopped with the checkpoint kept when the disk fills during it; the text says how much

@@ -11,21 +11,23 @@ from advperc_ros.exceptions import (
     InconclusiveSearch,
     Interrupted,
     OutOfSpace,
+    OutputError,
     ParamsError,
     PEMError,
     PluginError,
+    ResultsError,
     ScenarioError,
     ScenarioRejected,
 )
 
 EXIT_OK = 0
 EXIT_NOTHING_TO_ATTACK = 1  # the stack fails with perfect perception, or check-typical found collisions
-EXIT_INPUT = 2  # bad input: params, bag, plug-in, output folder (one without the room for the run's output too)
+EXIT_INPUT = 2  # bad input: params, bag, plug-in, results folder read, output folder (one without room for output)
 EXIT_REJECTED = 3  # a recording whose traffic hits the ego whatever it does
 EXIT_GRAPH = 4  # the node graph could not be started or made ready, or most rollouts were inconclusive
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT), as shells report it; an attack's checkpoint is kept
 
-INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PluginError, PEMError, OutOfSpace)
+INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PluginError, PEMError, OutputError, ResultsError, OutOfSpace)
 EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (
     (INPUT_ERRORS, "error: ", EXIT_INPUT),
     ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),

@@ -21,7 +21,8 @@ from typing import Any
 
 import yaml
 
-from advperc_ros.params import NODE, ParamsError, nest, parse_params
+from advperc_ros.exceptions import ParamsError
+from advperc_ros.params import NODE, nest, parse_params
 
 OUTPUT = "output"
 RESUME = "resume"  # finish the interrupted attack whose results folder was to be `output`

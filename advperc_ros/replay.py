@@ -23,20 +23,17 @@ from advperc_ros.core.search.problem import (
     Phase,
 )
 from advperc_ros.core.staging import staged_folder
-from advperc_ros.exceptions import GroundTruthFails
-from advperc_ros.outcome import AttackOutcome
-from advperc_ros.params import (
-    AttackParams,
-    ParamsError,
-    params_from_values,
-    resolve_bag,
-)
-from advperc_ros.report import report_scores, rounded, versions
-from advperc_ros.results import ERRORS, REPORT_JSON, load_errors
+from advperc_ros.exceptions import BagError, GroundTruthFails, OutputError, ParamsError, ResultsError
+from advperc_ros.params import AttackParams, params_from_values, resolve_bag
+from advperc_ros.results.folder import ERRORS, REPORT_JSON, load_errors
+from advperc_ros.results.outcome import AttackOutcome
+from advperc_ros.results.report import report_scores, rounded, versions
 from advperc_ros.ros import bag as bags
-from advperc_ros.ros.bag import BagError, read_scenario
+from advperc_ros.ros.bag import read_scenario
 
 REPLAY_JSON = "replay.json"
+# what a replay reads of the attack's report.json besides its params (older or hand-made reports may lack one)
+ATTACK_FIELDS = ("bag_sha256", "config_hash", "min_signed_distance", "planner", "scenario", "seed")
 REPLAY_MD = "replay.md"
 BEV_PLOT = "bev.png"  # the replayed rollout's last seconds, when it still collides
 
@@ -72,18 +69,21 @@ class Replay:
 
 
 def load_attack(folder: Path) -> FoundAttack:
-    """The attack of a results folder; ParamsError when it is not one of an attack that collided."""
+    """The attack of a results folder; ResultsError when it is not one of an attack that collided."""
     folder = Path(folder)
     report_path, errors_path = folder / REPORT_JSON, folder / ERRORS
     if not report_path.is_file():
-        raise ParamsError(f"{report_path}: missing; replay needs the results folder of an attack")
+        raise ResultsError(f"{report_path}: missing; replay needs the results folder of an attack")
     try:
         report = json.loads(report_path.read_text())
         values = dict(report["params"])  # AttackParams.canonical(): planner_params included
     except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise ParamsError(f"{report_path}: not an attack report: {exc}") from exc
+        raise ResultsError(f"{report_path}: not an attack report: {exc}") from exc
+    missing = [field for field in ATTACK_FIELDS if not isinstance(report, dict) or field not in report]
+    if missing:
+        raise ResultsError(f"{report_path}: field '{missing[0]}' missing: not an attack report of advperc")
     if not report.get("collision") or not errors_path.is_file():
-        raise ParamsError(f"{folder}: the search found no collision there, so there is no attack to replay")
+        raise ResultsError(f"{folder}: the search found no collision there, so there is no attack to replay")
     params = params_from_values(values, report_path)
     return FoundAttack(folder, report, load_errors(errors_path), params)
 
@@ -175,11 +175,11 @@ def replay_markdown(report: dict) -> str:
 def write_replay(output: Path, replayed: Replay) -> dict:
     """The replay folder, written atomically: replay.json, replay.md and, when it still collides,
     bev.png; returns the report."""
-    from advperc_ros import plots
+    from advperc_ros.results import plots
 
     output = Path(output)
     if output.exists():
-        raise ParamsError(f"{output}: output folder exists already; choose another output")
+        raise OutputError(f"{output}: output folder exists already; choose another output")
     with staged_folder(output) as staging:
         staging.mkdir()
         report = replay_report(replayed)

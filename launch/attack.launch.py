@@ -23,26 +23,23 @@ before any node starts.
 """
 
 import atexit
+import json
 import logging
 import os
-import signal
+import subprocess
 import sys
 
+from ament_index_python.packages import get_package_prefix
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
-from launch.substitutions import LaunchConfiguration
 from launch_ros.actions import Node
 
-from advperc_ros.exits import EXIT_INPUT
-from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
-from advperc_ros.params import INTERFACES, SCHEMA, ParamsError, load_params, resolve_bag
 from launch import LaunchDescription
 
 PACKAGE = "advperc_ros"
-ARGUMENTS = ("params", "planner", "tracker", "output", "resume", "interface", "drive")
-CHOICES = {"interface": tuple(INTERFACES), "drive": SCHEMA["graph.drive"].choices}  # overriding graph.<argument>  # every launch argument this file declares
 ORCHESTRATOR_GRACE = 30  # s between a Ctrl-C and launch's SIGTERM to the orchestrator (launch's default: 5)
+PLAN_TIMEOUT = 120  # s for the package's launch_plan to read and check the params file (it reads no bag)
 
 
 def _exit_with(code: int) -> None:
@@ -58,12 +55,6 @@ def _exit_with(code: int) -> None:
         atexit.register(finish)
 
 
-def _refuse(text: str) -> RuntimeError:
-    """One line from the launch (`[ERROR] [launch]: Caught exception in launch ...: <text>`), code 2."""
-    _exit_with(EXIT_INPUT)
-    return RuntimeError(text)
-
-
 def _orchestrator_exited(event, context):
     """The launch ends when the orchestrator does, with its exit code (a signal's as the shell gives it)."""
     code = event.returncode if event.returncode >= 0 else 128 - event.returncode
@@ -71,51 +62,31 @@ def _orchestrator_exited(event, context):
     return [EmitEvent(event=Shutdown(reason=f"orchestrator exited with code {code}"))]
 
 
+def _plan(context) -> dict:
+    """What to start, from the package's `launch_plan` executable: installed with the shebang of the
+    interpreter that built the workspace, it imports the package and its dependencies (a venv's), which
+    this file, loaded by whatever interpreter runs `ros2`, does not. A refusal is its one line and code."""
+    executable = os.path.join(get_package_prefix(PACKAGE), "lib", PACKAGE, "launch_plan")
+    arguments = [f"{name}:={value}" for name, value in sorted(context.launch_configurations.items())]
+    done = subprocess.run([executable, *arguments], capture_output=True, text=True, timeout=PLAN_TIMEOUT)
+    if done.returncode:
+        _exit_with(done.returncode)
+        lines = done.stderr.strip().splitlines() or [f"{executable} exited with code {done.returncode}"]
+        # `[ERROR] [launch]: Caught exception in launch ...: <line>`; a traceback (a bug) is shown whole
+        raise RuntimeError(lines[-1] if len(lines) == 1 else done.stderr)
+    return json.loads(done.stdout)
+
+
 def _graph(context, *args, **kwargs):
-    unknown = sorted(set(context.launch_configurations) - set(ARGUMENTS))
-    if unknown:  # `planer:=external` would otherwise attack our planner, silently
-        raise _refuse(f"unknown launch argument '{unknown[0]}' (arguments: {', '.join(ARGUMENTS)})")
-    params_file = LaunchConfiguration("params").perform(context)
-    if not params_file:  # declared with a default so that its absence is this one line and code 2, too
-        raise _refuse("launch argument 'params' is required: params:=PARAMS.yaml (as for `advperc attack`)")
-    try:
-        params = load_params(params_file)
-        bag = resolve_bag(params).resolve()
-    except ParamsError as exc:
-        raise _refuse(str(exc)) from None
-    external = set()  # the nodes a team brings: ours are left out
-    for argument in ("planner", "tracker"):
-        value = LaunchConfiguration(argument).perform(context)
-        if value not in ("ours", "external"):
-            raise _refuse(f"launch argument '{argument}' must be ours or external, got {value!r}")
-        if value == "external":
-            external.add(argument)
-    for argument, choices in CHOICES.items():
-        value = LaunchConfiguration(argument).perform(context)
-        if value and value not in choices:
-            raise _refuse(f"launch argument '{argument}' must be one of {', '.join(choices)}, got {value!r}")
-        if value:
-            params = params.with_values(**{f"graph.{argument}": value})
-    nodes = [
-        Node(package=PACKAGE, executable=spec.name, name=spec.name, output="screen",
-             parameters=[ros_parameters(spec, params, bag)])
-        for spec in SPECS
-        if spec.name not in external
-    ]
-    overrides = {"rollout_backend": "graph", "graph.spawn_nodes": False, "graph.interface": params.graph.interface,
-                 "graph.drive": params.graph.drive}
-    output = LaunchConfiguration("output").perform(context)
-    if output:
-        overrides["output"] = output
-    resume = LaunchConfiguration("resume").perform(context)
-    if resume not in ("true", "false"):
-        raise _refuse(f"launch argument 'resume' must be true or false, got {resume!r}")
-    if resume == "true":
-        overrides["resume"] = True
+    plan = _plan(context)
+    nodes = [Node(package=PACKAGE, executable=node["executable"], name=node["name"], output="screen",
+                  parameters=[node["parameters"]]) for node in plan["nodes"]]
+    orchestrator_plan = plan["orchestrator"]
     # on Ctrl-C the orchestrator keeps its checkpoint and stops the search before it exits with 130; launch's
     # 5 s before SIGTERM was not always enough on a loaded machine, and the launch then ended with 143
     orchestrator = Node(package=PACKAGE, executable="orchestrator", name="orchestrator", output="screen",
-                        parameters=[params_file, overrides], sigterm_timeout=str(ORCHESTRATOR_GRACE))
+                        parameters=[orchestrator_plan["params_file"], orchestrator_plan["overrides"]],
+                        sigterm_timeout=str(ORCHESTRATOR_GRACE))
     stop_with_orchestrator = RegisterEventHandler(OnProcessExit(target_action=orchestrator, on_exit=_orchestrator_exited))
     return [*nodes, orchestrator, stop_with_orchestrator]
 

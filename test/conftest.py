@@ -5,6 +5,8 @@ import itertools
 import os
 import re
 import shutil
+import sys
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -12,6 +14,19 @@ import pytest
 from advperc_ros.ros.bag import read_scenario
 
 REPO = Path(__file__).resolve().parent.parent
+TESTS = REPO / "test"
+
+# The tests sit in folders that mirror the package (test/core/search/, test/ros/, ...), and some build on
+# another folder's (`from test_cli import write_params` in test/results/): pytest's default import mode puts
+# only a test module's own folder (and this one's, for the helpers beside it) on sys.path, so every folder goes
+# there now, and a module imports another by its name whichever runs first. That asks for one module of each
+# name (pytest says so too, for two test modules of one name, without __init__.py files).
+_FOLDERS = sorted({path.parent for path in TESTS.rglob("*.py")} - {TESTS} - set(TESTS.glob("fixtures/**")))
+_SHARED_NAMES = sorted(name for name, count in Counter(path.stem for path in TESTS.rglob("*.py")
+                                                       if path.parent in {TESTS, *_FOLDERS}).items() if count > 1)
+if _SHARED_NAMES:
+    raise pytest.UsageError(f"test modules of one name in two folders of test/: {_SHARED_NAMES}; rename one")
+sys.path.extend(str(folder) for folder in _FOLDERS if str(folder) not in sys.path)
 IDM_SCENARIOS = ("idm_lane_following", "idm_overtake_follow")
 # ObP rollouts take seconds each: their 100-sample checks run through `advperc check-typical`
 ALL_SCENARIOS = (*IDM_SCENARIOS, "obp_overtake", "obp_left_turn", "obp_right_turn")

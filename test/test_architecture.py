@@ -9,8 +9,9 @@ import re
 from pathlib import Path
 
 import pytest
-
 from conftest import REPO
+
+from advperc_ros.core.rules.registry import RULES
 
 PACKAGE = REPO / "advperc_ros"
 
@@ -98,9 +99,46 @@ def test_every_exception_the_package_defines_derives_from_one_base():
             assert issubclass(kind, exceptions.AdvpercError), name
 
 
-ENTRY_POINTS = {"advperc_ros.cli", "advperc_ros.orchestrator_node"}
-APPLICATION = ("advperc_ros.application", "advperc_ros.results", "advperc_ros.report", "advperc_ros.replay",
-               "advperc_ros.plots", "advperc_ros.campaign")
+def _exception_names() -> set[str]:
+    from advperc_ros import exceptions
+
+    return {name for name, kind in vars(exceptions).items() if isinstance(kind, type) and issubclass(kind, BaseException)}
+
+
+def _taken_elsewhere(path: Path, exceptions: set[str]) -> list[str]:
+    """The package's exceptions `path` takes through a module that is not their home: `from X import
+    ParamsError`, or `X.ParamsError` where X is a module of the package it imported."""
+    tree = ast.parse(path.read_text())
+    modules = {}  # the names bound to a module of the package other than exceptions
+    wrong = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("advperc_ros"):
+            for alias in node.names:
+                if node.module != "advperc_ros.exceptions" and alias.name in exceptions:
+                    wrong.append(f"line {node.lineno}: from {node.module} import {alias.name}")
+                elif alias.name not in exceptions:
+                    modules[alias.asname or alias.name] = f"{node.module}.{alias.name}"
+        elif isinstance(node, ast.Import):
+            modules.update({alias.asname: alias.name for alias in node.names if alias.asname})
+    for node in ast.walk(tree):
+        if (isinstance(node, ast.Attribute) and node.attr in exceptions and isinstance(node.value, ast.Name)
+                and modules.get(node.value.id, "advperc_ros.exceptions") != "advperc_ros.exceptions"):
+            wrong.append(f"line {node.lineno}: {node.value.id}.{node.attr}")
+    return wrong
+
+
+def test_every_exception_is_imported_from_its_home():
+    """One name, one place: an exception is taken from advperc_ros.exceptions, never through a module that
+    imports it for its own use, so no module keeps an import alive for others' sake (a module's imports
+    stay its own business) and reading an import says where the type is defined."""
+    exceptions = _exception_names()
+    found = {str(path.relative_to(REPO)): wrong for folder in ("advperc_ros", "test", "launch", "benchmarks", "examples")
+             for path in sorted((REPO / folder).rglob("*.py")) if (wrong := _taken_elsewhere(path, exceptions))}
+    assert not found, f"import these from advperc_ros.exceptions: {found}"
+
+
+ENTRY_POINTS = {"advperc_ros.cli", "advperc_ros.orchestrator_node", "advperc_ros.launch_plan"}
+APPLICATION = ("advperc_ros.application", "advperc_ros.results", "advperc_ros.replay", "advperc_ros.campaign")
 
 
 def _within(module: str, packages) -> bool:
@@ -126,6 +164,9 @@ def test_no_arrow_runs_back_up(graph, layer, may_not_import):
             assert not up, f"{module} imports {up}"
 
 
+RULE_MODULES = tuple(target.partition(":")[0] for target in RULES.values())
+
+
 @pytest.mark.parametrize("interface, implementations", [
     ("advperc_ros.core.search.method", ("advperc_ros.core.search.paper", "advperc_ros.core.search.guided",
                                         "advperc_ros.core.search.registry")),
@@ -133,6 +174,8 @@ def test_no_arrow_runs_back_up(graph, layer, may_not_import):
     ("advperc_ros.core.planners.base", ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp",
                                         "advperc_ros.core.planners.registry")),
     ("advperc_ros.core.planners.registry", ("advperc_ros.core.planners.idm", "advperc_ros.core.planners.obp")),
+    ("advperc_ros.core.rules.base", (*RULE_MODULES, "advperc_ros.core.rules.registry")),
+    ("advperc_ros.core.rules.registry", RULE_MODULES),
     ("advperc_ros.backends.base", ("advperc_ros.backends.embedded", "advperc_ros.backends.graph",
                                    "advperc_ros.backends.resumed", "advperc_ros.backends.registry")),
     ("advperc_ros.backends.registry", ("advperc_ros.backends.embedded", "advperc_ros.backends.graph")),

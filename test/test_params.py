@@ -2,8 +2,9 @@
 
 import pytest
 
+from advperc_ros.exceptions import ParamsError
+from advperc_ros.params import SCHEMA, find_bag, load_params, params_from_values
 from advperc_ros.params import install as params_module
-from advperc_ros.params import SCHEMA, ParamsError, find_bag, load_params, params_from_values
 
 
 def test_every_construction_is_validated(repo):

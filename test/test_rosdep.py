@@ -27,11 +27,10 @@ def _ours() -> dict:
 
 
 def _requirement_names() -> set[str]:
-    """The distribution names setup.py installs (install_requires and the test extra)."""
+    """The distribution names setup.py installs (requirements.txt and the test extra)."""
     text = (REPO / "setup.py").read_text()
-    block = text[text.index("install_requires=["): text.index("extras_require")]
-    test = re.search(r'"test": \[(.*?)\]', text, re.S).group(1)
-    return {re.split(r"[<>=\[]", name)[0].lower() for name in re.findall(r'"([A-Za-z0-9_.\-\[\]]+[<>=][^"]*)"', block + test)}
+    test = re.findall(r'"([A-Za-z0-9_.\-\[\]]+[<>=][^"]*)"', re.search(r'"test": \[(.*?)\]', text, re.S).group(1))
+    return {re.split(r"[<>=\[]", name)[0].lower() for name in (REPO / "requirements.txt").read_text().split() + test}
 
 
 def test_every_pip_key_installs_what_setup_py_requires():

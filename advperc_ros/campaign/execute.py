@@ -32,12 +32,13 @@ from typing import Protocol
 from advperc_ros.application import attack_to_folder
 from advperc_ros.campaign.spec import Campaign, Cell
 from advperc_ros.core.staging import staged_folder
+from advperc_ros.exceptions import ParamsError
 from advperc_ros.exits import EXPECTED_TYPES, expected_failure
 from advperc_ros.heap import keep_freed_heap
-from advperc_ros.params import ParamsError, resolve_bag
-from advperc_ros.paths import check_output
+from advperc_ros.params import resolve_bag
 from advperc_ros.replay import load_attack, replay, write_replay
-from advperc_ros.results import ERRORS, REPORT_JSON
+from advperc_ros.results.destination import check_output
+from advperc_ros.results.folder import ERRORS, REPORT_JSON
 
 
 @dataclass(frozen=True)

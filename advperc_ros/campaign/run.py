@@ -23,7 +23,7 @@ from advperc_ros.campaign.summary import (
     write_summary,
 )
 from advperc_ros.exits import EXIT_OK
-from advperc_ros.paths import exclusive
+from advperc_ros.results.destination import exclusive
 
 LOCK = ".campaign.lock"
 EXIT_BUG = 1  # what Python exits with on an uncaught exception

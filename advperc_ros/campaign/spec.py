@@ -10,6 +10,7 @@ finished when its folder holds its report (results are renamed into place when c
 import json
 import os
 import re
+import socket
 import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -20,25 +21,29 @@ from typing import Any
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
 from advperc_ros.core.search.problem import OBJECTIVES
-from advperc_ros.exceptions import PluginError
+from advperc_ros.exceptions import OutputError, ParamsError, PluginError
 from advperc_ros.exits import INPUT_ERRORS
 from advperc_ros.params import (
     EXECUTION,
     PLANNER_PARAMS,
     AttackParams,
-    ParamsError,
     find_bag,
     load_params,
     params_from_values,
     read_yaml,
     resolve_bag,
 )
-from advperc_ros.paths import check_output
 from advperc_ros.replay import REPLAY_JSON, load_attack
-from advperc_ros.results import ERRORS, REPORT_JSON
+from advperc_ros.results.destination import check_output
+from advperc_ros.results.folder import ERRORS, REPORT_JSON
 from advperc_ros.ros.bag import read_scenario
 
 EXECUTORS = ("process", "ray", "serial")
+FINISHED_FIELDS = ("config_hash", "collision")  # what a resume reads of a finished cell's report before the summary
+RAY_CLIENT = "ray://"  # a Ray Client address, from outside the cluster
+RAY_CURRENT_CLUSTER = Path("/tmp/ray/ray_current_cluster")  # where `ray start` writes its address (Ray's `auto`)
+RAY_REACH_TIMEOUT = 3.0  # s for a cluster's port to answer before the campaign refuses it
+HOST = re.compile(r"[A-Za-z0-9][A-Za-z0-9.-]*|[0-9A-Fa-f:]+")  # a host name, IPv4 or IPv6 address
 # the values each objective's metric can take: NDS and NDS-t are scores in [0, 1]; PEM LL is a mean log
 # density, any finite number
 THRESHOLD_RANGES = {"nds": (0.0, 1.0), "nds_t": (0.0, 1.0), "pem_ll": (-sys.float_info.max, sys.float_info.max)}
@@ -123,9 +128,22 @@ class Cell:
         return REPORT_JSON if self.attack is None else REPLAY_JSON
 
     def report(self, output: Path) -> dict | None:
-        """The finished cell's report, None while it is not finished."""
+        """The finished cell's report, None while it is not finished; a ParamsError naming the file when
+        it is no report of ours (truncated, not a mapping, without the fields a resume compares), which
+        a resume must not take for a finished cell nor stop on with a traceback."""
         path = output / self.name / self.report_name
-        return json.loads(path.read_text()) if path.is_file() else None
+        if not path.is_file():
+            return None
+        try:
+            report = json.loads(path.read_text())
+        except (OSError, ValueError) as exc:
+            raise ParamsError(f"{path}: not a finished cell's report ({exc}): remove the cell's folder to run it "
+                              "again") from None
+        missing = [field for field in FINISHED_FIELDS if not isinstance(report, dict) or field not in report]
+        if missing:
+            raise ParamsError(f"{path}: field '{missing[0]}' missing: not a finished cell's report; remove the "
+                              "cell's folder to run it again")
+        return report
 
 
 def _fail(path: Path, field: str, text: str) -> ParamsError:
@@ -223,6 +241,7 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
     workers = document.get("workers", os.cpu_count() or 1)
     if not isinstance(workers, int) or isinstance(workers, bool) or workers < 1:
         raise _fail(path, "workers", f"must be an integer >= 1, got {workers!r}")
+    ray_address = _ray_address(path, document.get("ray_address"), executor)
     if executor == "ray" and find_spec("ray") is None:  # not imported here: RayExecutor sets its environment first
         raise _fail(path, "executor", "is ray, but ray is not installed: pip install 'advperc_ros[ray]'")
     overrides = document.get("overrides", {})
@@ -254,10 +273,38 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
         overrides=dict(overrides),
         executor=executor,
         workers=workers,
-        ray_address=document.get("ray_address"),
+        ray_address=ray_address,
         thresholds=_thresholds(path, document.get("thresholds", {})),
         replay=_found(path, "replay", replay) if replay is not None else None,
     )
+
+
+def _ray_address(path: Path, address: str | None, executor: str) -> str | None:
+    """`ray_address` checked before any work: only with executor ray; HOST:PORT of a cluster's head, `auto`
+    (the cluster `ray start` left running on this machine) or `ray://HOST:PORT` (Ray Client, which needs its
+    gRPC library); and answering on that port within `RAY_REACH_TIMEOUT`. Ray itself, given an address that does
+    not answer, retries for minutes; given one it cannot parse, it fails after the output folder is written."""
+    if address is None:
+        return None
+    if executor != "ray":
+        raise _fail(path, "ray_address", f"is for executor ray, but the executor is {executor}")
+    target = address
+    if address == "auto":
+        if not RAY_CURRENT_CLUSTER.is_file():
+            raise _fail(path, "ray_address", "is auto, but no Ray cluster runs on this machine (`ray start --head` "
+                                             "starts one; or give its HOST:PORT)")
+        target = RAY_CURRENT_CLUSTER.read_text().strip()
+    host, sep, port = target.removeprefix(RAY_CLIENT).rpartition(":")
+    if not sep or not HOST.fullmatch(host.strip("[]")) or not port.isdigit() or not 0 < int(port) < 65536:
+        raise _fail(path, "ray_address", f"must be HOST:PORT, auto or ray://HOST:PORT, got {address!r}")
+    if target.startswith(RAY_CLIENT) and find_spec("grpc") is None:
+        raise _fail(path, "ray_address", f"is {address!r}, but Ray Client is not installed: pip install 'ray[client]'")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_REACH_TIMEOUT).close()
+    except OSError as exc:
+        raise _fail(path, "ray_address", f"nothing answers at {target} within {RAY_REACH_TIMEOUT:g} s "
+                                         f"({exc.strerror or exc})") from None
+    return address
 
 
 def _label(planner: str) -> str:
@@ -328,7 +375,7 @@ def plan(campaign: Campaign) -> list[Cell]:
     if not campaign.output.is_dir():  # a folder there is a campaign to resume
         try:
             check_output(campaign.output, "output folder")
-        except ParamsError as exc:
+        except OutputError as exc:
             raise campaign.fail("output", str(exc)) from None
     cells = _replay_cells(campaign, campaign.replay) if campaign.replay is not None else _attack_cells(campaign)
     names = [cell.name for cell in cells]

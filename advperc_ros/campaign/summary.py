@@ -19,7 +19,7 @@ from urllib.parse import quote
 from advperc_ros.campaign.spec import Campaign, Cell
 from advperc_ros.replay import BEV_PLOT as REPLAY_BEV
 from advperc_ros.replay import REPLAY_MD
-from advperc_ros.results import ANIMATION, BEV_PLOT, METRIC_PLOT, REPORT_MD
+from advperc_ros.results.folder import ANIMATION, BEV_PLOT, METRIC_PLOT, REPORT_MD
 
 SUMMARY_CSV, SUMMARY_JSON, SUMMARY_MD, SUMMARY_HTML, JUNIT_XML = (
     "summary.csv", "summary.json", "summary.md", "summary.html", "junit.xml")

@@ -11,6 +11,9 @@ import numpy as np
 # any position (m), size (m), speed (m/s) or angle of a scene is far below this; beyond it the geometry's
 # squares and products overflow or lose every digit that matters
 MAGNITUDE_BOUND = 1e6
+# m around the ego within which a car counts: the nuScenes class range of cars. The metrics filter by it, the
+# perception error model draws its ghosts within it and the search's moves pick the cars near the ego by it
+CLASS_RANGE = 50.0
 
 BOX_FIELDS = ("x", "y", "yaw", "vx", "vy", "length", "width", "height", "score")
 
@@ -89,3 +92,10 @@ class BoxSequence:
                 k, j = np.argwhere(bad)[0]
                 return name, int(k), int(j)
         return None
+
+
+def in_range(boxes: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
+    """Which boxes count (frames x slots): present and within the nuScenes class range of the ego,
+    as the devkit filters both ground truth and predictions before matching."""
+    dist = np.hypot(boxes.x - ego_xy[:, :1], boxes.y - ego_xy[:, 1:2])
+    return boxes.valid & (dist < CLASS_RANGE)

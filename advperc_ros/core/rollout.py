@@ -23,13 +23,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.ego_motion import PlanError, follow_plan
+from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.perception_errors import PerceptionErrors, inject
-from advperc_ros.core.planners.base import Planner, Trajectory, planner_stats
-from advperc_ros.core.rules import CollisionRule, excusable
+from advperc_ros.core.planners.base import Planner, ReportsStats, Trajectory, planner_stats
+from advperc_ros.core.rules.contact import CollisionRule, excusable
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import ObjectTracker
-from advperc_ros.exceptions import PlanTimeout
+from advperc_ros.exceptions import PlanError, PlanTimeout
 
 STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes following the plan
 
@@ -66,7 +66,10 @@ class RolloutResult:
     # failed solves the planner answered with its fallback (its stats() of this rollout); None when
     # not known: a planner without stats(), or one in another process
     planner_failures: int | None = None
-    # (K, N) where a contact would not be the ego's fault (`rules.excusable`), when only at-fault ones
+    # the frames whose plan the planner's fallback answered (its failures rose during that plan call),
+    # for the rulebook's planner_failure rule; None when not known, as `planner_failures`
+    fallback_frames: tuple[int, ...] | None = None
+    # (K, N) where a contact would not be the ego's fault (`rules.contact.excusable`), when only at-fault ones
     # count (`judge`); None: every contact counts
     excusable: np.ndarray | None = None
 
@@ -223,6 +226,8 @@ def rollout(
     tracks_log: list[dict[str, np.ndarray]] = []
     plans_log: list[Trajectory] = []
     last = 0 if inconclusive is not None else num_frames - 1
+    reports_stats = isinstance(planner, ReportsStats)
+    failures_seen, fallback_frames = 0, []
     with plan_alarm(config.plan_timeout) as arm:
         for k, t in enumerate(times.tolist()):
             ego_states.append((ego.x, ego.y, ego.yaw, ego.v))
@@ -249,6 +254,9 @@ def rollout(
                 arm(False)
                 inconclusive, last = f"frame {k}: planner raised {type(exc).__name__}: {exc}", k
             else:
+                if reports_stats and (failures := planner.stats().failures) > failures_seen:  # type: ignore[attr-defined]
+                    failures_seen = failures
+                    fallback_frames.append(k)
                 if not isinstance(plan, Trajectory):  # None, a list of poses...: a plan nobody can follow
                     inconclusive, last = f"frame {k}: planner returned {type(plan).__name__}, not a Trajectory", k
                 else:
@@ -278,4 +286,5 @@ def rollout(
         plans=plans_log if record else None,
         stage_times=stage_times,
         planner_failures=None if stats is None else stats.failures,
+        fallback_frames=tuple(fallback_frames) if reports_stats else None,
     ), agents, config)

@@ -14,7 +14,8 @@ import yaml
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.inputs import read_input_text
-from advperc_ros.core.scenario import EgoState, Lane, Scenario, ScenarioError
+from advperc_ros.core.scenario import EgoState, Lane, Scenario
+from advperc_ros.exceptions import ScenarioError
 
 
 def _knots(value: Any, source: str, field: str) -> np.ndarray:

@@ -37,7 +37,8 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline, round_corners
-from advperc_ros.core.scenario import EgoState, Lane, Scenario, ScenarioError
+from advperc_ros.core.scenario import EgoState, Lane, Scenario
+from advperc_ros.exceptions import ScenarioError
 
 AGENT_HEIGHT = 1.5
 MAX_ANGLE = 1000.0  # rad: recorded orientations are within a few turns; see _check_orientations

@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.scenario import ScenarioError
+from advperc_ros.exceptions import ScenarioError
 
 CLASS = "car"
 

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.rules import CollisionRule
+from advperc_ros.core.rules.contact import CollisionRule
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs

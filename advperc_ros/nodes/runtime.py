@@ -314,7 +314,8 @@ def _flag(text: str) -> bool:
 
 
 def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
-    from advperc_ros.ros.dds import DdsError, DdsTransport
+    from advperc_ros.exceptions import DdsError
+    from advperc_ros.ros.dds import DdsTransport
 
     parser = argparse.ArgumentParser(
         prog=spec.name, description=f"advperc_ros graph node '{spec.name}' over Cyclone DDS (no ROS needed).")

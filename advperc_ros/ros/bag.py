@@ -21,7 +21,7 @@ from advperc_ros.core.boxes import MAGNITUDE_BOUND, BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane, Scenario
 from advperc_ros.core.staging import staged_folder
-from advperc_ros.exceptions import BagError
+from advperc_ros.exceptions import BagError, MessageError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.topics import CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, ROUTE, TOPIC_TYPES, depth
@@ -258,7 +258,7 @@ def _decode(contents: _Contents, path: Path, topic: str, decode: Callable[[list[
         raise BagError(f"{where} is missing or empty")
     try:
         return decode(contents.messages[topic], where)
-    except cdr.MessageError as exc:
+    except MessageError as exc:
         raise BagError(str(exc)) from None
 
 

@@ -202,10 +202,6 @@ class Subscription:
         """Writers currently matched (local and remote)."""
         return int(self._reader.get_subscription_matched_status().current_count)
 
-    def wait_for_publishers(self, count: int = 1, timeout: float = 5.0) -> bool:
-        """Block until at least `count` writers are matched; False on timeout."""
-        return _poll(lambda: self.matched_count() >= count, timeout)
-
 
 def _poll(done: Callable[[], bool], timeout: float) -> bool:
     deadline = time.monotonic() + timeout

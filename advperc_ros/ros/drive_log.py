@@ -52,7 +52,7 @@ MAX_FRAMES = 100_000
 Decoder = Callable[[cdr.Cdr, str], tuple[int | None, Objects]]
 
 
-def _decoders() -> dict[str, Decoder]:
+def object_decoders() -> dict[str, Decoder]:
     """Every objects type a bundled profile speaks -> its decoder (the profiles' own: one reading), in
     the order of their layers' `import_rank`: when a log holds several objects topics, what the planner
     saw first (predictions, tracks), detections last."""
@@ -199,7 +199,7 @@ def import_drive(path: str | Path, objects_topic: str | None = None, odometry_to
     if not (dt > 0.0 and math.isfinite(dt)):
         raise BagError(f"{path}: the frame period must be a positive number of seconds, got {dt}")
     listing = bags.bag_topics(path)
-    decoders = _decoders()
+    decoders = object_decoders()
     objects_topic = _choose(path, listing, objects_topic, tuple(decoders), (), "objects",
                             "--objects")
     odometry_topic = _choose(path, listing, odometry_topic, (ODOMETRY_TYPE,), ODOMETRY_TOPICS, "odometry",

@@ -5,7 +5,7 @@ written with `repr` by the json module and so round-trip exactly):
 
 | topic | QoS | from -> to | JSON |
 |---|---|---|---|
-| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn", "ahead"}, and the arrays of each extended error kind on (`core.perception_errors.EXTENDED_KINDS`) |
+| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn", "ahead"}, and the arrays of each extended error kind on (`core.perception_errors.KINDS`) |
 | /attack/ready | volatile | injector -> player | {"rollout", "ahead"}: the injector holds that rollout's errors |
 | /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout"} |
 | /attack/nodes | latched | every graph node -> orchestrator | {"node", "pid"}: the node is up, its topics created |
@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from advperc_ros.core.perception_errors import EXTENDED_KINDS, NEUTRAL, PerceptionErrors
+from advperc_ros.core.perception_errors import PerceptionErrors, registry
 from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.cdr import MessageError
 from advperc_ros.ros.topics import DONE, ERRORS, PRESENCE, READY, RULE_DIAGNOSTICS
 
 RULE_STATUS = "collision"
@@ -124,6 +124,7 @@ def _field(data: dict, topic: str, name: str, kind: type, allowed: tuple = ()):
 
 
 _ELEMENTS = {"f": ("fi", "finite numbers"), "i": ("i", "integers"), "b": ("b", "booleans")}
+_ELEMENT_OF = {np.float64: "f", np.int64: "i", np.bool_: "b"}  # the JSON element of an error array's dtype
 
 
 def _array(data: dict, topic: str, name: str, shape: tuple[int, ...] | None, kind: str) -> np.ndarray:
@@ -147,14 +148,14 @@ def parse_errors(msg) -> RolloutErrors:
     stamps = _array(data, ERRORS, "stamps_ns", None, "i").astype(np.int64)
     agent_ids = _array(data, ERRORS, "agent_ids", None, "i").astype(np.int64)
     shape = (len(stamps), len(agent_ids))
-    arrays = {name: _array(data, ERRORS, name, shape, "f") for name in ("dx", "dy", "dyaw")}
-    arrays["fn"] = _array(data, ERRORS, "fn", shape, "b")
-    ghosts = data.get("ghost_on")
+    specs = registry.array_specs()
+    ghosts = data.get(next((name for name, spec in specs.items() if spec.per_ghost), ""))
     ghost_shape = (len(stamps), len(ghosts[0]) if isinstance(ghosts, list) and ghosts and isinstance(ghosts[0], list) else 0)
-    for kind, names in EXTENDED_KINDS.items():
-        for name in names if any(name in data for name in names) else ():
-            element = "b" if NEUTRAL[name][1] is np.bool_ else "i" if name == "latency" else "f"
-            arrays[name] = _array(data, ERRORS, name, ghost_shape if kind == "ghost" else shape, element)
+    arrays = {}
+    for kind in registry.KINDS:
+        for spec in kind.arrays if kind.paper or any(name in data for name in kind.array_names) else ():
+            arrays[spec.name] = _array(data, ERRORS, spec.name, ghost_shape if spec.per_ghost else shape,
+                                       _ELEMENT_OF[spec.dtype])
     try:
         errors = PerceptionErrors.from_arrays(arrays)
     except ValueError as exc:

@@ -15,7 +15,6 @@ from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.scenario import EgoState, Lane
 from advperc_ros.ros import cdr
 from advperc_ros.ros.cdr import COLORS, DIAGNOSTICS, FRAME_ID, MARKER_ARRAY, ODOMETRY, PATH, TYPESTORE
-from advperc_ros.ros.cdr import MessageError as MessageError  # re-exported beside the codecs' names
 
 T = TYPESTORE.types
 LANES_NS = "lanes"

@@ -1,6 +1,6 @@
 """The topic contract in one place: every topic's name, message type and QoS.
 
-docs/graph.md's topic table states the same, and test/test_ros2.py holds the live graph to it. QoS
+docs/graph.md's topic table states the same, and test/nodes/test_ros2.py holds the live graph to it. QoS
 is one rule on every transport and in bags: reliable; volatile keep-last `DEPTH`, or latched
 (transient-local, writers keep-last `LATCHED_DEPTH`), which is what ROS 2 calls latching.
 """

@@ -147,7 +147,8 @@ class GraphRollouts:
         """The given transport, or a Cyclone participant of our own (`_own_transport`, closed with the graph)."""
         if self._given_transport is not None:
             return self._given_transport
-        from advperc_ros.ros.dds import DdsError, DdsTransport
+        from advperc_ros.exceptions import DdsError
+        from advperc_ros.ros.dds import DdsTransport
 
         try:
             self._own_transport = DdsTransport(self.execution.domain_id, self.execution.localhost_only,

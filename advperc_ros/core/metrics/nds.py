@@ -15,11 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.boxes import BoxSequence, in_range
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
 TP_THRESHOLD = 2.0
-CLASS_RANGE = 50.0
 MIN_RECALL = 0.1
 MIN_PRECISION = 0.1
 MEAN_AP_WEIGHT = 5.0
@@ -47,13 +46,6 @@ class NDSResult:
     matchings: dict[float, Matching]  # per distance threshold, reused by NDS-t and the counts
     gt_in_range: np.ndarray  # (F, G) bool
     pred_in_range: np.ndarray  # (F, P) bool
-
-
-def in_range(boxes: BoxSequence, ego_xy: np.ndarray) -> np.ndarray:
-    """Which boxes count (frames x slots): present and within the nuScenes class range of the ego,
-    as the devkit filters both ground truth and predictions before matching."""
-    dist = np.hypot(boxes.x - ego_xy[:, :1], boxes.y - ego_xy[:, 1:2])
-    return boxes.valid & (dist < CLASS_RANGE)
 
 
 def _prediction_order(scores: np.ndarray) -> np.ndarray:

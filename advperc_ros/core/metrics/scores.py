@@ -8,15 +8,14 @@ within 4 m still earns NDS credit, so only what no threshold credits counts as a
 Table 1 counts and for NDS-t's longest drop fraction alike.
 """
 
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS, NDSResult, nds
 from advperc_ros.core.pem import PEM, default_pem
-from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.perception_errors import MatchedBoxes, PerceptionErrors, registry
 
 
 @dataclass(frozen=True)
@@ -65,38 +64,21 @@ def matched_errors(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray, beyon
     """The errors a perception output made, read off the devkit's greedy matching at 4 m.
 
     Returns (errors, counted, nds result): errors[k, j] holds the offset and yaw error of the
-    detection matched to gt slot j at frame k, fn where none matched; `beyond_the_paper`, also its
-    velocity error and size scales, and ghost slots, one per prediction slot, that hold the false
-    positives (the in-range predictions no truth matched, as `fp` counts them): what the perception
-    error model's terms beyond the paper read, left out when no term will. counted marks gt present
-    within 50 m.
+    detection matched to gt slot j at frame k, fn where none matched; `beyond_the_paper`, also what
+    the other kinds read back (`ErrorKind.read_back`): its velocity error and size scales, and ghost
+    slots, one per prediction slot, that hold the false positives (the in-range predictions no truth
+    matched, as `fp` counts them): what the perception error model's terms beyond the paper read, left
+    out when no term will. counted marks gt present within 50 m.
     """
     result = nds(gt, pred, ego_xy)
     pred_gt = result.matchings[max(DIST_THRESHOLDS)].pred_gt
     f, p = np.nonzero(pred_gt >= 0)
-    g = pred_gt[f, p]
-    fn = np.ones(gt.shape, dtype=bool)
-    fn[f, g] = False
-
-    def at_matches(values: np.ndarray, neutral: float = 0.0) -> np.ndarray:
-        out = np.full(gt.shape, neutral)
-        out[f, g] = values
-        return out
-
-    errors = PerceptionErrors(dx=at_matches(pred.x[f, p] - gt.x[f, g]), dy=at_matches(pred.y[f, p] - gt.y[f, g]),
-                              dyaw=at_matches(wrap_angle(pred.yaw[f, p] - gt.yaw[f, g])), fn=fn)
-    if not beyond_the_paper:
-        return errors, result.gt_in_range, result
-    with np.errstate(divide="ignore", invalid="ignore"):  # a zero-sized truth (nuScenes JSON may hold one)
-        length_scale = at_matches(pred.length[f, p] / gt.length[f, g], 1.0)
-        width_scale = at_matches(pred.width[f, p] / gt.width[f, g], 1.0)
-    errors = replace(
-        errors, dvx=at_matches(pred.vx[f, p] - gt.vx[f, g]), dvy=at_matches(pred.vy[f, p] - gt.vy[f, g]),
-        length_scale=length_scale, width_scale=width_scale,
-        ghost_on=result.pred_in_range & (pred_gt < 0), ghost_x=pred.x, ghost_y=pred.y, ghost_yaw=pred.yaw,
-        ghost_vx=pred.vx, ghost_vy=pred.vy,  # the predictions' own arrays: read, never written
-    )
-    return errors, result.gt_in_range, result
+    matches = MatchedBoxes(gt, pred, f, p, pred_gt[f, p], result.pred_in_range & (pred_gt < 0))
+    arrays: dict[str, np.ndarray] = {}
+    for kind in registry.KINDS:
+        if kind.read_back is not None and (kind.paper or beyond_the_paper):
+            arrays.update(kind.read_back(matches))
+    return PerceptionErrors(**arrays), result.gt_in_range, result
 
 
 def score(

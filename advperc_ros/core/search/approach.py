@@ -31,8 +31,7 @@ from functools import cmp_to_key
 
 import numpy as np
 
-from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors
-from advperc_ros.core.search.extended import MOVES_OF_KIND, MoveContext
+from advperc_ros.core.perception_errors import ErrorSpace, MoveContext, PerceptionErrors, kind_named
 from advperc_ros.core.search.heuristic import bisect
 from advperc_ros.core.search.joint import relevance
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
@@ -137,7 +136,7 @@ def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Gene
     problem's budget; a walk from a phantom obstacle that stalls is followed by one from the nearest
     rollout without ghosts. With extended kinds on (`space`), each kind's moves join the paper's three at
     even odds, acting on the same nearest cars (ghosts: on the ego's path ahead)."""
-    extended = [move for kind in space.kinds for _, move in MOVES_OF_KIND.get(kind, ())]
+    extended = [move for kind in space.kinds for _, move in kind_named(kind).moves]
     truth = seen[0]
     def order(a: Evaluation, b: Evaluation) -> int:
         return -1 if nearer(a, b) else int(nearer(b, a))

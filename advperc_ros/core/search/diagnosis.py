@@ -2,7 +2,7 @@
 
 A search that finds nothing still says something: which agents were tried, how close the ego came
 with each hidden, whether hiding every vehicle at once could matter at all, and how near the
-approach phase brought it. The report (`advperc_ros.report`) writes this as its `message` and
+approach phase brought it. The report (`advperc_ros.results.report`) writes this as its `message` and
 its `closest_approach` fields.
 """
 
@@ -28,7 +28,7 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, appr
     refines only a drop that collides) and how close the ego came, hidden agent or not; from the
     joint drops' `blind` rollout (every vehicle hidden), whether any drop could matter; and how close
     the `approach` phase (cars shown displaced) brought the ego at its fault. `distance`: how a
-    distance is to be written (the report rounds them, `advperc_ros.report.rounded`)."""
+    distance is to be written (the report rounds them, `advperc_ros.results.report.rounded`)."""
     truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
     drops = [row for row in log if row.phase == "heuristic_drop"]
     conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]

@@ -21,7 +21,7 @@ few that keep it (as the paper's uniform proposals sometimes do
 by chance), but not below what re-rolling alone changes a metric by; the first candidate stays the
 model's choice. A round's rollouts are independent, so a backend may run them at once; the batch
 size is a param, so the attack does not depend on how many workers ran it. With error kinds beyond
-the paper's on (`errors.kinds`), each kind's moves (`extended.MOVES_OF_KIND`) join the draw, and the
+the paper's on (`errors.kinds`), each kind's moves (its `ErrorKind.moves`) join the draw, and the
 collision model learns them as it learns the paper's.
 """
 
@@ -30,13 +30,13 @@ from typing import ClassVar
 import numpy as np
 
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
-from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors
+from advperc_ros.core.perception_errors import ErrorSpace, MoveContext, PerceptionErrors, registry
+from advperc_ros.core.perception_errors.runs import attacked_runs, run_edge
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig, after_failure_bound
-from advperc_ros.core.search.extended import MOVES_OF_KIND, MoveContext
 from advperc_ros.core.search.method import Progress
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, Phase
 from advperc_ros.core.search.random_search import propose
-from advperc_ros.core.search.refine import attacked_runs, refine_drops, run_edge
+from advperc_ros.core.search.refine import refine_drops
 
 # m: pushes just inside each match threshold (a true positive at that threshold and every looser one)
 PUSHES = 0.95 * np.asarray(DIST_THRESHOLDS, dtype=float)
@@ -68,17 +68,16 @@ def restore(errors: PerceptionErrors, frames: int, rng: np.random.Generator) -> 
     return out
 
 
-# the paper's kinds' moves; the extended kinds' (`extended.MOVES_OF_KIND`) go before `merge`, which is never drawn
+# the paper's kinds' moves; the extended kinds' (`ErrorKind.moves`) go before `merge`, which is never drawn
 MOVES = ("flip", "push_ahead", "push_behind", "push_left", "push_right", "shrink", "restore", "merge")
 
 
 def moves_of(kinds: tuple[str, ...]) -> tuple[str, ...]:
     """The guided search's moves when `kinds` are on: the paper's, then each extended kind's, then merge."""
-    extended = tuple(name for kind in kinds for name, _ in MOVES_OF_KIND.get(kind, ()))
+    extended = tuple(name for kind in kinds for name, _ in registry.kind_named(kind).moves)
     return (*MOVES[:-1], *extended, MOVES[-1])
 
 
-EXTENDED_MOVES = {name: move for moves in MOVES_OF_KIND.values() for name, move in moves}
 AXES = ((1, 0), (-1, 0), (0, 1), (0, -1))  # (along, beside) the car's heading of each push move, in order
 
 
@@ -122,7 +121,8 @@ def candidate(errors: PerceptionErrors, frames: int, rng: np.random.Generator, c
         return move, (shrink if move == 5 else restore)(errors, frames, rng)
     if context is None:
         raise ValueError(f"move '{moves[move]}' needs the move context")
-    return move, EXTENDED_MOVES[moves[move]](errors, frames, rng, context)
+    extended = {name: made for kind in registry.KINDS for name, made in kind.moves}
+    return move, extended[moves[move]](errors, frames, rng, context)
 
 
 def _aligned(*tensors: PerceptionErrors) -> list[PerceptionErrors]:
@@ -138,11 +138,13 @@ def _aligned(*tensors: PerceptionErrors) -> list[PerceptionErrors]:
 
 
 def _agent_arrays(errors: PerceptionErrors) -> dict[str, np.ndarray]:
-    return {name: array for name, array in errors.arrays().items() if not name.startswith("ghost_")}
+    specs = registry.array_specs()
+    return {name: array for name, array in errors.arrays().items() if not specs[name].per_ghost}
 
 
 def _ghost_arrays(errors: PerceptionErrors) -> dict[str, np.ndarray]:
-    return {name: array for name, array in errors.arrays().items() if name.startswith("ghost_")}
+    specs = registry.array_specs()
+    return {name: array for name, array in errors.arrays().items() if specs[name].per_ghost}
 
 
 def changed_cells(errors: PerceptionErrors, parent: PerceptionErrors) -> np.ndarray:
@@ -163,13 +165,13 @@ def merge(best: PerceptionErrors, sibling: PerceptionErrors, parent: PerceptionE
     their parent: both changes kept the collision alone, so together they are a likely larger step."""
     best, sibling, parent = _aligned(best, sibling, parent)
     changed = changed_cells(sibling, parent)
-    ghosts = _changed_ghosts(sibling, parent) if sibling.ghost_on is not None else np.zeros((0, 0), dtype=bool)
+    ghosts = _changed_ghosts(sibling, parent) if _ghost_arrays(sibling) else np.zeros((0, 0), dtype=bool)
     if not changed.any() and not ghosts.any():
         return None
     out = best.copy()
-    theirs = sibling.arrays()
+    theirs, specs = sibling.arrays(), registry.array_specs()
     for name, array in out.arrays().items():
-        cells = ghosts if name.startswith("ghost_") else changed
+        cells = ghosts if specs[name].per_ghost else changed
         array[cells] = theirs[name][cells]
     return out
 
@@ -179,20 +181,16 @@ def _key(errors: PerceptionErrors) -> bytes:
 
 
 def wrongness(errors: PerceptionErrors, space: ErrorSpace = ErrorSpace()) -> np.ndarray:
-    """(frames x slots) how wrong each object-frame is shown, in [0, 1]: its offset over the loosest
-    match threshold, a drop counting as 1; of the extended kinds the largest share of its bound (a
-    turned car counts as 1, as its heading is as wrong as it can be)."""
-    offset = np.minimum(np.hypot(errors.dx, errors.dy) / max(DIST_THRESHOLDS), 1.0)
-    if errors.dvx is not None and errors.dvy is not None:
-        offset = np.maximum(offset, np.minimum(np.hypot(errors.dvx, errors.dvy) / space.max_speed_error, 1.0))
-    if errors.length_scale is not None and errors.width_scale is not None:
-        widest = np.log(space.max_scale / space.min_scale)
-        offset = np.maximum(offset, np.minimum(np.abs(np.log(errors.length_scale * errors.width_scale)) / widest, 1.0))
-    if errors.flip is not None:
-        offset = np.maximum(offset, errors.flip.astype(float))
-    if errors.latency is not None:
-        offset = np.maximum(offset, np.minimum(errors.latency / space.max_latency, 1.0))
-    return np.where(errors.fn, 1.0, offset)
+    """(frames x slots) how wrong each object-frame is shown, in [0, 1]: the largest share of its bound
+    of any kind it has (`ErrorKind.wrongness`: an offset over the loosest match threshold, a drop
+    counting as 1, a turned car as 1, as its heading is as wrong as it can be)."""
+    out: np.ndarray | None = None
+    for kind in registry.KINDS:
+        if kind.wrongness is not None and kind.present(errors):
+            share = kind.wrongness(errors, space)
+            out = share if out is None else np.maximum(out, share)
+    assert out is not None  # the paper's kinds have theirs
+    return out
 
 
 def shown(c: PerceptionErrors, parent: PerceptionErrors, before: np.ndarray,

@@ -1,0 +1,333 @@
+"""Plots of an attack: best metric against rollouts (the paper's figure 3), a bird's-eye view of the
+last seconds and an animation of the whole attack rollout. Headless (Agg)."""
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.artist import Artist
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.collections import LineCollection, PolyCollection
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
+from matplotlib.patches import Patch
+from matplotlib.ticker import MaxNLocator
+from PIL import Image
+
+from advperc_ros.core.geometry import box_corners
+from advperc_ros.core.perception_errors import inject
+from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.search.problem import LogRow, Phase
+from advperc_ros.core.search.registry import every_phase
+from advperc_ros.results.outcome import AttackOutcome
+
+METRIC_NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
+# the metric plot's (colour, line) of a search method's phase; a phase not here takes the next of OTHER_LINES
+PHASE_LINES = {Phase.RANDOM: ("tab:cyan", "--"), Phase.REFINE: ("tab:green", ":"), Phase.GUIDED: ("tab:purple", "-.")}
+OTHER_LINES = (("tab:olive", "--"), ("tab:pink", "-."), ("tab:gray", ":"))
+# one style per layer, shared by the bird's-eye view and the animation (the bag's colours where it has them)
+BOX_STYLES: dict[str, dict[str, Any]] = {  # matplotlib keyword arguments
+    "truth": dict(facecolor="none", edgecolor="black", linewidth=1.2, label="ground truth"),
+    "perceived": dict(facecolor="tab:green", edgecolor="none", alpha=0.45, label="perceived"),
+    "tracks": dict(facecolor="none", edgecolor="tab:blue", linewidth=1.0, linestyle="--", label="tracks"),
+    "ego": dict(facecolor="tab:red", edgecolor="none", alpha=0.7, label="ego"),
+}
+PLAN_STYLE: dict[str, Any] = dict(color="tab:orange", linewidth=1.5, label="plan")
+LANE_STYLE: dict[str, Any] = dict(color="0.8", linewidth=1.0, zorder=0)
+NEAR = 10.0  # m: agents closer than this to the ego are kept inside the bird's-eye view
+LOOK_AHEAD = 2.0  # s: the view reaches where the ego will be this much later, so it follows its heading
+MIN_HALF_WIDTH = 12.0  # m
+MARGIN = 3.0  # m around everything a panel must show
+GIF_PERIOD = 0.2  # s of scenario between animation frames (5 frames per second of scenario)
+GIF_MAX_FRAMES = 80  # a longer scenario plays faster rather than costing more
+GIF_WINDOW = ((-15.0, 45.0), (-15.0, 15.0))  # m, ego frame: x ahead, y left
+
+
+def metric_figure(log: list[LogRow], objective: str, phases: Mapping[Phase, str] | None = None) -> Figure:
+    """The paper's figure 3 when the search found a collision, else why it did not (closest approaches).
+    `phases`: the search method's phases and their names (`SearchMethod.phases`; default: every
+    registered method's)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    index = np.array([row.rollout for row in log])
+    collided = np.array([row.collided for row in log], dtype=bool)
+    if collided.any():
+        _best_metric(ax, log, index, collided, objective, every_phase() if phases is None else phases)
+    else:
+        _closest_approaches(ax, log, index)
+    ax.grid(alpha=0.3)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="best", fontsize=8)
+    fig.tight_layout()
+    return fig
+
+
+def _best_metric(ax, log: list[LogRow], index: np.ndarray, collided: np.ndarray, objective: str,
+                 phases: Mapping[Phase, str]) -> None:
+    """Best adversarial metric after each rollout; heuristic solid, the approach phase (when no drop
+    collided) solid brown, and each of the method's phases as the method names it: random search
+    dashed, refine dotted, guided rounds dash-dotted (refine may run between two stretches of rounds)."""
+    best = np.array([row.best_metric for row in log])
+    styles = {str(Phase.APPROACH): ("approach", "tab:brown", "-")}
+    for i, (phase, name) in enumerate(phases.items()):
+        styles[str(phase)] = (name, *PHASE_LINES.get(phase, OTHER_LINES[i % len(OTHER_LINES)]))
+    kinds = [str(row.phase) if str(row.phase) in styles else "" for row in log]  # "": the heuristic's
+    styles[""] = ("heuristic", "tab:orange", "-")
+    starts = [i for i, kind in enumerate(kinds) if i == 0 or kind != kinds[i - 1]]  # each stretch of one phase
+    labelled = set()
+    for start, end in zip(starts, [*starts[1:], len(log)]):
+        label, color, line = styles[kinds[start]]
+        first = max(start - 1, 0)  # join the previous stretch's curve
+        ax.step(index[first:end], best[first:end], where="post", color=color, linestyle=line,
+                label=None if label in labelled else label)
+        labelled.add(label)
+    metric = np.array([row.metric for row in log])
+    ax.scatter(index[collided], metric[collided], s=10, color="tab:red", label="adversarial rollout", zorder=3)
+    if (~collided).any():
+        ax.scatter(index[~collided], metric[~collided], s=10, color="0.6", label="no collision", zorder=2)
+    ax.set_xlabel("rollouts")
+    ax.set_ylabel(METRIC_NAMES.get(objective, objective))
+    ax.set_title("Best adversarial perception metric")
+
+
+def _closest_approaches(ax, log: list[LogRow], index: np.ndarray) -> None:
+    """Each rollout's closest approach (perfect perception, then one agent's whole track dropped per
+    rollout): how far the search stayed from a collision. All rollouts, when few, or the nearest name their drop."""
+    distance = np.array([row.min_signed_distance for row in log])
+    conclusive = np.isfinite(distance) & np.array([not row.inconclusive for row in log], dtype=bool)
+    ax.scatter(index[conclusive], distance[conclusive], s=14, color="0.4", label="rollout (no collision)", zorder=3)
+    if (~conclusive).any():
+        ax.scatter(index[~conclusive], np.zeros((~conclusive).sum()), marker="x", color="tab:purple",
+                   label="inconclusive", zorder=3)
+    ax.axhline(0.0, color="tab:red", linestyle="--", linewidth=1, label="collision (signed distance < 0)")
+    rows = np.flatnonzero(conclusive)
+    few = rows.size <= 12
+    for i in rows if few else rows[np.argsort(distance[rows], kind="stable")[:1]]:
+        row = log[i]
+        what = {"approach": "approach", "joint": "joint drop"}.get(row.phase, "no drop" if row.agent < 0
+                                                                      else f"agent {row.agent} dropped")
+        ax.annotate(f"{what}: {row.min_signed_distance:.2f} m", (row.rollout, row.min_signed_distance),
+                    textcoords="offset points", xytext=(0, -12), ha="center" if few else "left", fontsize=7)
+    if few:
+        ax.margins(x=0.15)  # room for the labels of the first and last rollouts
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel("rollouts")
+    ax.set_ylabel("closest approach of the ego (m)")
+    ax.set_ylim(bottom=min(-0.5, ax.get_ylim()[0]))
+    ax.set_title(f"No collision found in {len(log)} rollouts")
+
+
+def metric_vs_rollouts(path: Path, log: list[LogRow], objective: str, phases: Mapping[Phase, str] | None = None) -> None:
+    _save(metric_figure(log, objective, phases), path, dpi=120)
+
+
+def _save(fig: Figure, path: Path, dpi: int) -> None:
+    fig.savefig(path, dpi=dpi)
+    plt.close(fig)
+
+
+def _recorded(outcome: AttackOutcome) -> RolloutResult:
+    """The recorded attack rollout the bird's-eye view and the animation draw (an outcome with a best attack has one)."""
+    return outcome.attack_rollout
+
+
+def _corners(boxes: dict[str, np.ndarray]) -> np.ndarray:
+    return box_corners(boxes["x"], boxes["y"], boxes["yaw"], boxes["length"], boxes["width"]).reshape(-1, 4, 2)
+
+
+class _Scene:
+    """What is drawn at a frame of the recorded attack rollout, in map coordinates."""
+
+    def __init__(self, outcome: AttackOutcome) -> None:
+        rollout = _recorded(outcome)
+        if outcome.best is None or rollout.tracks is None or rollout.plans is None:
+            raise ValueError(f"{outcome.scenario.name}: the attack rollout was recorded without its tracks and plans")
+        self.outcome = outcome
+        self.rollout = rollout
+        self.tracks, self.plans = rollout.tracks, rollout.plans
+        self.perceived = inject(outcome.scenario.agents, outcome.best.errors)
+        self.ego_size = (outcome.params.ego.length, outcome.params.ego.width)
+
+    def boxes(self, k: int) -> dict[str, np.ndarray]:
+        """Corners (n, 4, 2) per layer of BOX_STYLES; no tracks at the collision frame (nothing was planned)."""
+        tracks = self.tracks
+        x, y, yaw = self.rollout.ego[k, :3]
+        return {
+            "truth": _corners(self.outcome.scenario.agents.frame(k)),
+            "perceived": _corners(self.perceived.frame(k)),
+            "tracks": _corners(tracks[k]) if k < len(tracks) else np.zeros((0, 4, 2)),
+            "ego": box_corners(x, y, yaw, *self.ego_size)[None],
+        }
+
+    def plan(self, k: int) -> np.ndarray:
+        plans = self.plans
+        return np.column_stack([plans[k].x, plans[k].y]) if k < len(plans) else np.zeros((0, 2))
+
+    def involved(self, k: int, slot: int) -> np.ndarray:
+        """Points a view of frame k must contain: the ego, where it heads, the collision agent (true and
+        perceived), every agent within NEAR of the ego and every ghost detection centred within NEAR."""
+        agents, perceived, ego = self.outcome.scenario.agents, self.perceived, self.rollout.ego[k]
+        slots = (self.rollout.distances[k] < NEAR) | (np.arange(agents.shape[1]) == slot)
+        ghosts = np.hypot(perceived.x[k, len(slots):] - ego[0], perceived.y[k, len(slots):] - ego[1]) < NEAR
+        x, y, yaw = ego[:3]
+        points = [box_corners(x, y, yaw, *self.ego_size),
+                  ego[None, :2] + LOOK_AHEAD * max(ego[3], 1.0) * np.array([[np.cos(ego[2]), np.sin(ego[2])]])]
+        for boxes, shown in ((agents, slots), (perceived, np.concatenate([slots, ghosts]))):
+            keep = shown & boxes.valid[k]
+            points.append(box_corners(boxes.x[k, keep], boxes.y[k, keep], boxes.yaw[k, keep],
+                                      boxes.length[k, keep], boxes.width[k, keep]).reshape(-1, 2))
+        return np.concatenate(points)
+
+
+def _legend(fig: Figure, **kwargs) -> None:
+    handles: list[Artist] = [Patch(**style) for style in BOX_STYLES.values()]
+    handles += [Line2D([], [], **PLAN_STYLE)]
+    fig.legend(handles=handles, ncol=len(handles), frameon=False, **kwargs)
+
+
+def _lanes(outcome: AttackOutcome) -> list[np.ndarray]:
+    return [lane.centerline.points for lane in outcome.scenario.lanes]
+
+
+def bev_figure(outcome: AttackOutcome, seconds_before: float = 3.0, panels: int = 4) -> Figure:
+    """The last seconds before the collision, one panel per instant. Each panel is centred on the ego,
+    where it heads and the agents involved; all share one scale (square, equal aspect) so motion compares."""
+    scenario, scene = outcome.scenario, _Scene(outcome)
+    last = scene.rollout.num_frames - 1
+    first = max(0, last - int(round(seconds_before / scenario.dt)))
+    frames = np.unique(np.linspace(first, last, panels).round().astype(int))
+    _, slot = scene.rollout.closest_approach()
+    boxes = [scene.involved(k, slot) for k in frames]
+    lows, highs = np.array([b.min(axis=0) for b in boxes]), np.array([b.max(axis=0) for b in boxes])
+    half = max(MIN_HALF_WIDTH, ((highs - lows).max() / 2.0) + MARGIN)
+    centres = (lows + highs) / 2.0
+    fig, axes = plt.subplots(1, len(frames), figsize=(3.6 * len(frames), 4.0), squeeze=False)
+    for ax, k, centre in zip(axes[0], frames, centres):
+        ax.add_collection(LineCollection(_lanes(outcome), **LANE_STYLE))
+        ax.plot(scene.rollout.ego[: k + 1, 0], scene.rollout.ego[: k + 1, 1], color="tab:red", linewidth=0.8)
+        for name, corners in scene.boxes(k).items():
+            # matplotlib's stub wants a sequence of polygons; it documents (and has a fast path for) an (N, M, 2) array
+            ax.add_collection(PolyCollection(corners, **_unlabelled(BOX_STYLES[name])))  # type: ignore[arg-type]
+        plan = scene.plan(k)
+        ax.plot(plan[:, 0], plan[:, 1], **_unlabelled(PLAN_STYLE))
+        ax.set_xlim(centre[0] - half, centre[0] + half)
+        ax.set_ylim(centre[1] - half, centre[1] + half)
+        ax.set_aspect("equal")
+        collided = k == last and scene.rollout.collided
+        ax.set_title(f"t = {scenario.times[k]:.1f} s" + (" (collision)" if collided else ""), fontsize=10)
+        ax.tick_params(labelsize=8)
+        ax.grid(alpha=0.2)
+    fig.suptitle(f"{scenario.name}: the last {seconds_before:g} s of the attack (map frame, m)", fontsize=11)
+    _legend(fig, loc="lower center", fontsize=9)
+    fig.tight_layout(rect=(0, 0.07, 1, 1))
+    return fig
+
+
+def _unlabelled(style: dict) -> dict:
+    return {k: v for k, v in style.items() if k != "label"}
+
+
+def birds_eye_view(path: Path, outcome: AttackOutcome, seconds_before: float = 3.0) -> None:
+    _save(bev_figure(outcome, seconds_before), path, dpi=110)
+
+
+def _to_ego(points: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Map points (..., 2) into the ego frame of pose (x, y, yaw): x ahead, y to the left."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    d = points - pose[:2]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+
+
+def animation_frames(outcome: AttackOutcome) -> np.ndarray:
+    """Frames of the recorded rollout the animation shows: every GIF_PERIOD, at most GIF_MAX_FRAMES,
+    always ending on the last (the collision)."""
+    last = _recorded(outcome).num_frames - 1
+    step = max(1, int(round(GIF_PERIOD / outcome.scenario.dt)), int(np.ceil((last + 1) / GIF_MAX_FRAMES)))
+    return np.arange(last, -1, -step)[::-1]
+
+
+def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
+    """The whole attack rollout as a GIF in the ego's frame (it drives to the right), so the axes never
+    move and can be blitted: the static figure is drawn once, each frame redraws only the moving artists.
+    (matplotlib's PillowWriter redraws the whole figure per frame, several times the cost; the frames go
+    to Pillow the way it hands them over.)"""
+    scene, scenario = _Scene(outcome), outcome.scenario
+    fig, ax = plt.subplots(figsize=(5.6, 3.4), dpi=dpi)
+    lanes = LineCollection([], animated=True, **LANE_STYLE)
+    ax.add_collection(lanes)
+    layers: dict[str, PolyCollection] = {}
+    for name, style in BOX_STYLES.items():
+        layers[name] = PolyCollection([], animated=True, **_unlabelled(style))
+        ax.add_collection(layers[name])
+    (plan,) = ax.plot([], [], animated=True, **_unlabelled(PLAN_STYLE))
+    label = ax.text(0.01, 0.98, "", transform=ax.transAxes, va="top", fontsize=8, family="monospace", animated=True,
+                    bbox=dict(facecolor="white", alpha=0.8, edgecolor="none", pad=1.5))
+    ax.set_xlim(*GIF_WINDOW[0])
+    ax.set_ylim(*GIF_WINDOW[1])
+    ax.set_aspect("equal")
+    ax.set_xlabel("m ahead of the ego", fontsize=8)
+    ax.set_ylabel("m to its left", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(alpha=0.2)
+    ax.set_title(f"{scenario.name}: attack on the {outcome.params.planner} planner", fontsize=9)
+    _legend(fig, loc="lower center", fontsize=7, handlelength=1.2, columnspacing=1.0)
+    fig.tight_layout(rect=(0, 0.06, 1, 1))
+    canvas = fig.canvas
+    assert isinstance(canvas, FigureCanvasAgg)  # matplotlib.use("Agg") above: blitting and the RGBA buffer are Agg's
+    canvas.draw()
+    background = canvas.copy_from_bbox(fig.bbox)
+    _, slot = scene.rollout.closest_approach()
+    agent = int(scenario.agents.ids[:, slot][scenario.agents.valid[:, slot]][0])
+    last = scene.rollout.num_frames - 1
+    images = []
+    for k in animation_frames(outcome):
+        pose = scene.rollout.ego[k, :3]
+        lanes.set_segments([_to_ego(points, pose) for points in _lanes(outcome)])
+        for name, corners in scene.boxes(k).items():
+            layers[name].set_verts(_to_ego(corners, pose))  # type: ignore[arg-type]  # an (N, 4, 2) array, as above
+        plan.set_data(*_to_ego(scene.plan(k), pose).T)
+        text = f"t = {scenario.times[k]:4.1f} s   nearest agent {scene.rollout.rule[k]:5.2f} m"
+        if k == last and scene.rollout.collided:
+            text += f"\ncollision with agent {agent}"
+        label.set_text(text)
+        canvas.restore_region(background)
+        for artist in (lanes, *layers.values(), plan, label):
+            ax.draw_artist(artist)
+        images.append(Image.frombuffer("RGBA", canvas.get_width_height(), canvas.buffer_rgba(), "raw", "RGBA", 0, 1)
+                      .convert("RGB"))
+    plt.close(fig)
+    _write_gif(path, images)
+
+
+def _write_gif(path: Path, images: list[Image.Image]) -> None:
+    """One palette for all frames, from the first, middle and last: Pillow's per-frame quantisation would
+    cost most of the animation's time and double its size, and the figure has few colours."""
+    width, height = images[0].size
+    sample = Image.new("RGB", (width, 3 * height))
+    for i, image in enumerate((images[0], images[len(images) // 2], images[-1])):
+        sample.paste(image, (0, i * height))
+    palette = sample.quantize(colors=48, method=Image.Quantize.MAXCOVERAGE, dither=Image.Dither.NONE)
+    frames = [image.quantize(palette=palette, dither=Image.Dither.NONE) for image in images]
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=round(1000 * GIF_PERIOD), loop=0)
+
+
+def robustness(path: Path, points, objective: str) -> None:
+    """Fraction still adversarial and mean metric against perturbation strength (paper figure 5)."""
+    strength = np.array([p.strength for p in points])
+    fig, (left, right) = plt.subplots(1, 2, figsize=(9, 3.5))
+    left.plot(strength, [p.adversarial_fraction for p in points], marker="o", color="tab:red")
+    left.set_xlabel("perturbation strength")
+    left.set_ylabel("fraction still colliding")
+    left.set_ylim(-0.05, 1.05)
+    right.plot(strength, [p.mean_metric for p in points], marker="o", color="tab:blue")
+    right.set_xlabel("perturbation strength")
+    right.set_ylabel(METRIC_NAMES.get(objective, objective))
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+    fig.suptitle("Robustness of the attack to random perturbations")
+    fig.tight_layout()
+    _save(fig, path, dpi=120)

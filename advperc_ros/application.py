@@ -89,7 +89,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     own: Stack | None = None
     backend: Rollouts
     if rollouts is None:
-        backend = own = Stack(scenario, params, configs)
+        backend = own = Stack(scenario, configs)
     else:
         backend = rollouts
     config = configs.search
@@ -185,12 +185,12 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
     """The attack with its checkpoint, its report written into `output`; the caller holds the output's
     lock. A disk that fills on the way ends it in one line, the checkpoint kept for --resume."""
     source = params.source or "PARAMS"
-    checkpoint = Checkpoint(output, params, scenario, resume)
+    checkpoint = Checkpoint(output, configs.canonical, scenario, resume)
     finished = False
     with full_disk_said(output, f"the checkpoint keeps every rollout done; free some space, then: advperc attack {source} "
                                 f"--resume {output}"):
         try:
-            with open_rollouts(scenario, params, bag_path, transport, configs) as rollouts:
+            with open_rollouts(scenario, configs, bag_path, transport) as rollouts:
                 outcome = run_attack(scenario, params, progress=progress, configs=configs, say=say,
                                      rollouts=ResumedRollouts(rollouts, checkpoint, scenario.agents, configs.rollout))
             report = write_results(output, outcome, bag_path)

@@ -15,6 +15,7 @@ from typing import NoReturn
 
 import numpy as np
 
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.scenario import Scenario
@@ -147,10 +148,11 @@ def cmd_check_typical(args: argparse.Namespace) -> int:
     from advperc_ros.ros.bag import read_scenario
 
     params = load_params(args.params)
+    configs = core_configs(params)
     # the default for the kinds the params' attack may use: beyond the paper's, the calibrated model with every term
-    pem = PEM.load(Path(args.model)) if args.model else default_pem(parse_error_kinds(params.errors.kinds))
+    pem = PEM.load(Path(args.model)) if args.model else default_pem(configs.search.errors.kinds)
     scenario = read_scenario(resolve_bag(params))
-    stack = Stack(scenario, params)
+    stack = Stack(scenario, configs)
     result = check_typical(scenario, stack.rollout, pem, args.samples, np.random.default_rng(args.seed))
     print(json.dumps({"scenario": scenario.name, **result.__dict__, "passed": result.passed}))
     return 0 if result.passed else EXIT_NOTHING_TO_ATTACK
@@ -176,8 +178,9 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     scenario = read_scenario(bag)
     if errors.shape != scenario.agents.shape:
         raise BagError(f"{results / ERRORS}: field 'fn' has shape {errors.shape}, the bag {bag} has {scenario.agents.shape}")
-    problem = AttackProblem(scenario, Stack(scenario, params).rollout, params.objective,
-                            kinds=parse_error_kinds(params.errors.kinds))
+    configs = core_configs(params)
+    problem = AttackProblem(scenario, Stack(scenario, configs).rollout, params.objective,
+                            kinds=configs.search.errors.kinds)
     points = robustness_curve(problem, errors, args.strengths, args.samples, np.random.default_rng(args.seed))
     staging = staging_path(table)
     with staging.open("w", newline="") as handle:
@@ -323,7 +326,7 @@ def _strengths(text: str) -> tuple[float, ...]:
 def _import_bag_epilog() -> str:
     """What import-bag reads, listed from the interface profiles and the importer's own tables, so that
     the help names exactly the types the decoders take."""
-    from advperc_ros.ros.drive_log import ODOMETRY_TOPICS, ODOMETRY_TYPE, RANK
+    from advperc_ros.ros.drive_log import ODOMETRY_TOPICS, ODOMETRY_TYPE, object_decoders
     from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
     from advperc_ros.ros.topics import LANES, ROUTE, TOPIC_TYPES
 
@@ -332,7 +335,7 @@ def _import_bag_epilog() -> str:
     for name in BUNDLED:
         profile = load_profile(name)
         lines.append(f"    {name}: detections {profile.detections.msgtype}, tracks {profile.tracks.msgtype}")
-    lines.append(f"  several objects topics: the first type present of {', '.join(RANK)}")
+    lines.append(f"  several objects topics: the first type present of {', '.join(object_decoders())}")
     lines.append(f"  ego (--odometry): {ODOMETRY_TYPE}; of several, {' then '.join(ODOMETRY_TOPICS)}")
     lines.append(f"  road: {LANES} ({TOPIC_TYPES[LANES]}) and {ROUTE} ({TOPIC_TYPES[ROUTE]}) when the log has them, "
                  "else a corridor around the recorded ego path")

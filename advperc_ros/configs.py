@@ -1,7 +1,8 @@
 """The one path from the params tree to the core: every core config built in one place.
 
 `core_configs(params)` builds them once, and the application hands the result down to the
-backend, the checkpoint and the search, so no consumer reads params on its own. A graph node holds
+backend, the checkpoint and the search, so nothing below the application reads params: a backend
+is built from `CoreConfigs` alone (planner, footprint, interface profile, how rollouts execute). A graph node holds
 only its own parameters (dotted values, not a whole params tree), so each config also has a
 builder from dotted values, which `core_configs` uses too: one rule per config.
 
@@ -9,6 +10,7 @@ Which parameter fills which field is written once, in the tables below; a test c
 core config's default is the schema's default for the same parameter, so the two cannot drift.
 """
 
+import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -20,7 +22,8 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.tracker import TrackerConfig
-from advperc_ros.params import AttackParams
+from advperc_ros.params import PLANNER_PARAMS, AttackParams
+from advperc_ros.ros.interfaces.base import Profile
 from advperc_ros.ros.interfaces.registry import load_profile
 
 # core config field -> the dotted parameter that sets it
@@ -37,6 +40,9 @@ SEARCH = {"heuristic_iterations": "search.heuristic.iterations", "joint_max_agen
 ERRORS = {"max_speed_error": "errors.max_speed_error", "min_scale": "errors.min_scale", "max_scale": "errors.max_scale",
           "max_latency": "errors.max_latency", "ghosts": "errors.ghosts"}  # and `kinds`, parsed from errors.kinds
 EGO = {"ego_length": "ego.length", "ego_width": "ego.width"}  # of PlanningContext, whose other fields are the scenario's
+EXECUTION = {"backend": "rollout_backend", "workers": "workers", "spawn_nodes": "graph.spawn_nodes",
+             "drive": "graph.drive", "graph_timeout": "graph.timeout", "domain_id": "dds.domain_id",
+             "localhost_only": "dds.localhost_only"}
 TABLES: tuple[tuple[type, Mapping[str, str]], ...] = (
     (RolloutConfig, ROLLOUT), (TrackerConfig, TRACKER), (RandomSearchConfig, RANDOM), (GuidedConfig, GUIDED),
     (SearchConfig, SEARCH), (ErrorSpace, ERRORS))
@@ -61,12 +67,17 @@ def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:
 
 
 def planning_context(values: Mapping[str, Any], scenario: Scenario) -> PlanningContext:
-    """What a planner is built with: the scenario's road and period, the params' ego footprint."""
-    return PlanningContext(route=scenario.route, lanes=scenario.lanes, dt=scenario.dt, **_fields(EGO, values))
+    """What a planner is built with, from dotted values (the planner node's own) and the scenario."""
+    return Footprint(**_fields(EGO, values)).context(scenario)
+
+
+def error_kinds(params: AttackParams) -> tuple[str, ...]:
+    """The error kinds the params' `errors.kinds` names, in the one order (`search_config`'s)."""
+    return search_config(params.flat()).errors.kinds
 
 
 def search_config(values: Mapping[str, Any]) -> SearchConfig:
-    """The whole search's settings, from dotted values."""
+    """The whole search's settings, from dotted values (`errors.kinds` parsed here, the one place)."""
     random = RandomSearchConfig(**_fields(RANDOM, values))
     errors = ErrorSpace(kinds=parse_error_kinds(values["errors.kinds"]), **_fields(ERRORS, values))
     return SearchConfig(**_fields(SEARCH, values), random=random,
@@ -74,20 +85,70 @@ def search_config(values: Mapping[str, Any]) -> SearchConfig:
 
 
 @dataclass(frozen=True)
+class Footprint:
+    """The ego's box a planner plans with (the rollout's rule measures with `RolloutConfig`'s, the same)."""
+
+    ego_length: float
+    ego_width: float
+
+    def context(self, scenario: Scenario) -> PlanningContext:
+        """What a planner is built with: the scenario's road and period, this footprint."""
+        return PlanningContext(route=scenario.route, lanes=scenario.lanes, dt=scenario.dt, ego_length=self.ego_length,
+                               ego_width=self.ego_width)
+
+
+@dataclass(frozen=True)
+class PlannerSpec:
+    """Which planner the attack builds: a bundled name or `module:Class`, and its constructor's keywords."""
+
+    name: str
+    params: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class ExecutionConfig:
+    """How rollouts are executed, not what they compute (`params.EXECUTION`): which backend, the
+    embedded backend's workers, and the graph backend's nodes, how long a silent graph is waited for
+    (`graph.timeout`, which is also the rollout's `plan_timeout`) and DDS domain. `node_values`
+    is what the graph's node processes are configured from (every dotted value and planner_params;
+    each node takes its own), since they run apart from the process that read the params."""
+
+    backend: str
+    workers: int
+    spawn_nodes: bool
+    drive: str
+    graph_timeout: float
+    domain_id: int
+    localhost_only: bool
+    node_values: Mapping[str, Any]
+
+
+@dataclass(frozen=True)
 class CoreConfigs:
-    """Every core config of one attack, built once from its params (`core_configs`)."""
+    """Everything below the application needs of one attack, built once from its params (`core_configs`):
+    the core configs, the planner and its footprint, the interface profile and how rollouts execute."""
 
     rollout: RolloutConfig
     tracker: TrackerConfig
     search: SearchConfig
-    values: Mapping[str, Any]  # the dotted values they came from (a planning context needs the scenario too)
+    footprint: Footprint
+    planner: PlannerSpec
+    profile: Profile
+    execution: ExecutionConfig
+    canonical: str  # the params that determine the results (`AttackParams.canonical`) as JSON: a checkpoint's identity
 
     def planning_context(self, scenario: Scenario) -> PlanningContext:
-        return planning_context(self.values, scenario)
+        """What the planner is built with: the scenario's road and period, the params' ego footprint."""
+        return self.footprint.context(scenario)
 
 
 def core_configs(params: AttackParams) -> CoreConfigs:
     """The core configs of an attack, from its params: what the backend, checkpoint and search use."""
     values = params.flat()
+    node_values = params.values()
     return CoreConfigs(rollout=rollout_config(values), tracker=tracker_config(values), search=search_config(values),
-                       values=values)
+                       footprint=Footprint(**_fields(EGO, values)),
+                       planner=PlannerSpec(params.planner, node_values[PLANNER_PARAMS]),
+                       profile=load_profile(params.graph.interface),
+                       execution=ExecutionConfig(**_fields(EXECUTION, values), node_values=node_values),
+                       canonical=json.dumps(params.canonical(), sort_keys=True))

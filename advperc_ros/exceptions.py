@@ -30,8 +30,9 @@ class ScenarioError(AdvpercError, ValueError):
     """Ground truth that cannot be used; the message names the offending field."""
 
 
-class PlannerError(AdvpercError, ValueError):
-    """A planner that cannot be found or built; the message names it."""
+class PluginError(AdvpercError, ValueError):
+    """A plug-in (planner, search method, interface profile, backend) that cannot be found, imported or
+    built, or is not what its registry takes; the message names it (`advperc_ros.core.plugins`)."""
 
 
 class PEMError(AdvpercError, ValueError):
@@ -51,10 +52,6 @@ class OutputError(AdvpercError, ValueError):
 class ResultsError(AdvpercError, ValueError):
     """A results folder another command reads (replay, the report's pictures, a replay campaign) whose
     report.json or errors.npz is missing or not what an attack writes; the message names the file."""
-
-
-class UnknownProfile(AdvpercError, ValueError):
-    """An interface name that names no bundled interface profile."""
 
 
 class OutOfSpace(AdvpercError, OSError):

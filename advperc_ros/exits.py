@@ -14,7 +14,7 @@ from advperc_ros.exceptions import (
     OutputError,
     ParamsError,
     PEMError,
-    PlannerError,
+    PluginError,
     ResultsError,
     ScenarioError,
     ScenarioRejected,
@@ -22,12 +22,12 @@ from advperc_ros.exceptions import (
 
 EXIT_OK = 0
 EXIT_NOTHING_TO_ATTACK = 1  # the stack fails with perfect perception, or check-typical found collisions
-EXIT_INPUT = 2  # bad input: params, bag, planner, results folder read, output folder (one without room for the output too)
+EXIT_INPUT = 2  # bad input: params, bag, plug-in, results folder read, output folder (one without room for output)
 EXIT_REJECTED = 3  # a recording whose traffic hits the ego whatever it does
 EXIT_GRAPH = 4  # the node graph could not be started or made ready, or most rollouts were inconclusive
 EXIT_INTERRUPTED = 130  # Ctrl-C (128 + SIGINT), as shells report it; an attack's checkpoint is kept
 
-INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PlannerError, PEMError, OutputError, ResultsError, OutOfSpace)
+INPUT_ERRORS = (ParamsError, BagError, ScenarioError, PluginError, PEMError, OutputError, ResultsError, OutOfSpace)
 EXPECTED: tuple[tuple[tuple[type[BaseException], ...], str, int], ...] = (
     (INPUT_ERRORS, "error: ", EXIT_INPUT),
     ((GroundTruthFails,), "", EXIT_NOTHING_TO_ATTACK),

@@ -14,7 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from advperc_ros.backends.registry import open_rollouts
-from advperc_ros.core.perception_errors import PerceptionErrors, parse_error_kinds
+from advperc_ros.configs import core_configs
+from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import (
     AttackProblem,
@@ -107,9 +108,9 @@ def replay(attack: FoundAttack, params: AttackParams, bag_path: Path | None = No
     if attack.errors.shape != scenario.agents.shape:
         raise BagError(f"{attack.folder / ERRORS}: field 'fn' has shape {attack.errors.shape}, the bag {bag_path} has "
                        f"{scenario.agents.shape}")
-    with open_rollouts(scenario, params, bag_path) as rollouts:
-        problem = AttackProblem(scenario, rollouts.rollout, params.objective,
-                                kinds=parse_error_kinds(params.errors.kinds))
+    configs = core_configs(params)
+    with open_rollouts(scenario, configs, bag_path) as rollouts:
+        problem = AttackProblem(scenario, rollouts.rollout, params.objective, kinds=configs.search.errors.kinds)
         truth = problem.evaluate(PerceptionErrors.none(*scenario.agents.shape), Phase.GROUND_TRUTH).rollout
         if truth.inconclusive or truth.collided:
             why = truth.inconclusive or f"min signed distance {truth.min_signed_distance:.3f} m"

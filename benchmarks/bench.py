@@ -38,6 +38,7 @@ sys.path.insert(0, str(REPO))  # time this checkout, not whichever advperc_ros i
 
 from advperc_ros.application import run_attack  # noqa: E402
 from advperc_ros.backends.embedded import Stack  # noqa: E402
+from advperc_ros.configs import core_configs  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors, inject  # noqa: E402
 from advperc_ros.core.search.registry import METHODS  # noqa: E402
 from advperc_ros.core.search.problem import OBJECTIVES  # noqa: E402
@@ -81,7 +82,7 @@ def bench_rollouts(repeats: int, obp_repeats: int) -> None:
           f"{'stage':>7s} {'ratio':>6s} {'step p50':>8s} {'step p95':>8s}  per stage (wall ms)")
     for name in SCENARIOS:
         scenario = read_scenario(REPO / "bags" / name)
-        stack = Stack(scenario, load_params(REPO / "config" / f"{name}.yaml"))
+        stack = Stack(scenario, core_configs(load_params(REPO / "config" / f"{name}.yaml")))
         stack.planner = timed = TimedPlanner(stack.planner)
         errors = PerceptionErrors.none(*scenario.agents.shape)
         cpu, plan_cpu, totals, stages = [], [], [], {stage: [] for stage in STAGES}
@@ -106,7 +107,7 @@ def bench_rollouts(repeats: int, obp_repeats: int) -> None:
 def nds_case() -> dict:
     """200 frames, 5 cars of idm_lane_following with typical errors, in the devkit case format."""
     scenario = read_scenario(REPO / "bags" / "idm_lane_following")
-    stack = Stack(scenario, load_params(REPO / "config" / "idm_lane_following.yaml"))
+    stack = Stack(scenario, core_configs(load_params(REPO / "config" / "idm_lane_following.yaml")))
     truth = scenario.agents.frames(200)
     errors = sample_typical_errors(scenario.agents.shape, np.random.default_rng(7), TypicalErrorConfig(position_std=0.5))
     ego = stack.rollout(PerceptionErrors.none(*scenario.agents.shape)).ego_xy[:200]
@@ -209,7 +210,7 @@ def bench_recordings(repeats: int, every: int) -> None:
             document = imported.params(name, planner)
             document["orchestrator"]["ros__parameters"]["stop_at_collision"] = False  # every frame timed
             params[planner] = parse_params(document, name)
-            stack = Stack(scenario, params[planner])  # built once: ObP compiles its NLP
+            stack = Stack(scenario, core_configs(params[planner]))  # built once: ObP compiles its NLP
             runs = [stack.rollout(errors) for _ in range(times)]
             per[planner] = {s: statistics.median(r.stage_times[s] for r in runs) / frames * 1e3 for s in STAGES}
         idm, obp = per["idm"], per["obp"]

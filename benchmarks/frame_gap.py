@@ -41,6 +41,7 @@ from hop_cost import available, load_average
 from planner_process_cost import TIMER, node_report, plan_timer
 
 from advperc_ros.backends.graph.rollouts import GraphRollouts
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.heap import keep_freed_heap
 from advperc_ros.ros.interfaces.registry import load_profile
@@ -95,7 +96,7 @@ def frame_gap(name: str, rollouts: int, domain_id: int) -> None:
     with tempfile.TemporaryDirectory(prefix="advperc-frame-gap-") as folder, ExitStack() as stacked:
         os.environ["ADVPERC_PLAN_TIMER"] = folder  # the node processes inherit it, and the wrapper's path
         os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(TIMER), os.environ.get("PYTHONPATH")) if p)
-        graphs = {backend: stacked.enter_context(GraphRollouts(scenario, params, bag) if backend == "cyclone" else
+        graphs = {backend: stacked.enter_context(GraphRollouts(scenario, core_configs(params), bag) if backend == "cyclone" else
                                                  rclpy_graph(scenario, params, bag, domain_id + 1))
                   for backend in backends}
         pids = {backend: node_pids(graph) for backend, graph in graphs.items()}

@@ -48,6 +48,7 @@ import hop_cost  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
+from advperc_ros.configs import core_configs  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.rollout import RolloutResult  # noqa: E402
 from advperc_ros.core.scenario import Scenario  # noqa: E402
@@ -101,7 +102,7 @@ def rclpy_graph(scenario, params, bag: Path, domain_id: int) -> Iterator[GraphRo
         rclpy.init(domain_id=domain_id)
         try:
             node = Node("graph_bench")
-            with GraphRollouts(scenario, params.with_values(**{"graph.spawn_nodes": False}), bag,
+            with GraphRollouts(scenario, core_configs(params.with_values(**{"graph.spawn_nodes": False})), bag,
                                RclpyTransport(node)) as graph:
                 graph.node_pids = {spec.name: process.pid for spec, process in zip(SPECS, nodes)}  # to measure
                 yield graph
@@ -133,7 +134,7 @@ def bundled_on_graph(name: str, domain_id: int) -> tuple[Path, Scenario, AttackP
     scenario = read_scenario(bag)
     params = load_params(REPO / "config" / f"{name}.yaml").with_values(
         rollout_backend="graph", **{"dds.domain_id": domain_id, "dds.localhost_only": True})
-    return bag, scenario, params, Stack(scenario, params)
+    return bag, scenario, params, Stack(scenario, core_configs(params))
 
 
 def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain_id: int = 120,
@@ -164,7 +165,7 @@ def bench_graph(repeats: int = 5, scenarios: tuple[str, ...] = SCENARIOS, domain
             for backend in backends:
                 started = time.perf_counter()
                 graphs[backend] = stacked.enter_context(
-                    GraphRollouts(scenario, params, bag) if backend == "cyclone"
+                    GraphRollouts(scenario, core_configs(params), bag) if backend == "cyclone"
                     else rclpy_graph(scenario, params, bag, domain_id + 1))
                 startup[backend] = time.perf_counter() - started
             for label, errors in cases.items():

@@ -57,6 +57,7 @@ from hop_cost import load_average  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
+from advperc_ros.configs import core_configs  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.heap import keep_freed_heap  # noqa: E402
 from advperc_ros.params import load_params  # noqa: E402
@@ -97,7 +98,7 @@ def in_the_graph(name: str, rollouts: int, domain_id: int) -> dict[str, float]:
     with tempfile.TemporaryDirectory(prefix="advperc-plan-timer-") as folder:
         os.environ["ADVPERC_PLAN_TIMER"] = folder  # the node processes inherit it, and the wrapper's path
         os.environ["PYTHONPATH"] = os.pathsep.join(p for p in (str(TIMER), os.environ.get("PYTHONPATH")) if p)
-        with GraphRollouts(scenario, params, bag) as graph:
+        with GraphRollouts(scenario, core_configs(params), bag) as graph:
             planner, player = (graph.processes.running[node].pid for node in ("planner", "scenario_player"))
             for _ in range(rollouts):
                 seconds = plan_timer.tally()[1]
@@ -118,7 +119,7 @@ def in_the_graph(name: str, rollouts: int, domain_id: int) -> dict[str, float]:
 def _inputs(name: str) -> tuple[Stack, list[tuple]]:
     """The embedded rollout's `plan()` inputs (t, ego, tracks), frame by frame, and its stack."""
     scenario = read_scenario(REPO / "bags" / name)
-    stack = Stack(scenario, load_params(REPO / "config" / f"{name}.yaml"))
+    stack = Stack(scenario, core_configs(load_params(REPO / "config" / f"{name}.yaml")))
     seen: list[tuple] = []
     planner = stack.planner
     plan = planner.plan

@@ -48,6 +48,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ros is installed
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
+from advperc_ros.configs import core_configs  # noqa: E402
 from advperc_ros.core.perception_errors import ErrorSpace, PerceptionErrors, parse_error_kinds  # noqa: E402
 from advperc_ros.core.search.guided import AXES, PUSHES, displacement, merge  # noqa: E402
 from advperc_ros.core.search.problem import AttackProblem, Phase  # noqa: E402
@@ -162,7 +163,7 @@ def main() -> None:
     args = parser.parse_args()
     space = ErrorSpace(kinds=parse_error_kinds(args.kinds))
     scenario = read_scenario(REPO / "bags" / SCENARIO)
-    stack = Stack(scenario, load_params(REPO / "config" / f"{SCENARIO}.yaml").with_values(workers=args.workers))
+    stack = Stack(scenario, core_configs(load_params(REPO / "config" / f"{SCENARIO}.yaml").with_values(workers=args.workers)))
     problem = AttackProblem(scenario, stack.rollout, "nds_t", run_rollouts=stack.rollout_many)
     agents = scenario.agents
     slot = next(j for j in range(agents.shape[1]) if scenario.agent_id(j) == CAR)

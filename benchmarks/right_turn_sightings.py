@@ -29,6 +29,7 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))  # measure this checkout, not whichever advperc_ros is installed
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
+from advperc_ros.configs import core_configs  # noqa: E402
 from advperc_ros.core.perception_errors import PerceptionErrors  # noqa: E402
 from advperc_ros.core.metrics.nds import (DIST_THRESHOLDS, TP_METRICS, TP_THRESHOLD, ap_bound,  # noqa: E402
                                           in_range, nds_score)
@@ -64,7 +65,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     args = parser.parse_args()
     scenario = read_scenario(REPO / "bags" / SCENARIO)
-    stack = Stack(scenario, load_params(REPO / "config" / f"{SCENARIO}.yaml").with_values(workers=args.workers))
+    stack = Stack(scenario, core_configs(load_params(REPO / "config" / f"{SCENARIO}.yaml").with_values(workers=args.workers)))
     agents = scenario.agents
     slot = next(j for j in range(agents.shape[1]) if scenario.agent_id(j) == CAR)
     started = time.perf_counter()

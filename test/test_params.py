@@ -2,9 +2,9 @@
 
 import pytest
 
-from advperc_ros import params as params_module
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.params import SCHEMA, find_bag, load_params, params_from_values
+from advperc_ros.params import install as params_module
 
 
 def test_every_construction_is_validated(repo):

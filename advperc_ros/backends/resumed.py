@@ -43,7 +43,6 @@ from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.staging import staging_path
 from advperc_ros.exceptions import ParamsError
-from advperc_ros.params import AttackParams
 
 PARAMS = "params.json"
 ROLLOUTS = "rollouts.jsonl"
@@ -135,11 +134,12 @@ def _table(value: object, name: str, rows: range, width: int, nullable: bool) ->
 
 
 class Checkpoint:
-    """The rollouts of one attack so far, on disk next to its (future) results folder."""
+    """The rollouts of one attack so far, on disk next to its (future) results folder; `canonical` is
+    the attack's `CoreConfigs.canonical`, what its results are a function of."""
 
-    def __init__(self, output: Path, params: AttackParams, scenario: Scenario, resume: bool) -> None:
+    def __init__(self, output: Path, canonical: str, scenario: Scenario, resume: bool) -> None:
         self.folder = checkpoint_folder(output)
-        self._identity = json.dumps(params.canonical(), sort_keys=True)
+        self._identity = canonical
         if os.path.lexists(self.folder) and (self.folder.is_symlink() or not self.folder.is_dir()):
             raise self._damaged(self.folder, "not a folder")
         rollouts = self.folder / ROLLOUTS

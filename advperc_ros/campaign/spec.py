@@ -19,8 +19,9 @@ from pathlib import Path
 from typing import Any
 
 from advperc_ros.backends.embedded import Stack
+from advperc_ros.configs import core_configs
 from advperc_ros.core.search.problem import OBJECTIVES
-from advperc_ros.exceptions import OutputError, ParamsError, PlannerError
+from advperc_ros.exceptions import OutputError, ParamsError, PluginError
 from advperc_ros.exits import INPUT_ERRORS
 from advperc_ros.params import (
     EXECUTION,
@@ -389,8 +390,8 @@ def plan(campaign: Campaign) -> list[Cell]:
         system = json.dumps({k: v for k, v in cell.values.items() if k not in ("objective", "seed")}, sort_keys=True)
         if system not in checked:
             try:
-                Stack(read_scenario(resolve_bag(params)), params)
-            except PlannerError as exc:
+                Stack(read_scenario(resolve_bag(params)), core_configs(params))
+            except PluginError as exc:
                 raise campaign.fail("planners" if campaign.planners else "scenarios", f"cell {cell.name}: {exc}") from None
             except INPUT_ERRORS as exc:
                 raise campaign.fail("replay" if campaign.replay else "scenarios", f"cell {cell.name}: {exc}") from None

@@ -4,6 +4,7 @@ One place for the launch file (launch/attack.launch.py) to turn a params file in
 parameters, so `ros2 launch` and the graph backend's child processes configure the nodes alike.
 """
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -15,11 +16,17 @@ SPECS: tuple[NodeSpec, ...] = tuple(m.SPEC for m in (scenario_player, error_inje
 
 
 def ros_parameters(spec: NodeSpec, params: AttackParams, bag: Path) -> dict[str, Any]:
-    """The node's parameters from validated params, `bag` absolute; the planner's keyword
-    arguments as `planner_params.<key>` (a ROS parameter cannot be a mapping)."""
-    values: dict[str, Any] = {name: params.get(name) for name in spec.params}
-    if "bag" in values:
-        values["bag"] = str(Path(bag).resolve())
+    """The node's parameters from validated params, `bag` absolute (`node_parameters`)."""
+    return node_parameters(spec, params.values(), bag)
+
+
+def node_parameters(spec: NodeSpec, values: Mapping[str, Any], bag: Path) -> dict[str, Any]:
+    """The node's parameters from validated params' dotted values (`AttackParams.values()`), `bag`
+    absolute; the planner's keyword arguments as `planner_params.<key>` (a ROS parameter cannot be a
+    mapping)."""
+    chosen: dict[str, Any] = {name: values[name] for name in spec.params}
+    if "bag" in chosen:
+        chosen["bag"] = str(Path(bag).resolve())
     if spec.planner_params:
-        values.update({f"{PLANNER_PARAMS}.{key}": value for key, value in params.planner_params.items()})
-    return values
+        chosen.update({f"{PLANNER_PARAMS}.{key}": value for key, value in values[PLANNER_PARAMS].items()})
+    return chosen

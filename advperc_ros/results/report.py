@@ -11,7 +11,7 @@ from importlib import metadata
 from pathlib import Path
 
 from advperc_ros import __version__
-from advperc_ros.core.perception_errors import parse_error_kinds
+from advperc_ros.configs import error_kinds
 from advperc_ros.core.rules.base import RuleValue
 from advperc_ros.core.rules.inputs import rule_inputs
 from advperc_ros.core.rules.registry import evaluate_rulebook
@@ -91,7 +91,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         "planner": params.planner,
         "objective": params.objective,
         "attacked_layer": params.attacked_layer,
-        "error_kinds": {"enabled": list(parse_error_kinds(params.errors.kinds))},
+        "error_kinds": {"enabled": list(error_kinds(params))},
         "seed": params.seed,
         "collision": best is not None,
         "min_signed_distance": None,
@@ -114,7 +114,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
             **report_scores(best),
         )
-        costs = kind_costs(outcome.scenario, best, params.objective, parse_error_kinds(params.errors.kinds))
+        costs = kind_costs(outcome.scenario, best, params.objective, error_kinds(params))
         report["error_kinds"].update(used=list(costs), cost={kind: _finite_or_none(cost) for kind, cost in costs.items()})
     else:
         report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,

@@ -25,18 +25,29 @@ colours, textures, meshes, or big endian through rosbags), since external nodes 
 import functools
 import math
 import struct
+from collections.abc import Mapping
 from typing import Any, NamedTuple, overload
 
 import numpy as np
 from numpy.typing import ArrayLike
 from rosbags.serde import SerdeError
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from advperc_ros.exceptions import MessageError
-from advperc_ros.ros import stack_types
 
-TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-stack_types.register(TYPESTORE)  # Autoware's and vision_msgs' types beside the core ones
+TYPESTORE = get_typestore(Stores.ROS2_JAZZY)  # an interface profile's own types join it (`register_types`)
+
+
+def register_types(definitions: Mapping[str, str]) -> None:
+    """Add a stack's own message types (`.msg` text per `pkg/msg/Type` name) to `TYPESTORE`, so bags,
+    these codecs and the bare-DDS transport speak them as rclpy does: what an interface profile whose
+    types the Jazzy typestore lacks does as its module loads (`Profile.message_types`)."""
+    types: dict[str, Any] = {}
+    for name, text in definitions.items():
+        types.update(get_types_from_msg(text, name))
+    TYPESTORE.register(types)
+
+
 # a message's CDR as it comes: bytes from rclpy and Cyclone, a memoryview from rosbags' serialize_cdr
 Cdr = bytes | memoryview
 MARKER_ARRAY = "visualization_msgs/msg/MarkerArray"

@@ -52,20 +52,17 @@ MAX_FRAMES = 100_000
 Decoder = Callable[[cdr.Cdr, str], tuple[int | None, Objects]]
 
 
-def _decoders() -> dict[str, Decoder]:
-    """Every objects type a bundled profile speaks -> its decoder (the profiles' own: one reading)."""
+def object_decoders() -> dict[str, Decoder]:
+    """Every objects type a bundled profile speaks -> its decoder (the profiles' own: one reading), in
+    the order of their layers' `import_rank`: when a log holds several objects topics, what the planner
+    saw first (predictions, tracks), detections last."""
+    profiles = [load_profile(name) for name in BUNDLED]
+    layers = sorted((layer for profile in profiles for layer in (profile.detections, profile.tracks)),
+                    key=lambda layer: layer.import_rank)
     decoders: dict[str, Decoder] = {}
-    for name in BUNDLED:
-        profile = load_profile(name)
-        for layer in (profile.detections, profile.tracks):
-            decoders.setdefault(layer.msgtype, layer.decode)
+    for layer in layers:
+        decoders.setdefault(layer.msgtype, layer.decode)
     return decoders
-
-
-# when a log holds several objects topics: what the planner saw first (predictions, tracks), detections last
-RANK = ("autoware_perception_msgs/msg/PredictedObjects", "autoware_perception_msgs/msg/TrackedObjects",
-        "visualization_msgs/msg/MarkerArray", "autoware_perception_msgs/msg/DetectedObjects",
-        "vision_msgs/msg/Detection3DArray")
 
 
 @dataclass(frozen=True)
@@ -202,8 +199,8 @@ def import_drive(path: str | Path, objects_topic: str | None = None, odometry_to
     if not (dt > 0.0 and math.isfinite(dt)):
         raise BagError(f"{path}: the frame period must be a positive number of seconds, got {dt}")
     listing = bags.bag_topics(path)
-    decoders = _decoders()
-    objects_topic = _choose(path, listing, objects_topic, tuple(t for t in RANK if t in decoders), (), "objects",
+    decoders = object_decoders()
+    objects_topic = _choose(path, listing, objects_topic, tuple(decoders), (), "objects",
                             "--objects")
     odometry_topic = _choose(path, listing, odometry_topic, (ODOMETRY_TYPE,), ODOMETRY_TOPICS, "odometry",
                              "--odometry")

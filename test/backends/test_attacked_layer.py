@@ -10,6 +10,7 @@ def test_the_tracked_objects_as_the_attacked_layer_leave_our_tracker_out_and_say
     objects themselves, so a dropped agent is gone at once, with no track coasting on; the report says
     which layer was attacked."""
     from advperc_ros.backends.embedded import Stack
+    from advperc_ros.configs import core_configs
     from advperc_ros.core.perception_errors import PerceptionErrors
     from advperc_ros.core.tracker import NoTracker, Tracker
     from advperc_ros.params import load_params
@@ -17,7 +18,8 @@ def test_the_tracked_objects_as_the_attacked_layer_leave_our_tracker_out_and_say
 
     params = load_params(write_params(tmp_path / "p.yaml", repo, attacked_layer="tracks"))
     scenario = read_scenario(params.bag)
-    stack, paper = Stack(scenario, params), Stack(scenario, params.with_values(attacked_layer="detections"))
+    stack = Stack(scenario, core_configs(params))
+    paper = Stack(scenario, core_configs(params.with_values(attacked_layer="detections")))
     assert isinstance(stack.tracker, NoTracker) and isinstance(paper.tracker, Tracker)
     errors = PerceptionErrors.none(*scenario.agents.shape).with_drop(0, 20, 21)  # agent 0 missing at frame 20 only
     direct, tracked = stack.rollout(errors, record=True), paper.rollout(errors, record=True)

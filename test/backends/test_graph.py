@@ -25,6 +25,7 @@ pytest.importorskip("cyclonedds", reason="cyclonedds (PyPI) is not installed; th
 from conftest import REPO, bare_dds_domains, need_ros  # noqa: E402
 
 from advperc_ros.backends.embedded import Stack  # noqa: E402
+from advperc_ros.configs import core_configs  # noqa: E402
 from advperc_ros.cli import main as advperc  # noqa: E402
 from advperc_ros.core.perception_errors import ERROR_KINDS, PerceptionErrors  # noqa: E402
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
@@ -256,14 +257,14 @@ def test_graph_rollouts_with_the_obp_planner_equal_embedded_ones(tmp_path):
     params = load_params(path)
     obp = read_scenario(REPO / "bags" / "obp_overtake")
     attack = PerceptionErrors.none(*obp.agents.shape).with_drop(0, 40, obp.num_frames - 1)
-    with GraphRollouts(obp, params, REPO / "bags" / "obp_overtake") as graph:
-        assert_same_rollout(graph.rollout(attack), Stack(obp, params).rollout(attack))
+    with GraphRollouts(obp, core_configs(params), REPO / "bags" / "obp_overtake") as graph:
+        assert_same_rollout(graph.rollout(attack), Stack(obp, core_configs(params)).rollout(attack))
 
 
 def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
     params = load_params(params_for(tmp_path))
-    stack = Stack(scenario, params)
-    with GraphRollouts(scenario, params, BAG) as graph:
+    stack = Stack(scenario, core_configs(params))
+    with GraphRollouts(scenario, core_configs(params), BAG) as graph:
         assert graph.perception_ahead  # our nodes, driven by messages: the ground truth runs a frame ahead
         assert sorted(graph.processes.running) == sorted(("scenario_player", "error_injector", "tracker", "planner", "rule_monitor"))
         assert len({p.pid for p in graph.processes.running.values()} | {os.getpid()}) == 6
@@ -318,9 +319,9 @@ def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path
     either (and, with the tracked objects as the attacked layer, no tracker in between on either)."""
     params = load_params(params_for(tmp_path, **{"graph.interface": interface, "graph.drive": drive,
                                                  "attacked_layer": layer}))
-    stack = Stack(scenario, params)
+    stack = Stack(scenario, core_configs(params))
     attack = lead_drop(scenario)
-    with GraphRollouts(scenario, params, BAG) as graph:
+    with GraphRollouts(scenario, core_configs(params), BAG) as graph:
         assert graph.perception_ahead is (drive == "messages")  # a clock-driven planner gets each frame in turn
         result = graph.rollout(attack, record=True)
     embedded = stack.rollout(attack, record=True)
@@ -331,7 +332,7 @@ def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path
     for got, want in zip(result.plans, embedded.plans):
         np.testing.assert_allclose(got.t, want.t, rtol=0, atol=TOLERANCE)
     if interface == "vision_msgs":  # the interface changed what the planner saw: not the MarkerArray rollout
-        markers = Stack(scenario, params.with_values(**{"graph.interface": "advperc"})).rollout(attack, record=True)
+        markers = Stack(scenario, core_configs(params.with_values(**{"graph.interface": "advperc"}))).rollout(attack, record=True)
         assert any(not np.allclose(a["vx"], b["vx"]) for a, b in zip(markers.tracks, embedded.tracks) if len(a["vx"]) == len(b["vx"]))
 
 
@@ -358,8 +359,8 @@ def test_an_inconclusive_warm_up_is_sent_again_before_the_search_starts(tmp_path
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
     params = load_params(params_for(tmp_path, planner="test_graph:UnreadyPlanner"))
     truth = PerceptionErrors.none(*scenario.agents.shape)
-    expected = Stack(scenario, params.with_values(planner="idm")).rollout(truth)
-    with GraphRollouts(scenario, params, BAG) as graph:
+    expected = Stack(scenario, core_configs(params.with_values(planner="idm"))).rollout(truth)
+    with GraphRollouts(scenario, core_configs(params), BAG) as graph:
         assert_same_rollout(graph.rollout(truth), expected)  # the first rollout after the warm-up
 
 
@@ -371,9 +372,9 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
     params = load_params(params_for(tmp_path, planner="test_graph:HangingPlanner", **{"graph.timeout": 2.0}))
     truth = PerceptionErrors.none(*scenario.agents.shape)
-    expected = Stack(scenario, params.with_values(planner="idm")).rollout(truth)
+    expected = Stack(scenario, core_configs(params.with_values(planner="idm"))).rollout(truth)
     caplog.set_level("ERROR", logger="advperc_ros.backends.graph")
-    with GraphRollouts(scenario, params, BAG) as graph:
+    with GraphRollouts(scenario, core_configs(params), BAG) as graph:
         # killed mid-rollout: once the planner hangs at t >= 2 s, kill its process
         arm.touch()
         planner = graph.processes.running["planner"]

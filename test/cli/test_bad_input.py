@@ -20,6 +20,7 @@ import yaml
 from advperc_ros.application import output_lock
 from advperc_ros.backends.resumed import ROLLOUTS, Checkpoint, checkpoint_folder
 from advperc_ros.cli import main
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.params import load_params
@@ -138,7 +139,8 @@ def _checkpoint(output: Path, params: str, seed: int = 0) -> None:
     """A checkpoint of three made-up rollouts of the good bag, written by the attack's own writer."""
     scenario = read_scenario(GOOD_BAG)
     frames, agents = scenario.agents.shape
-    checkpoint = Checkpoint(output, dataclasses.replace(load_params(params), seed=seed), scenario, resume=False)
+    checkpoint = Checkpoint(output, core_configs(dataclasses.replace(load_params(params), seed=seed)).canonical, scenario,
+                            resume=False)
     for k in range(3):
         errors = PerceptionErrors.none(frames, agents)
         errors.dx[k] = 1.0

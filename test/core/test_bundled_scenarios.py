@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.backends.embedded import Stack
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.metrics.nds import in_range
 from advperc_ros.core.scenario_spec import load_scenario_spec
@@ -33,7 +34,7 @@ def test_committed_bag_matches_its_description(bundled, repo):
 
 def test_ground_truth_is_collision_free_and_sized_like_the_paper(bundled):
     name, scenario, params_path = bundled
-    stack = Stack(scenario, load_params(params_path))
+    stack = Stack(scenario, core_configs(load_params(params_path)))
     result = stack.rollout(PerceptionErrors.none(*scenario.agents.shape))
     assert result.inconclusive is None
     assert result.num_frames == scenario.num_frames
@@ -45,7 +46,7 @@ def test_ground_truth_is_collision_free_and_sized_like_the_paper(bundled):
 def test_typical_errors_cause_no_collision(idm_bundled):
     """The robustness stand-in: 100 rollouts with 0.2 m / 0.05 rad noise and 5 % single drops."""
     _, scenario, params_path = idm_bundled
-    stack = Stack(scenario, load_params(params_path))
+    stack = Stack(scenario, core_configs(load_params(params_path)))
     rng = np.random.default_rng(12345)
     cfg = TypicalErrorConfig()
     worst = np.inf
@@ -72,7 +73,7 @@ def test_pem_sampled_typical_errors_cause_no_collision(idm_bundled):
     from advperc_ros.core.typical import check_typical
 
     _, scenario, params_path = idm_bundled
-    stack = Stack(scenario, load_params(params_path))
+    stack = Stack(scenario, core_configs(load_params(params_path)))
     result = check_typical(scenario, stack.rollout, default_pem(), TYPICAL_SAMPLES, np.random.default_rng(0))
     assert result.passed, result
     assert result.min_signed_distance > 0.0

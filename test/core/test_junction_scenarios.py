@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from advperc_ros.backends.embedded import Stack
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
@@ -23,7 +24,7 @@ TYPICAL_SAMPLES = 5  # each ObP rollout takes seconds; `advperc check-typical` r
 def junction(request, repo):
     name = request.param
     scenario = read_scenario(repo / "bags" / name)
-    stack = Stack(scenario, load_params(repo / "config" / f"{name}.yaml"))
+    stack = Stack(scenario, core_configs(load_params(repo / "config" / f"{name}.yaml")))
     target_lane, yield_to = JUNCTIONS[name]
     slot = int(np.flatnonzero(scenario.agents.ids[0] == yield_to)[0])
     lane = next(lane for lane in scenario.lanes if lane.id == target_lane)

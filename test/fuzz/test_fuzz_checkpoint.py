@@ -23,6 +23,7 @@ from test_checkpoint import Kept, joined, kept_checkpoint
 from test_fuzz_params import one_line_naming
 
 from advperc_ros.backends.resumed import FIELDS, PARAMS, ROLLOUTS, Checkpoint, Stored, checkpoint_folder
+from advperc_ros.configs import core_configs
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.params import AttackParams, load_params
@@ -54,7 +55,7 @@ def attack(kept, tmp_path_factory) -> Attack:
     params, scenario = load_params(kept.params), read_scenario(REPO / "bags" / "idm_lane_following")
     output = tmp_path_factory.mktemp("whole") / "out"
     shutil.copytree(kept.checkpoint, checkpoint_folder(output))
-    checkpoint = Checkpoint(output, params, scenario, resume=True)
+    checkpoint = Checkpoint(output, core_configs(params).canonical, scenario, resume=True)
     checkpoint.close(finished=False)
     assert len(checkpoint.done) == len(kept.lines)
     return Attack(params, scenario, checkpoint.done)
@@ -68,7 +69,7 @@ def load(kept: Kept, attack: Attack, folder: Path, name: str, data: bytes) -> li
     path = checkpoint_folder(output) / name
     path.write_bytes(data)
     try:
-        checkpoint = Checkpoint(output, attack.params, attack.scenario, resume=True)
+        checkpoint = Checkpoint(output, core_configs(attack.params).canonical, attack.scenario, resume=True)
     except ParamsError as exc:
         one_line_naming(exc, path)
         assert path.read_bytes() == data, "a refused checkpoint was changed"

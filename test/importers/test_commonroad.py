@@ -14,6 +14,7 @@ from conftest import REPO
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.feasibility import unavoidable_collision
 from advperc_ros.core.scenario_spec import build_scenario
@@ -108,7 +109,7 @@ def test_urban_turn_imports_for_both_planners_and_obp_drives_it(tmp_path, common
     assert idm.bag == obp.bag == reactive.bag == str(bag.resolve())
 
     scenario = read_scenario(bag)
-    result = Stack(scenario, obp).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    result = Stack(scenario, core_configs(obp)).rollout(PerceptionErrors.none(*scenario.agents.shape))
     assert result.inconclusive is None and result.num_frames == scenario.num_frames
     heading = np.unwrap(result.ego[:, 2])
     assert heading.max() - heading.min() > 1.0  # the ego turned (about 1.5 rad)
@@ -135,7 +136,7 @@ def test_a_junction_tighter_than_a_car_turns_is_rounded_and_obp_drives_it(tmp_pa
     gaps = np.linalg.norm(scenario.route.points[:, None, :] - centres[None, :, :], axis=2).min(axis=1)
     assert gaps.max() < 1.0
     obp = load_params(tmp_path / "bag.obp.yaml")
-    stack = Stack(scenario, obp)
+    stack = Stack(scenario, core_configs(obp))
     result = stack.rollout(PerceptionErrors.none(*scenario.agents.shape))
     assert result.inconclusive is None and result.planner_failures == 0 and not result.collided
     heading = np.unwrap(result.ego[:, 2])

@@ -24,6 +24,7 @@ from conftest import REPO
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.params import load_params
 from advperc_ros.results.folder import load_errors
@@ -76,7 +77,7 @@ def test_a_recording_is_attacked_or_says_why_not(name, planner, shift, tmp_path,
     err = capsys.readouterr().err
     params = load_params(params_path)
     scenario = read_scenario(bag)
-    truth = Stack(scenario, params).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    truth = Stack(scenario, core_configs(params)).rollout(PerceptionErrors.none(*scenario.agents.shape))
     if code == 1:  # refused: the planner collides at fault unattacked
         assert "already collides with perfect perception" in err and truth.collided
         return
@@ -84,7 +85,7 @@ def test_a_recording_is_attacked_or_says_why_not(name, planner, shift, tmp_path,
     assert not truth.collided  # what was attacked had no at-fault collision to begin with
     report = json.loads((tmp_path / "out" / "report.json").read_text())
     if report["collision"]:
-        attacked = Stack(scenario, params).rollout(load_errors(tmp_path / "out" / "attack_errors.npz"))
+        attacked = Stack(scenario, core_configs(params)).rollout(load_errors(tmp_path / "out" / "attack_errors.npz"))
         # at fault: with rule.at_fault_only, excused contacts (rear-ended, hit while stopped) do not count
         assert attacked.collided and attacked.excused is not None
         assert report["nds"] is not None and report["nds_t"] is not None

@@ -10,6 +10,7 @@ from test_cli import write_params
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rules.registry import RULES
 from advperc_ros.params import load_params, resolve_bag
@@ -70,7 +71,7 @@ def test_report_md_shows_every_rule_for_the_attack_and_the_ground_truth(attack):
 def test_without_an_attack_the_ground_truth_is_still_judged(repo):
     params = load_params(repo / "config" / "idm_lane_following.yaml")
     scenario = read_scenario(resolve_bag(params))
-    truth = Stack(scenario, params).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    truth = Stack(scenario, core_configs(params)).rollout(PerceptionErrors.none(*scenario.agents.shape))
     outcome = AttackOutcome(scenario=scenario, params=params, heuristic_best=None, best=None, recorded=None, log=[],
                             wall_time_s=0.0, ground_truth=truth)
     judged = rulebook(outcome)

@@ -16,6 +16,7 @@ from test_cli import SMALL_SEARCH
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
+from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.params import AttackParams
@@ -49,7 +50,7 @@ def write_log(path: Path, topics: dict[str, tuple[str, list[tuple[int, bytes]]]]
 def drive_of(scenario):
     """The ego's recorded drive: the bundled planner's ground-truth rollout (what a log of that drive holds)."""
     params = AttackParams(bag=str(BUNDLED))
-    rollout = Stack(scenario, params).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    rollout = Stack(scenario, core_configs(params)).rollout(PerceptionErrors.none(*scenario.agents.shape))
     return [EgoState(*row) for row in rollout.ego]
 
 

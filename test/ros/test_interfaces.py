@@ -14,13 +14,12 @@ from conftest import REPO, need_ros
 from advperc_ros.core.boxes import BOX_FIELDS
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.planners.base import EMPTY_PLAN, Trajectory
-from advperc_ros.exceptions import MessageError, UnknownProfile
+from advperc_ros.exceptions import MessageError, PluginError
 from advperc_ros.params import SCHEMA
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.interfaces import autoware
 from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
-from advperc_ros.ros.stack_types import DEFINITIONS
 
 T = cdr.TYPESTORE.types
 STAMP = 1_700_000_123_456_789_012
@@ -170,7 +169,7 @@ def test_two_objects_with_one_uuid_are_refused():
 
 def test_the_schema_offers_exactly_the_registered_profiles():
     assert SCHEMA["graph.interface"].choices == tuple(BUNDLED)
-    with pytest.raises(UnknownProfile, match="unknown interface 'ros1' \\(interfaces: advperc, autoware"):
+    with pytest.raises(PluginError, match="unknown interface 'ros1' \\(interfaces: advperc, autoware"):
         load_profile("ros1")
 
 
@@ -178,6 +177,10 @@ def _share(package: str) -> Path:
     from ament_index_python.packages import get_package_share_directory
 
     return Path(get_package_share_directory(package))
+
+
+DEFINITIONS = {msgtype: text for name in BUNDLED for msgtype, text in load_profile(name).message_types.items()}
+"""Every stack's own message type a bundled profile carries."""
 
 
 @pytest.mark.parametrize("msgtype", sorted(DEFINITIONS))

@@ -1,6 +1,6 @@
 """The graph backend the search uses: every rollout through the node graph, the nodes separate processes.
 
-`GraphRollouts(scenario, params, bag_path)` starts scenario_player, error_injector, tracker,
+`GraphRollouts(scenario, configs, bag_path)` starts scenario_player, error_injector, tracker,
 planner and rule_monitor as child processes speaking Cyclone DDS on `dds.domain_id` (loopback
 only unless `dds.localhost_only` is false), or, with `graph.spawn_nodes: false`, uses nodes that
 already run (launch/attack.launch.py, an external planner). `rollout(errors)` then returns the
@@ -41,15 +41,13 @@ from advperc_ros.backends.base import EXTERNAL, AttackedPlanner
 from advperc_ros.backends.graph.assembly import assemble, frames_in, kept_frames
 from advperc_ros.backends.graph.client import SPIN, LockstepClient
 from advperc_ros.backends.graph.processes import NodeProcesses
-from advperc_ros.configs import CoreConfigs, core_configs
+from advperc_ros.configs import CoreConfigs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import GraphError, RolloutFault
-from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
-from advperc_ros.params import AttackParams
+from advperc_ros.nodes.graph_nodes import SPECS, node_parameters
 from advperc_ros.ros.interfaces.base import Profile
-from advperc_ros.ros.interfaces.registry import load_profile
 from advperc_ros.ros.lockstep import Status
 from advperc_ros.ros.topics import ERRORS, PRESENCE
 from advperc_ros.ros.transport import Transport
@@ -68,27 +66,29 @@ class GraphRollouts:
     `transport` (an rclpy node's `RclpyTransport`) is for `graph.spawn_nodes: false` only: nodes
     we start are reached over a Cyclone participant of our own, recreated with them on a restart."""
 
-    def __init__(self, scenario: Scenario, params: AttackParams, bag_path: Path,
-                 transport: Transport | None = None, configs: CoreConfigs | None = None) -> None:
+    def __init__(self, scenario: Scenario, configs: CoreConfigs, bag_path: Path,
+                 transport: Transport | None = None) -> None:
         self.scenario = scenario
-        self.params = params
-        self.profile = load_profile(params.graph.interface)
+        self.planner = configs.planner.name
+        self.execution = execution = configs.execution
+        self.stop_at_collision = configs.rollout.stop_at_collision
+        self.profile = configs.profile
         self._given_transport = transport
         agents = scenario.agents
         self._agent_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]
         self._slots = {int(agent): j for j, agent in enumerate(self._agent_ids)}
         self._stamps = [int(s) for s in scenario.stamps_ns]
-        params_json = json.dumps({**params.values(), "bag": str(Path(bag_path).resolve())})
+        params_json = json.dumps({**execution.node_values, "bag": str(Path(bag_path).resolve())})
         # nodes we start under an rclpy orchestrator are rclpy nodes too, visible to the ROS tools
-        ros_nodes = ({spec.name: ros_parameters(spec, params, Path(bag_path)) for spec in SPECS}
-                     if transport is not None and params.graph.spawn_nodes else None)
+        ros_nodes = ({spec.name: node_parameters(spec, execution.node_values, Path(bag_path)) for spec in SPECS}
+                     if transport is not None and execution.spawn_nodes else None)
         # a bare graph we start talks in a DDS partition of its own: any number of them share a domain
         # (rclpy nodes cannot: another graph on their domain is refused at start, see `_refuse_others`)
         self._partition = (f"advperc-{os.getpid()}-{secrets.token_hex(4)}"
-                           if params.graph.spawn_nodes and ros_nodes is None else "")
-        self.processes = NodeProcesses(params_json, params.dds.domain_id, params.dds.localhost_only, self._partition,
+                           if execution.spawn_nodes and ros_nodes is None else "")
+        self.processes = NodeProcesses(params_json, execution.domain_id, execution.localhost_only, self._partition,
                                        ros_nodes)
-        self._config = (configs if configs is not None else core_configs(params)).rollout
+        self._config = configs.rollout
         self._client: LockstepClient | None = None
         self._own_transport: Any = None  # a DdsTransport we made (not the given one), closed with the graph
         self._recording = False
@@ -104,11 +104,11 @@ class GraphRollouts:
         not the params' own, and the params' planner and planner_params then do not apply."""
         attacked = self.attacked_planner
         if attacked.node is None:
-            said = f"attacking our planner node ({self.params.planner})"
+            said = f"attacking our planner node ({self.planner})"
         else:
             version = f" version {attacked.version}" if attacked.version is not None else ""
             said = (f"attacking the external planner {attacked.node or '(bare DDS names no nodes)'}{version} on "
-                    f"{self.profile.plan.topic}; the params' planner '{self.params.planner}' and its planner_params "
+                    f"{self.profile.plan.topic}; the params' planner '{self.planner}' and its planner_params "
                     "do not apply to it")
         if attacked.tracker_node is not None:
             said += f"; tracks from the external tracker {attacked.tracker_node or '(unnamed)'}"
@@ -118,11 +118,11 @@ class GraphRollouts:
 
     def _start(self) -> None:
         deadline = time.monotonic() + STARTUP_TIMEOUT
-        if self.params.graph.spawn_nodes:
+        if self.execution.spawn_nodes:
             self.processes.start()
         if self._client is None:  # a given transport keeps its client (and its rollout ids) across restarts
             self._client = LockstepClient(self._transport(), self._agent_ids, self.scenario.stamps_ns,
-                                          self.params.stop_at_collision, self.profile)
+                                          self.stop_at_collision, self.profile)
             if self._recording:
                 self.client.record_too()
         while self._missing():
@@ -151,7 +151,7 @@ class GraphRollouts:
         from advperc_ros.ros.dds import DdsTransport
 
         try:
-            self._own_transport = DdsTransport(self.params.dds.domain_id, self.params.dds.localhost_only,
+            self._own_transport = DdsTransport(self.execution.domain_id, self.execution.localhost_only,
                                                self._partition)
         except DdsError as exc:
             raise GraphError(str(exc)) from exc
@@ -178,7 +178,7 @@ class GraphRollouts:
         ours = {process.pid for process in self.processes.running.values()}
         found = []
         for name, pids in sorted(self.client.announced.items()):
-            strangers = sorted(pids - ours) if self.params.graph.spawn_nodes else sorted(pids)[1:]
+            strangers = sorted(pids - ours) if self.execution.spawn_nodes else sorted(pids)[1:]
             found += [f"{name} pid {pid}" for pid in strangers]
         if found:
             domain = "ROS_DOMAIN_ID" if self._given_transport is not None else "dds.domain_id"
@@ -195,14 +195,14 @@ class GraphRollouts:
 
         tracker = None if self._ours(TRACKER_NODE) else publishers(self.profile.tracks.topic)
         if self._ours(PLANNER_NODE):
-            return AttackedPlanner(self.params.planner, tracker_node=tracker)
+            return AttackedPlanner(self.planner, tracker_node=tracker)
         node = publishers(self.profile.plan.topic)
         return AttackedPlanner(EXTERNAL, node, tracker, self.client.versions.get(node.rsplit("/", 1)[-1]))
 
     def _ours(self, node: str) -> bool:
         """Whether the graph's `node` is ours: started by us, or announced on /attack/nodes (the launch
         file configures it from the same params)."""
-        return self.params.graph.spawn_nodes or node in self.client.present
+        return self.execution.spawn_nodes or node in self.client.present
 
     @property
     def perception_ahead(self) -> bool:
@@ -210,7 +210,7 @@ class GraphRollouts:
         "Perception one frame ahead"): only for our tracker and planner, which pair their inputs by
         stamp, and only when messages drive the planner; a team's node may take the latest message
         it holds instead, which would then be a frame early."""
-        return self.params.graph.drive == "messages" and self._ours(TRACKER_NODE) and self._ours(PLANNER_NODE)
+        return self.execution.drive == "messages" and self._ours(TRACKER_NODE) and self._ours(PLANNER_NODE)
 
     def _warm_up(self, deadline: float) -> None:
         """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
@@ -240,7 +240,7 @@ class GraphRollouts:
     def _restart(self) -> None:
         """Fresh node processes and a fresh participant (the old latched /attack/errors goes with
         it); nodes we did not start are left as they are."""
-        if self.params.graph.spawn_nodes:
+        if self.execution.spawn_nodes:
             self.processes.stop(kill=True)
             if self._given_transport is None:
                 self._close_own_transport()
@@ -272,11 +272,11 @@ class GraphRollouts:
         client = self.client
         rollout = client.send(errors, self.perception_ahead)
         try:
-            done = client.collect(rollout, self.params.graph.timeout + GRACE, record, self.processes.dead)
+            done = client.collect(rollout, self.execution.graph_timeout + GRACE, record, self.processes.dead)
         except RolloutFault as raised:
             fault = self._named(raised)
             log.error(f"rollout {rollout} inconclusive: {fault}; "
-                      + ("restarting the graph nodes" if self.params.graph.spawn_nodes
+                      + ("restarting the graph nodes" if self.execution.spawn_nodes
                          else "going on with the running nodes"))
             result = self._judged(client.received, frames_in(client.received, self._stamps),
                               f"graph failure in rollout {rollout}: {fault}", None)
@@ -286,7 +286,7 @@ class GraphRollouts:
             return result
         if done.reason:
             log.warning(f"rollout {rollout} {done.status}: {done.reason}")
-        recorded = kept_frames(client.received, self._stamps, done, self.params.stop_at_collision) if record else None
+        recorded = kept_frames(client.received, self._stamps, done, self.stop_at_collision) if record else None
         return self._judged(client.received, done.frames, done.reason or None, recorded)
 
     def _judged(self, received: dict, frames: int, inconclusive: str | None,

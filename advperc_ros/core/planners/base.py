@@ -13,7 +13,6 @@ import numpy as np
 
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.scenario import EgoState, Lane
-from advperc_ros.exceptions import PlannerError as PlannerError  # re-exported: its home before exceptions.py
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """The bundled planners' parameters: one rule for what a params file may give each field of a
 planner's frozen config dataclass, one for ranges. A bad value raises TypeError (wrong kind, unknown
 name) or ValueError (out of range) naming the parameter, at construction; `load_planner` turns
-either into a PlannerError naming the planner as well."""
+either into a PluginError naming the planner as well."""
 
 import math
 from dataclasses import fields

@@ -1,12 +1,11 @@
-"""Search methods by name, imported only when asked for (as the planners' registry).
+"""Search methods by name, imported only when asked for (`core.plugins`, as every plug-in).
 
 Adding a method: a module with a class that has the `method.SearchMethod` protocol, and one line
 here. `search.method`'s allowed values (advperc_ros.params) and `advperc attack --method` come
 from this table.
 """
 
-import importlib
-
+from advperc_ros.core.plugins import PluginKind, load
 from advperc_ros.core.search.config import SearchConfig
 from advperc_ros.core.search.method import SearchMethod
 from advperc_ros.core.search.problem import Phase, PhaseLabel
@@ -16,14 +15,13 @@ METHODS = {
     "paper": "advperc_ros.core.search.paper:PaperMethod",
     "guided": "advperc_ros.core.search.guided:GuidedMethod",
 }
+SEARCH_METHODS = PluginKind("search method", METHODS, type, "a class", plug_ins=False)
 
 
 def method_class(name: str) -> type[SearchMethod]:
-    """The class of the method `name` (a key of METHODS)."""
-    if name not in METHODS:
-        raise ValueError(f"unknown search method '{name}' (known: {', '.join(METHODS)})")
-    module_name, _, class_name = METHODS[name].partition(":")
-    return getattr(importlib.import_module(module_name), class_name)
+    """The class of the method `name` (a key of METHODS); a PluginError otherwise."""
+    cls: type[SearchMethod] = load(name, SEARCH_METHODS)
+    return cls
 
 
 def search_method(config: SearchConfig) -> SearchMethod:

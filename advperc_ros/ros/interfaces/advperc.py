@@ -20,8 +20,9 @@ PROFILE = Profile(
     name="advperc",
     description="this package's own: MarkerArray boxes on /perception/objects and /tracking/objects, "
                 "nav_msgs/Path plans on /planning/trajectory, Odometry on /ego/odometry",
-    detections=ObjectsLayer(PERCEPTION, TOPIC_TYPES[PERCEPTION], cdr.encode_objects, cdr.decode_objects),
-    tracks=ObjectsLayer(TRACKING, TOPIC_TYPES[TRACKING], cdr.encode_objects, cdr.decode_objects),
+    detections=ObjectsLayer(PERCEPTION, TOPIC_TYPES[PERCEPTION], cdr.encode_objects, cdr.decode_objects,
+                            import_rank=2),
+    tracks=ObjectsLayer(TRACKING, TOPIC_TYPES[TRACKING], cdr.encode_objects, cdr.decode_objects, import_rank=2),
     plan=PlanLayer(PLAN, TOPIC_TYPES[PLAN], msgs.trajectory_cdr, decode_path),
     ego_topic=ODOMETRY,
 )

@@ -34,9 +34,119 @@ from advperc_ros.core.boxes import BOX_FIELDS
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.cdr import TYPESTORE, Cdr, deserialize, quaternion_yaw
+from advperc_ros.ros.cdr import TYPESTORE, Cdr, deserialize, quaternion_yaw, register_types
 from advperc_ros.ros.interfaces.base import Objects, ObjectsLayer, PlanLayer, Profile, objects_from_rows
 
+AUTOWARE = "autoware_perception_msgs/msg/"
+PLANNING = "autoware_planning_msgs/msg/"
+MESSAGE_TYPES: dict[str, str] = {
+    AUTOWARE + "ObjectClassification": """
+uint8 UNKNOWN=0
+uint8 CAR=1
+uint8 TRUCK=2
+uint8 BUS=3
+uint8 TRAILER=4
+uint8 MOTORCYCLE=5
+uint8 BICYCLE=6
+uint8 PEDESTRIAN=7
+uint8 ANIMAL=8
+uint8 HAZARD=9
+uint8 OVER_DRIVABLE=10
+uint8 UNDER_DRIVABLE=11
+uint8 label
+float32 probability
+""",
+    AUTOWARE + "Shape": """
+uint8 BOUNDING_BOX=0
+uint8 CYLINDER=1
+uint8 POLYGON=2
+uint8 type
+geometry_msgs/Polygon footprint
+geometry_msgs/Vector3 dimensions
+""",
+    AUTOWARE + "DetectedObjectKinematics": """
+uint8 UNAVAILABLE=0
+uint8 SIGN_UNKNOWN=1
+uint8 AVAILABLE=2
+geometry_msgs/PoseWithCovariance pose_with_covariance
+bool has_position_covariance
+uint8 orientation_availability
+geometry_msgs/TwistWithCovariance twist_with_covariance
+bool has_twist
+bool has_twist_covariance
+""",
+    AUTOWARE + "DetectedObject": """
+float32 existence_probability
+autoware_perception_msgs/ObjectClassification[] classification
+autoware_perception_msgs/DetectedObjectKinematics kinematics
+autoware_perception_msgs/Shape shape
+""",
+    AUTOWARE + "DetectedObjects": """
+std_msgs/Header header
+autoware_perception_msgs/DetectedObject[] objects
+""",
+    AUTOWARE + "TrackedObjectKinematics": """
+uint8 UNAVAILABLE=0
+uint8 SIGN_UNKNOWN=1
+uint8 AVAILABLE=2
+geometry_msgs/PoseWithCovariance pose_with_covariance
+geometry_msgs/TwistWithCovariance twist_with_covariance
+geometry_msgs/AccelWithCovariance acceleration_with_covariance
+uint8 orientation_availability
+bool is_stationary
+""",
+    AUTOWARE + "TrackedObject": """
+unique_identifier_msgs/UUID object_id
+float32 existence_probability
+autoware_perception_msgs/ObjectClassification[] classification
+autoware_perception_msgs/TrackedObjectKinematics kinematics
+autoware_perception_msgs/Shape shape
+""",
+    AUTOWARE + "TrackedObjects": """
+std_msgs/Header header
+autoware_perception_msgs/TrackedObject[] objects
+""",
+    AUTOWARE + "PredictedPath": """
+geometry_msgs/Pose[] path
+builtin_interfaces/Duration time_step
+float32 confidence
+""",
+    AUTOWARE + "PredictedObjectKinematics": """
+geometry_msgs/PoseWithCovariance initial_pose_with_covariance
+geometry_msgs/TwistWithCovariance initial_twist_with_covariance
+geometry_msgs/AccelWithCovariance initial_acceleration_with_covariance
+autoware_perception_msgs/PredictedPath[] predicted_paths
+""",
+    AUTOWARE + "PredictedObject": """
+unique_identifier_msgs/UUID object_id
+float32 existence_probability
+autoware_perception_msgs/ObjectClassification[] classification
+autoware_perception_msgs/PredictedObjectKinematics kinematics
+autoware_perception_msgs/Shape shape
+""",
+    AUTOWARE + "PredictedObjects": """
+std_msgs/Header header
+autoware_perception_msgs/PredictedObject[] objects
+""",
+    PLANNING + "TrajectoryPoint": """
+builtin_interfaces/Duration time_from_start
+geometry_msgs/Pose pose
+float32 longitudinal_velocity_mps
+float32 lateral_velocity_mps
+float32 acceleration_mps2
+float32 heading_rate_rps
+float32 front_wheel_angle_rad
+float32 rear_wheel_angle_rad
+""",
+    PLANNING + "Trajectory": """
+std_msgs/Header header
+autoware_planning_msgs/TrajectoryPoint[] points
+""",
+}
+"""Autoware's own types (autoware_msgs 1.12.0), which rosbags' Jazzy typestore lacks, as `.msg` text per
+type name: fields and the constants this package writes, the upstream files' comments left out.
+With ROS 2 sourced, test_interfaces holds every type's bytes and RIHS01 hash to the upstream packages'."""
+register_types(MESSAGE_TYPES)
 T = TYPESTORE.types
 DETECTED = "autoware_perception_msgs/msg/DetectedObjects"
 TRACKED = "autoware_perception_msgs/msg/TrackedObjects"
@@ -300,12 +410,13 @@ PROFILE = Profile(
     name="autoware",
     description="Autoware's types and topic names: DetectedObjects in, PredictedObjects to the planner, "
                 "Trajectory back, Odometry on /localization/kinematic_state",
-    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTED, encode_detected, decode_detected),
-    tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted),
+    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTED, encode_detected, decode_detected, import_rank=3),
+    tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted, import_rank=0),
     plan=PlanLayer(TRAJECTORY_TOPIC, TRAJECTORY, encode_trajectory, decode_trajectory),
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,
     transforms_topic=TRANSFORMS_TOPIC,
+    message_types=MESSAGE_TYPES,
 )
 
 TRACKED_PROFILE = Profile(
@@ -313,9 +424,10 @@ TRACKED_PROFILE = Profile(
     description="as autoware, but the tracked objects go out as TrackedObjects on "
                 "/perception/object_recognition/tracking/objects, for a team that brings its own prediction node",
     detections=PROFILE.detections,
-    tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked),
+    tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked, import_rank=1),
     plan=PROFILE.plan,
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,
     transforms_topic=TRANSFORMS_TOPIC,
+    message_types=MESSAGE_TYPES,
 )

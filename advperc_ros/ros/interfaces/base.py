@@ -6,8 +6,8 @@ profile names. A profile is data plus four conversions; which one runs is a para
 (`graph.interface`), never a branch in a node.
 """
 
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -39,12 +39,15 @@ class ObjectsLayer:
 
     `encode(objects, stamp_ns, kind)` gives the CDR payload (`kind` is ground_truth, perception or
     tracking: only a display type uses it); `decode(data, where)` gives (its stamp, or None when the
-    message carries none; the boxes), raising `MessageError` prefixed by `where` on bad input."""
+    message carries none; the boxes), raising `MessageError` prefixed by `where` on bad input.
+    `import_rank` orders the types import-bag reads from a team's drive log when it holds several:
+    lower first, so what the planner saw (predictions, tracks) wins over detections."""
 
     topic: str
     msgtype: str
     encode: Callable[[Objects, int, str], bytes]
     decode: Callable[[Cdr, str], tuple[int | None, Objects]]
+    import_rank: int
     carries_velocity: bool = True  # False: the type has no velocity field, so decoded vx, vy are 0
 
 
@@ -68,7 +71,9 @@ class Profile:
     """The types and topic names of one stack: what the injector publishes as detections, what the
     tracker reads and publishes, what a planner reads (tracks and the ego's odometry, always
     nav_msgs/Odometry, and its acceleration where the stack has a topic for it) and publishes.
-    Topic names are the stack's own, so a team's node runs unchanged (ROS remapping covers the rest)."""
+    Topic names are the stack's own, so a team's node runs unchanged (ROS remapping covers the rest).
+    `message_types` are the stack's own types the Jazzy typestore lacks (`.msg` text per type name),
+    which the profile's module registers as it loads (`ros.cdr.register_types`)."""
 
     name: str
     description: str
@@ -78,3 +83,4 @@ class Profile:
     ego_topic: str
     acceleration_topic: str | None = None  # where the stack reads the ego's acceleration, if it does
     transforms_topic: str | None = None  # where the stack reads map -> base_link (tf2_msgs/TFMessage), if it does
+    message_types: Mapping[str, str] = field(default_factory=dict)

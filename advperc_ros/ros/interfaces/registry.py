@@ -1,12 +1,12 @@
 """Interface profiles by name (`graph.interface`, launch argument `interface:=`).
 
-Bundled profiles are named as `module:attribute` and imported only when asked for, so naming the
-choices (the params schema does) imports no codec.
+Bundled profiles are named as `module:attribute` and imported only when asked for (`core.plugins`),
+so naming the choices (the params schema does) imports no codec. A profile carries all the rest of
+what the package needs of it (its layers' types, topics and codecs; each objects layer's rank for
+import-bag), so adding one is its module and one line here.
 """
 
-import importlib
-
-from advperc_ros.exceptions import UnknownProfile
+from advperc_ros.core.plugins import PluginKind, load
 from advperc_ros.ros.interfaces.base import Profile
 
 BUNDLED = {
@@ -16,12 +16,11 @@ BUNDLED = {
     "vision_msgs": "advperc_ros.ros.interfaces.vision:PROFILE",
 }
 DEFAULT = "advperc"
+PROFILES = PluginKind("interface", BUNDLED, Profile, "an interface profile (ros.interfaces.base.Profile)",
+                      plug_ins=False)
 
 
 def load_profile(name: str) -> Profile:
-    """The bundled profile `name`; an UnknownProfile naming the choices otherwise."""
-    if name not in BUNDLED:
-        raise UnknownProfile(f"unknown interface '{name}' (interfaces: {', '.join(BUNDLED)})")
-    module, _, attribute = BUNDLED[name].partition(":")
-    profile: Profile = getattr(importlib.import_module(module), attribute)
+    """The bundled profile `name`; a PluginError naming the choices otherwise."""
+    profile: Profile = load(name, PROFILES)
     return profile

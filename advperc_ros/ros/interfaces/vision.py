@@ -14,10 +14,38 @@ import math
 import numpy as np
 
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.cdr import TYPESTORE, Cdr, deserialize, quaternion_yaw
+from advperc_ros.ros.cdr import TYPESTORE, Cdr, deserialize, quaternion_yaw, register_types
 from advperc_ros.ros.interfaces import advperc
 from advperc_ros.ros.interfaces.base import Objects, ObjectsLayer, Profile, objects_from_rows
 
+VISION = "vision_msgs/msg/"
+MESSAGE_TYPES: dict[str, str] = {
+    VISION + "ObjectHypothesis": """
+string class_id
+float64 score
+""",
+    VISION + "ObjectHypothesisWithPose": """
+vision_msgs/ObjectHypothesis hypothesis
+geometry_msgs/PoseWithCovariance pose
+""",
+    VISION + "BoundingBox3D": """
+geometry_msgs/Pose center
+geometry_msgs/Vector3 size
+""",
+    VISION + "Detection3D": """
+std_msgs/Header header
+vision_msgs/ObjectHypothesisWithPose[] results
+vision_msgs/BoundingBox3D bbox
+string id
+""",
+    VISION + "Detection3DArray": """
+std_msgs/Header header
+vision_msgs/Detection3D[] detections
+""",
+}
+"""vision_msgs' types (4.1.1) this profile speaks, which rosbags' Jazzy typestore lacks, as `.msg` text
+per type name (as autoware.MESSAGE_TYPES)."""
+register_types(MESSAGE_TYPES)
 T = TYPESTORE.types
 DETECTIONS = "vision_msgs/msg/Detection3DArray"
 DETECTIONS_TOPIC = "/perception/detections_3d"
@@ -66,8 +94,10 @@ PROFILE = Profile(
     name="vision_msgs",
     description="detections as vision_msgs/Detection3DArray on /perception/detections_3d (no velocity); "
                 "tracks, plan and ego as in advperc",
-    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTIONS, encode_detections, decode_detections, carries_velocity=False),
+    detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTIONS, encode_detections, decode_detections, import_rank=4,
+                            carries_velocity=False),
     tracks=advperc.PROFILE.tracks,
     plan=advperc.PROFILE.plan,
     ego_topic=advperc.PROFILE.ego_topic,
+    message_types=MESSAGE_TYPES,
 )

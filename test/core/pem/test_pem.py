@@ -108,6 +108,7 @@ def test_scenario_score_of_perfect_perception_equals_the_densities_at_zero():
 def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path, repo):
     """Detections sampled from a known PEM into bags; `advperc pem fit` gets the model back."""
     from advperc_ros.backends.embedded import Stack
+    from advperc_ros.configs import core_configs
     from advperc_ros.cli import main
     from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.core.scenario import EgoState
@@ -120,7 +121,7 @@ def test_pem_fit_from_bags_recovers_the_model_that_made_the_detections(tmp_path,
     paths = []
     for name in ("idm_lane_following", "idm_overtake_follow"):
         scenario = read_scenario(repo / "bags" / name)
-        ego = Stack(scenario, load_params(repo / "config" / f"{name}.yaml")).rollout(
+        ego = Stack(scenario, core_configs(load_params(repo / "config" / f"{name}.yaml"))).rollout(
             PerceptionErrors.none(*scenario.agents.shape)).ego
         for copy in range(6):
             perceived = inject(scenario.agents, TRUE.sample(scenario.agents, ego[:, :2], rng))
@@ -148,6 +149,7 @@ def test_pem_fit_from_nuscenes_detection_results(tmp_path, repo):
     import json
 
     from advperc_ros.backends.embedded import Stack
+    from advperc_ros.configs import core_configs
     from advperc_ros.cli import main
     from advperc_ros.core.perception_errors import PerceptionErrors, inject
     from advperc_ros.params import load_params
@@ -167,7 +169,7 @@ def test_pem_fit_from_nuscenes_detection_results(tmp_path, repo):
     gt, results = {}, {}
     for name in ("idm_lane_following", "idm_overtake_follow"):
         scenario = read_scenario(repo / "bags" / name)
-        ego = Stack(scenario, load_params(repo / "config" / f"{name}.yaml")).rollout(
+        ego = Stack(scenario, core_configs(load_params(repo / "config" / f"{name}.yaml"))).rollout(
             PerceptionErrors.none(*scenario.agents.shape)).ego_xy
         for copy in range(6):
             seen = inject(scenario.agents, TRUE.sample(scenario.agents, ego, rng))

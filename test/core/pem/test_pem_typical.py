@@ -8,6 +8,7 @@ import yaml
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.cli import main
+from advperc_ros.configs import core_configs
 from advperc_ros.core.pem import default_pem
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS
 from advperc_ros.core.typical import check_typical
@@ -20,7 +21,7 @@ def test_the_check_rolls_out_every_kind_of_the_calibrated_default(repo):
     from advperc_ros.ros.bag import read_scenario
 
     scenario = read_scenario(repo / "bags" / SCENARIO)
-    stack = Stack(scenario, load_params(repo / "config" / f"{SCENARIO}.yaml"))
+    stack = Stack(scenario, core_configs(load_params(repo / "config" / f"{SCENARIO}.yaml")))
     result = check_typical(scenario, stack.rollout, default_pem(ERROR_KINDS), 3, np.random.default_rng(0))
     assert result.kinds == (*PAPER_KINDS, "velocity", "size", "flip", "ghost")
     assert result.samples == 3 and result.collisions + result.inconclusive <= 3

@@ -15,7 +15,7 @@ from advperc_ros.core.planners.base import Planner, PlanningContext, Trajectory,
 from advperc_ros.core.planners.idm import IDMConfig, IDMPlanner
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario import EgoState
-from advperc_ros.exceptions import PlannerError
+from advperc_ros.exceptions import PluginError
 
 DT = 0.1
 EGO_LENGTH, EGO_WIDTH = 4.6, 1.9
@@ -290,16 +290,16 @@ def test_load_bundled_idm_with_params():
 
 @pytest.mark.parametrize("name", ["nosuch", "obp_typo"])
 def test_load_unknown_planner_names_it(name):
-    with pytest.raises(PlannerError, match=name):
+    with pytest.raises(PluginError, match=name):
         load_planner(name, CONTEXT, {})
 
 
 def test_load_missing_module_or_class(tmp_path, monkeypatch):
-    with pytest.raises(PlannerError, match="no_such_module_xyz:Thing"):
+    with pytest.raises(PluginError, match="no_such_module_xyz:Thing"):
         load_planner("no_such_module_xyz:Thing", CONTEXT, {})
     (tmp_path / "empty_planner_mod.py").write_text("X = 1\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    with pytest.raises(PlannerError, match="empty_planner_mod:Missing"):
+    with pytest.raises(PluginError, match="empty_planner_mod:Missing"):
         load_planner("empty_planner_mod:Missing", CONTEXT, {})
 
 
@@ -315,7 +315,7 @@ def test_load_missing_module_or_class(tmp_path, monkeypatch):
     ({"min_gap": True}, "min_gap"),
 ])
 def test_load_refuses_bad_params_in_one_line_naming_planner_and_parameter(params, name):
-    with pytest.raises(PlannerError) as refused:
+    with pytest.raises(PluginError) as refused:
         load_planner("idm", CONTEXT, params)
     message = str(refused.value)
     assert "'idm'" in message and f"'{name}'" in message and "\n" not in message
@@ -368,7 +368,7 @@ def test_load_plugin_module_class(tmp_path, monkeypatch):
     plan = planner.plan(1.0, EgoState(3.0, 0.0, 0.0, 0.0), NO_TRACKS)
     assert follow_plan(plan, 1.1).v == pytest.approx(2.5)
     assert planner_stats(planner) is None  # stats() is optional
-    with pytest.raises(PlannerError, match="creep_plugin_mod:NotAPlanner"):
+    with pytest.raises(PluginError, match="creep_plugin_mod:NotAPlanner"):
         load_planner("creep_plugin_mod:NotAPlanner", CONTEXT, {})
-    with pytest.raises(PlannerError, match="creep_plugin_mod:CreepPlanner"):
+    with pytest.raises(PluginError, match="creep_plugin_mod:CreepPlanner"):
         load_planner("creep_plugin_mod:CreepPlanner", CONTEXT, {"bogus": 1})

@@ -8,6 +8,7 @@ import pytest
 import yaml
 
 from advperc_ros.backends.embedded import Stack
+from advperc_ros.configs import core_configs
 from advperc_ros.core.ego_motion import follow_plan
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Planner, PlannerStats, PlanningContext, planner_stats
@@ -17,7 +18,7 @@ from advperc_ros.core.planners.obp.prediction import ellipse_axes
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
-from advperc_ros.exceptions import PlannerError
+from advperc_ros.exceptions import PluginError
 from advperc_ros.params import load_params
 
 STATIONARY, ONCOMING = 0, 1  # agent slots in scenarios/obp_overtake.yaml
@@ -41,7 +42,7 @@ def params(repo):
 
 @pytest.fixture(scope="module")
 def stack(scenario, params):
-    return Stack(scenario, params)
+    return Stack(scenario, core_configs(params))
 
 
 @pytest.fixture(scope="module")
@@ -114,7 +115,7 @@ def test_single_stage_nlp_fails_where_the_two_stage_planner_succeeds(repo, param
     assert two_stage_failures == 0
     short = _spec(repo, duration=8.0)  # the approach to the stationary car
     single = replace(params, planner_params={**params.planner_params, "single_stage": True})
-    stack = Stack(short, single)
+    stack = Stack(short, core_configs(single))
     result = stack.rollout(PerceptionErrors.none(*short.agents.shape))
     assert result.inconclusive is None
     assert result.collided or stack.planner.failures >= 20, stack.planner.failures
@@ -174,7 +175,7 @@ def test_failures_of_a_rollout_reach_the_search_log(scenario, params):
     """Each rollout's failed solves are in its search-log row, and the search goes on."""
     from advperc_ros.core.search.problem import AttackProblem
 
-    starved = Stack(scenario, replace(params, planner_params={**params.planner_params, "max_iterations": 1}))
+    starved = Stack(scenario, core_configs(replace(params, planner_params={**params.planner_params, "max_iterations": 1})))
     problem = AttackProblem(scenario, starved.rollout, "nds_t")
     evaluation = problem.evaluate(PerceptionErrors.none(*scenario.agents.shape), "ground_truth")
     row = problem.log[-1]
@@ -225,7 +226,7 @@ def test_failed_solve_brakes_along_previous_path_when_the_shifted_plan_would_col
 
 def test_deterministic(scenario, params, ground_truth):
     result, _ = ground_truth
-    again = Stack(scenario, params).rollout(PerceptionErrors.none(*scenario.agents.shape), record=True)
+    again = Stack(scenario, core_configs(params)).rollout(PerceptionErrors.none(*scenario.agents.shape), record=True)
     assert np.array_equal(again.ego, result.ego)
     assert np.array_equal(again.distances, result.distances)
     for a, b in zip(again.plans, result.plans):
@@ -255,7 +256,7 @@ def test_loaded_by_name_with_params_file_values(scenario, params):
     ({"single_stage": 1}, "single_stage"),
 ])
 def test_load_refuses_bad_params_in_one_line_naming_planner_and_parameter(scenario, params, name):
-    with pytest.raises(PlannerError) as refused:
+    with pytest.raises(PluginError) as refused:
         load_planner("obp", _context(scenario), params)
     message = str(refused.value)
     assert "'obp'" in message and f"'{name}'" in message and "\n" not in message

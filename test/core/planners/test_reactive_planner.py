@@ -18,7 +18,7 @@ from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.rollout import RolloutConfig, rollout
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import Tracker
-from advperc_ros.exceptions import PlannerError
+from advperc_ros.exceptions import PluginError
 
 REACTIVE = "advperc_ros.contrib.reactive:ReactivePlanner"
 # the ego at 10 m/s, a car stopped in its lane 45 m ahead, the oncoming lane free
@@ -94,9 +94,9 @@ def test_a_standing_ego_drives_off(stopped_ahead):
 
 
 def test_the_reactive_planner_refuses_bad_parameters_as_any_plug_in_does(stopped_ahead):
-    with pytest.raises(PlannerError, match="target_speed"):
+    with pytest.raises(PluginError, match="target_speed"):
         load_planner(REACTIVE, _context(stopped_ahead), {"target_speed": -1.0})
-    with pytest.raises(PlannerError, match="unexpected parameter 'speed'"):
+    with pytest.raises(PluginError, match="unexpected parameter 'speed'"):
         load_planner(REACTIVE, _context(stopped_ahead), {"speed": 10.0})
 
 
@@ -105,6 +105,6 @@ def test_without_the_package_the_plug_in_says_what_to_install(monkeypatch):
         monkeypatch.setitem(sys.modules, name, None)  # import commonroad_rp.* now fails, even if imported before
     monkeypatch.delitem(sys.modules, "advperc_ros.contrib.reactive", raising=False)
     scenario = build_scenario(STOPPED_AHEAD)
-    with pytest.raises(PlannerError, match=r"cannot be imported: needs commonroad-reactive-planner \(pip install "
+    with pytest.raises(PluginError, match=r"cannot be imported: needs commonroad-reactive-planner \(pip install "
                                            r"'\.\[reactive\]'"):
         load_planner(REACTIVE, _context(scenario), {})

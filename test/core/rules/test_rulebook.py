@@ -8,6 +8,7 @@ import pytest
 from toy_scenarios import FOLLOW_SPEC
 
 from advperc_ros.backends.embedded import Stack
+from advperc_ros.configs import core_configs
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.perception_errors import PerceptionErrors
@@ -251,7 +252,7 @@ def test_planner_failure_is_the_frame_without_a_plan_or_with_the_planners_fallba
 
 def test_the_bundled_ground_truth_violates_no_rule(idm_bundled):
     name, scenario, params_path = idm_bundled
-    stack = Stack(scenario, load_params(params_path))
+    stack = Stack(scenario, core_configs(load_params(params_path)))
     result = stack.rollout(PerceptionErrors.none(*scenario.agents.shape))
     inputs = rule_inputs(result, scenario, stack.config)
     values = {rule: evaluate(rule_class(rule)(), inputs, inputs) for rule in RULES}

@@ -259,7 +259,7 @@ def _narrow_boundary_search(scenario, params, slack):
     """A guided search against a planner that collides only while car 0 stays shown nearly as wrong
     as its whole-track drop (wrongness summed over the scenario at least its frames - `slack`): a
     failure boundary close to the heuristic's attack, as obp_right_turn's. The real ground truth."""
-    truth = Stack(scenario, params).rollout(PerceptionErrors.none(*scenario.agents.shape))
+    truth = Stack(scenario, core_configs(params)).rollout(PerceptionErrors.none(*scenario.agents.shape))
     frames = scenario.agents.shape[0]
 
     def rollout(errors):

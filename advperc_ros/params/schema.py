@@ -3,26 +3,20 @@
 `AttackParams` is a tree of frozen dataclasses (`params.search.random.steps`), validated whenever
 one is built, overrides included. Its fields are the schema: each carries its type, default,
 description and bounds, and `SCHEMA` lists them under the dotted names ROS uses
-(`search.random.steps`). A params file uses the ROS layout (`orchestrator: ros__parameters: ...`,
-nested mappings are dotted names), so the same file serves `advperc attack` and `ros2 run ...
---params-file`. Types are as strict as ROS 2's: a YAML `1` where a float is declared is refused,
-and so is any unknown key. Errors name the file and the parameter.
+(`search.random.steps`). Types are as strict as ROS 2's: a YAML `1` where a float is declared is
+refused. Errors name the file and the parameter.
 """
 
 import dataclasses
 import hashlib
 import json
 import math
-import sys
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, cast
 
-import yaml
-
-from advperc_ros.core.inputs import read_input_text
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
@@ -30,9 +24,9 @@ from advperc_ros.ros.interfaces.registry import BUNDLED as INTERFACES
 from advperc_ros.ros.interfaces.registry import DEFAULT as DEFAULT_INTERFACE
 
 NODE = "orchestrator"
-PACKAGE = "advperc_ros"
 PLANNER_PARAMS = "planner_params"  # free mapping handed to the planner's constructor
 INT64_MAX = 2**63 - 1  # a ROS integer parameter is an int64
+
 
 
 @dataclass(frozen=True)
@@ -263,7 +257,7 @@ class AttackParams:
         if self.search.method == "paper" and parse_error_kinds(self.errors.kinds) != PAPER_KINDS:
             raise ParamsError(f"{where}: parameter 'errors.kinds' must be paper with search.method paper (the "
                               f"paper's search makes the paper's errors only); the guided method searches any kinds")
-        object.__setattr__(self, PLANNER_PARAMS, MappingProxyType(_check_planner_params(where, self.planner_params)))
+        object.__setattr__(self, PLANNER_PARAMS, MappingProxyType(check_planner_params(where, self.planner_params)))
 
     def get(self, name: str) -> Any:
         """A parameter by its dotted name (`search.random.steps`), as ROS names it."""
@@ -320,30 +314,9 @@ EXECUTION = ("workers", "rollout_backend", "dds.domain_id", "dds.localhost_only"
 hash, so the graph and embedded backends give the same report."""
 
 
-def nest(flat: Mapping[str, Any]) -> dict[str, Any]:
-    """Dotted parameter names back into the nested mapping of a params file."""
-    out: dict[str, Any] = {}
-    for name, value in flat.items():
-        node = out
-        *parents, leaf = name.split(".")
-        for key in parents:
-            node = node.setdefault(key, {})
-        node[leaf] = value
-    return out
-
-
-def _flatten(mapping: dict, prefix: str = "") -> dict[str, Any]:
-    out = {}
-    for key, value in mapping.items():
-        name = f"{prefix}{key}"
-        if isinstance(value, dict) and name != PLANNER_PARAMS:
-            out.update(_flatten(value, f"{name}."))
-        else:
-            out[name] = value
-    return out
-
-
-def _check_planner_params(where: str, raw: Any) -> dict[str, Any]:
+def check_planner_params(where: str, raw: Any) -> dict[str, Any]:
+    """`planner_params` as a plain dict, or a ParamsError: a mapping of names to finite scalars (what a
+    ROS parameter can carry, one `planner_params.<key>` each)."""
     if raw is None:
         return {}
     if not isinstance(raw, Mapping):
@@ -375,7 +348,7 @@ def params_from_values(flat: Mapping[str, Any], source: Path | None, where: str 
     where = where or (str(source) if source is not None else "params")
     if flat.get("bag") is None:
         raise ParamsError(f"{where}: parameter 'bag' is required")
-    planner_params = _check_planner_params(where, flat.get(PLANNER_PARAMS))
+    planner_params = check_planner_params(where, flat.get(PLANNER_PARAMS))
     for name in flat:
         if name not in SCHEMA and name != PLANNER_PARAMS:
             raise ParamsError(f"{where}: unknown parameter '{name}'")
@@ -386,132 +359,3 @@ def params_from_values(flat: Mapping[str, Any], source: Path | None, where: str 
             except ParamsError as exc:
                 raise ParamsError(f"{where}: {exc}") from None
     return AttackParams(**_sections(AttackParams, flat), planner_params=planner_params, source=source)
-
-
-def node_values(flat: dict[str, Any], names: tuple[str, ...], where: str,
-                takes_planner_params: bool = False) -> tuple[dict[str, Any], dict[str, Any]]:
-    """A graph node's parameters as ROS hands them over (dotted names, one by one rather than as a
-    file), checked as strictly as a params file: (its `names` values, the planner's keyword
-    arguments given as `planner_params.<key>` if it takes them). Any other name is refused, so no
-    override a user types is silently ignored."""
-    prefix = f"{PLANNER_PARAMS}."
-    planner_params = {name[len(prefix):]: value for name, value in flat.items()
-                      if takes_planner_params and name.startswith(prefix)}
-    for name in flat:
-        if name not in names and not (takes_planner_params and name.startswith(prefix)):
-            takes = [*names, *([f"{prefix}<key>"] if takes_planner_params else [])]
-            raise ParamsError(f"{where}: unknown parameter '{name}' (this node takes: {', '.join(takes) or 'none'})")
-    values = {}
-    for name in names:
-        param = SCHEMA[name]
-        if flat.get(name) is None:
-            if param.default is None:
-                raise ParamsError(f"{where}: parameter '{name}' is required")
-            values[name] = param.default
-        else:
-            try:
-                values[name] = param.check(name, flat[name])
-            except ParamsError as exc:
-                raise ParamsError(f"{where}: {exc}") from None
-    return values, _check_planner_params(where, planner_params)
-
-
-def parse_params(document: Any, where: str, source: Path | None = None) -> AttackParams:
-    """AttackParams from a params file's document (`orchestrator: ros__parameters: ...`)."""
-    if not isinstance(document, dict) or NODE not in document:
-        raise ParamsError(f"{where}: expected a top-level '{NODE}:' mapping with 'ros__parameters:'")
-    unknown_nodes = sorted(str(name) for name in set(document) - {NODE})
-    if unknown_nodes:
-        raise ParamsError(f"{where}: unknown node '{unknown_nodes[0]}' (only '{NODE}' is configured here)")
-    node = document[NODE]
-    if not isinstance(node, dict) or not isinstance(node.get("ros__parameters"), dict) or len(node) != 1:
-        raise ParamsError(f"{where}: '{NODE}' must hold exactly one mapping 'ros__parameters:'")
-    return params_from_values(_flatten(node["ros__parameters"]), source, where)
-
-
-
-
-class _StrictLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing a key given twice in one mapping (PyYAML keeps the last silently,
-    so a second `seed:` further down overrode the first without a word)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
-        seen: set = set()
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=True)
-            if key in seen:
-                raise yaml.constructor.ConstructorError(None, None, f"key {key!r} given twice", key_node.start_mark)
-            seen.add(key)
-        return super().construct_mapping(node, deep)
-
-
-def _refuse_cycles(value: Any, path: Path, kind: str, inside: frozenset[int] = frozenset()) -> None:
-    """A YAML anchor an alias refers to from within itself makes a structure that contains itself,
-    which every later walk of it recursed into without end."""
-    if isinstance(value, (dict, list)):
-        if id(value) in inside:
-            raise ParamsError(f"{path}: cannot read {kind}: an anchor refers to itself (a recursive alias)")
-        for item in value.values() if isinstance(value, dict) else value:
-            _refuse_cycles(item, path, kind, inside | {id(value)})
-
-
-def read_yaml(path: Path, kind: str) -> Any:
-    """A YAML document, or one line naming the file: missing, not a regular file (a FIFO would block, a
-    device never end), too large, unreadable, not UTF-8, not YAML, a key twice or a recursive alias."""
-    try:
-        document = yaml.load(read_input_text(path), Loader=_StrictLoader)
-    except FileNotFoundError:
-        raise ParamsError(f"{path}: no such {kind}") from None
-    except OSError as exc:  # not a regular file, too large, unreadable
-        raise ParamsError(f"{path}: cannot read {kind}: {exc.strerror}") from None
-    except (UnicodeDecodeError, yaml.YAMLError, RecursionError) as exc:
-        raise ParamsError(f"{path}: cannot read {kind}: {exc}".replace("\n", " ")) from exc
-    _refuse_cycles(document, path, kind)
-    return document
-
-
-def load_params(path: str | Path) -> AttackParams:
-    path = Path(path)
-    return parse_params(read_yaml(path, "params file"), str(path), path)
-
-
-def package_share() -> Path:
-    """Where this package's shared files (bags/, config/, launch/) are installed: ament_index knows
-    a colcon or ROS install; a plain pip install puts them under Python's prefix; an editable one
-    (`pip install -e .`) installs none and runs from its source tree, which holds them."""
-    try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-    except ImportError:
-        pass
-    else:
-        try:
-            return Path(get_package_share_directory(PACKAGE))
-        except (PackageNotFoundError, OSError):  # not in the index; or no ROS environment sourced
-            pass
-    installed = Path(sys.prefix) / "share" / PACKAGE
-    source_tree = Path(__file__).resolve().parent.parent
-    if not installed.is_dir() and (source_tree / "package.xml").is_file():
-        return source_tree
-    return installed
-
-
-def find_bag(bag: str, source: Path | None) -> Path:
-    """The bag a params file names, in one order for every way of running: as given (absolute, or
-    relative to the working directory), relative to the params file `source`, then in the package
-    share (`package_share`)."""
-    name = Path(bag)
-    candidates = [name]
-    if not name.is_absolute():
-        if source is not None:
-            candidates.append(source.parent / name)
-        candidates.append(package_share() / name)
-    for candidate in candidates:
-        if candidate.exists():
-            return candidate
-    tried = ", ".join(str(c) for c in candidates)
-    raise ParamsError(f"{source or 'params'}: parameter 'bag' names '{name}', which does not exist (tried {tried})")
-
-
-def resolve_bag(params: AttackParams) -> Path:
-    """The bag named in the params, found by `find_bag`."""
-    return find_bag(params.bag, params.source)

@@ -209,4 +209,4 @@ def summary(report: dict) -> dict:
     """What both ways print of a report when they finish: the scores of an attack found, or how
     close the search came and why nothing was found."""
     found = ("nds", "nds_t", "fn", "tp", "reproduced") if report["collision"] else ("closest_approach", "message")
-    return {key: report[key] for key in ("scenario", "planner", "objective", "collision", *found, "rollouts")}
+    return {key: report[key] for key in ("scenario", "planner", "objective", "rule", "collision", *found, "rollouts")}

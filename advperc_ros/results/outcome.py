@@ -46,8 +46,9 @@ class AttackOutcome:
 
     @property
     def reproduced(self) -> bool | None:
-        """Whether the attack, rolled out again at the end (`recorded`), gave the verdict, the
-        minimum signed distance and the attacked rule's value (when not a contact rule) the search saw (within REPRODUCTION_TOLERANCE); None without an
+        """Whether the attack, rolled out again at the end (`recorded`), gave the verdict, the minimum
+        signed distance and the attacked rule's value (when not a contact rule) the search saw (within
+        REPRODUCTION_TOLERANCE); None without an
         attack. A planner or node whose output depends on more than its reset and its inputs (state
         kept across resets, wall-clock timing) makes the search's attack a claim nobody can replay:
         this is where that shows."""

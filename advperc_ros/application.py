@@ -16,6 +16,7 @@ from advperc_ros.backends.embedded import Stack
 from advperc_ros.backends.registry import open_rollouts
 from advperc_ros.backends.resumed import Checkpoint, ResumedRollouts
 from advperc_ros.configs import CoreConfigs, core_configs
+from advperc_ros.core.rules.verdict import attacked_rule
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.books import Estimate
 from advperc_ros.core.search.config import SearchConfig, largest_budget, smallest_budget
@@ -93,8 +94,10 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         backend = rollouts
     config = configs.search
     counter = RolloutProgress(scenario.name, progress, say, params.objective)
+    rule = attacked_rule(params.rule.name, scenario, configs.rollout)
     problem = AttackProblem(scenario, backend.rollout, params.objective,
-                            run_rollouts=getattr(backend, "rollout_many", None), kinds=config.errors.kinds)
+                            run_rollouts=getattr(backend, "rollout_many", None), kinds=config.errors.kinds,
+                            attacked_rule=rule)
     try:
         result = run_search(problem, config, on_estimate=counter)
     finally:
@@ -105,6 +108,8 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     if unsure is not None:
         raise InconclusiveSearch(unsure)
     recorded = backend.rollout(result.best.errors, record=True) if result.best is not None else None
+    if recorded is not None and rule is not None:  # judged as the search judged it, to tell whether it reproduced
+        recorded = rule.judge(recorded, problem.truth.rollout if problem.truth is not None else None)
     attacked = backend.attacked_planner
     if attacked.node is not None:
         params = replace(params, planner=EXTERNAL, planner_params={})
@@ -204,4 +209,4 @@ def summary(report: dict) -> dict:
     """What both ways print of a report when they finish: the scores of an attack found, or how
     close the search came and why nothing was found."""
     found = ("nds", "nds_t", "fn", "tp", "reproduced") if report["collision"] else ("closest_approach", "message")
-    return {key: report[key] for key in ("scenario", "planner", "objective", "collision", *found, "rollouts")}
+    return {key: report[key] for key in ("scenario", "planner", "objective", "rule", "collision", *found, "rollouts")}

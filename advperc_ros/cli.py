@@ -18,6 +18,7 @@ import numpy as np
 from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
+from advperc_ros.core.rules.registry import RULES
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
@@ -32,7 +33,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
 
     params = load_params(args.params)
     overrides = {"seed": args.seed, "rollout_backend": args.backend, "objective": args.objective,
-                 "search.method": args.method, "errors.kinds": args.errors}
+                 "search.method": args.method, "errors.kinds": args.errors, "rule.name": args.rule}
     params = params.with_values(**{name: value for name, value in overrides.items() if value is not None})
     if args.resume is not None and args.output is not None and Path(args.resume) != Path(args.output):
         raise ParamsError(f"--resume {args.resume} and --output {args.output}: give the folder once")
@@ -355,6 +356,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "comma-separated list of " + ", ".join(ERROR_KINDS))
     attack.add_argument("--method", choices=SEARCH_METHODS, help="override the params file's search.method (paper: the "
                         "paper's Algorithms 1 and 2, for reproducing it)")
+    attack.add_argument("--rule", choices=tuple(RULES), metavar="RULE", help="override the params file's rule.name: the "
+                        "driving rule to attack (docs/rules.md): " + ", ".join(RULES))
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
     attack.add_argument("--resume", metavar="OUTPUT", type=_path,
                         help="finish the interrupted attack whose results folder was to be "

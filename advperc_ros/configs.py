@@ -12,7 +12,7 @@ core config's default is the schema's default for the same parameter, so the two
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from advperc_ros.core.perception_errors import ErrorSpace, parse_error_kinds
@@ -57,7 +57,8 @@ def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
     """How a rollout is run and judged (ego footprint, rule, plan timeout, whether detections carry
     their velocity: the interface profile's detection type says), from dotted values."""
     carries = load_profile(values["graph.interface"]).detections.carries_velocity
-    return RolloutConfig(**_fields(ROLLOUT, values), detection_velocity=carries)
+    config = RolloutConfig(**_fields(ROLLOUT, values), detection_velocity=carries)
+    return replace(config, at_fault_only=True) if values["rule.name"] == "at_fault_collision" else config
 
 
 def tracker_config(values: Mapping[str, Any]) -> TrackerConfig:

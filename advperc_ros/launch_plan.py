@@ -26,7 +26,7 @@ from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
 from advperc_ros.params import INTERFACES, SCHEMA, load_params, resolve_bag
 
 DEFAULTS = {"params": "", "planner": "ours", "tracker": "ours", "output": "", "resume": "false", "interface": "",
-            "drive": ""}
+            "drive": "", "rule": ""}
 """Every launch argument attack.launch.py declares and its default (the launch file reads this table)."""
 GRAPH_ARGUMENTS = ("interface", "drive")  # each overrides the params file's graph.<argument> when given
 NODE_ARGUMENTS = ("planner", "tracker")  # ours (started) or external (a team's node runs instead)
@@ -76,6 +76,9 @@ def plan(arguments: Mapping[str, str]) -> LaunchPlan:
             params = params.with_values(**{f"graph.{name}": _choice(given, name, choices[name])})
     overrides: dict[str, Any] = {"rollout_backend": "graph", "graph.spawn_nodes": False,
                                  "graph.interface": params.graph.interface, "graph.drive": params.graph.drive}
+    if given["rule"]:  # the orchestrator attacks it; the nodes need not know (the rules judge in the orchestrator)
+        params = params.with_values(**{"rule.name": _choice(given, "rule", SCHEMA["rule.name"].choices)})
+        overrides["rule.name"] = given["rule"]
     if given["output"]:
         overrides["output"] = given["output"]
     if _choice(given, "resume", ("true", "false")) == "true":

@@ -5,6 +5,7 @@ orchestrator driving its search through them, all configured from one params fil
     ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external output:=results/mine
     ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external interface:=autoware drive:=clock
     ros2 launch advperc_ros attack.launch.py params:=my.yaml output:=results/mine resume:=true  # after Ctrl-C
+    ros2 launch advperc_ros attack.launch.py params:=my.yaml rule:=phantom_braking  # another rule (docs/rules.md)
 
 `planner:=external` leaves our planner node out: run yours on the planner topics (docs/graph.md);
 `tracker:=external` leaves our tracker out: yours reads the injector's detections and publishes
@@ -106,6 +107,8 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("drive", default_value="",
                               description="messages: planners answer every tracks message; clock: planners on timers "
                                           "under use_sim_time; default: the params file's graph.drive"),
+        DeclareLaunchArgument("rule", default_value="",
+                              description="the driving rule to attack (docs/rules.md); default: the params file's rule.name"),
         DeclareLaunchArgument("resume", default_value="false",
                               description="true: finish the attack interrupted while writing to `output`"),
         OpaqueFunction(function=_graph),

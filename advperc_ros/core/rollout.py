@@ -72,6 +72,9 @@ class RolloutResult:
     # (K, N) where a contact would not be the ego's fault (`rules.contact.excusable`), when only at-fault ones
     # count (`judge`); None: every contact counts
     excusable: np.ndarray | None = None
+    # the attacked rule's value when the search attacks a rule other than the contact rules
+    # (`rules.verdict.AttackedRule`); None: the verdict is the contact rule's, from `counted`
+    verdict: float | None = None
 
     @property
     def num_frames(self) -> int:
@@ -95,7 +98,10 @@ class RolloutResult:
         """How far the rollout stayed from a violation the verdict counts: the min signed distance
         over the contacts and near misses that would be the ego's fault (with `at_fault_only`, a car
         passing close behind the rear bumper, or the ego stopped, is no step towards a violation);
-        below 0 exactly when a conclusive rollout collided."""
+        below 0 exactly when a conclusive rollout collided. When the search attacks another rule, that
+        rule's value (`verdict`), below 0 exactly when it is violated."""
+        if self.verdict is not None:
+            return self.verdict
         return float(self.counted.min(initial=np.inf))
 
     @property
@@ -115,7 +121,8 @@ class RolloutResult:
 
     @property
     def collided(self) -> bool:
-        """The verdict: a conclusive rollout with a contact that counts."""
+        """The verdict: a conclusive rollout with a contact that counts (or, when the search attacks
+        another rule, that violates it: `margin` below 0)."""
         if self.inconclusive is not None:
             return False
         return self.margin < 0.0

@@ -18,6 +18,8 @@ from types import MappingProxyType
 from typing import Any, cast
 
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
+from advperc_ros.core.rules.registry import RULES
+from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.ros.interfaces.registry import BUNDLED as INTERFACES
@@ -86,10 +88,14 @@ class EgoParams:
 
 @dataclass(frozen=True)
 class RuleParams:
-    """Which contacts count as a failure: every one (the paper's rule) or only the ego's fault."""
+    """The driving rule the search attacks (the paper's collision rule by default; docs/rules.md) and, of
+    the collision rule, which contacts count: every one or only the ego's fault."""
 
+    name: str = _param(DEFAULT_RULE, "the driving rule the search attacks, r < 0 a violation (docs/rules.md): "
+                       f"{', '.join(RULES)}", choices=tuple(RULES))
     at_fault_only: bool = _param(False, "count only collisions that are the ego's fault (nuPlan's at-fault "
-                                 "collisions): not when the ego is stopped or hit from behind")
+                                 "collisions): not when the ego is stopped or hit from behind; the same as "
+                                 "rule.name at_fault_collision")
 
 
 @dataclass(frozen=True)
@@ -257,6 +263,9 @@ class AttackParams:
         if self.search.method == "paper" and parse_error_kinds(self.errors.kinds) != PAPER_KINDS:
             raise ParamsError(f"{where}: parameter 'errors.kinds' must be paper with search.method paper (the "
                               f"paper's search makes the paper's errors only); the guided method searches any kinds")
+        if self.rule.at_fault_only and self.rule.name not in CONTACT_RULES:
+            raise ParamsError(f"{where}: parameter 'rule.at_fault_only' is true, but it is of the collision rule and "
+                              f"rule.name is {self.rule.name}: set it false (or rule.name at_fault_collision)")
         object.__setattr__(self, PLANNER_PARAMS, MappingProxyType(check_planner_params(where, self.planner_params)))
 
     def get(self, name: str) -> Any:

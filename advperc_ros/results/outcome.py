@@ -46,15 +46,18 @@ class AttackOutcome:
 
     @property
     def reproduced(self) -> bool | None:
-        """Whether the attack, rolled out again at the end (`recorded`), gave the verdict and the
-        minimum signed distance the search saw (within REPRODUCTION_TOLERANCE); None without an
+        """Whether the attack, rolled out again at the end (`recorded`), gave the verdict, the minimum
+        signed distance and the attacked rule's value (when not a contact rule) the search saw (within
+        REPRODUCTION_TOLERANCE); None without an
         attack. A planner or node whose output depends on more than its reset and its inputs (state
         kept across resets, wall-clock timing) makes the search's attack a claim nobody can replay:
         this is where that shows."""
         if self.best is None or self.recorded is None:
             return None
         found, again = self.best.rollout, self.recorded
-        return bool(found.collided == again.collided and found.inconclusive == again.inconclusive
+        same_rule = found.verdict is None or (again.verdict is not None
+                                              and abs(found.verdict - again.verdict) <= REPRODUCTION_TOLERANCE)
+        return bool(found.collided == again.collided and found.inconclusive == again.inconclusive and same_rule
                     and abs(found.min_signed_distance - again.min_signed_distance) <= REPRODUCTION_TOLERANCE)
 
     @property

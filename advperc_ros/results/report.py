@@ -15,6 +15,7 @@ from advperc_ros.configs import error_kinds
 from advperc_ros.core.rules.base import RuleValue
 from advperc_ros.core.rules.inputs import rule_inputs
 from advperc_ros.core.rules.registry import evaluate_rulebook
+from advperc_ros.core.rules.verdict import DEFAULT_RULE
 from advperc_ros.core.search.diagnosis import listed_ids, why_no_collision
 from advperc_ros.core.search.problem import Evaluation, kind_costs
 from advperc_ros.results.outcome import AttackOutcome
@@ -93,6 +94,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         "attacked_layer": params.attacked_layer,
         "error_kinds": {"enabled": list(error_kinds(params))},
         "seed": params.seed,
+        "rule": params.rule.name,  # the rule attacked: `collision` says whether an attack broke it
         "collision": best is not None,
         "min_signed_distance": None,
         "collision_frame": None,
@@ -118,7 +120,8 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         report["error_kinds"].update(used=list(costs), cost={kind: _finite_or_none(cost) for kind, cost in costs.items()})
     else:
         report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,
-                                       outcome.approach, partial(rounded, "min_signed_distance")))
+                                       outcome.approach, partial(rounded, "min_signed_distance"),
+                                       None if params.rule.name == DEFAULT_RULE else params.rule.name))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric),
                                **report_scores(outcome.heuristic_best)}
@@ -152,7 +155,9 @@ def _planner_label(report: dict) -> str:
 def report_markdown(report: dict) -> str:
     """report.md: the report as the paper's Table 1 row, or why no collision was found."""
     layer = ", errors on the tracked objects" if report["attacked_layer"] == "tracks" else ""
-    title = f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']}{layer})"
+    rule = "" if report["rule"] == DEFAULT_RULE else f", rule {report['rule']}"
+    title = (f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']}"
+             f"{rule}{layer})")
     lines = [title, ""] + (_table(report) if report["collision"] else _no_collision(report)) + _rules_table(report) + [
         "",
         f"- seed {report['seed']}, config hash {report['config_hash']}, {report['rollouts']} rollouts, "
@@ -181,8 +186,7 @@ def _table(report: dict) -> list[str]:
     return [
         *lines,
         "",
-        f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
-        f"min signed distance {report['min_signed_distance']:.3f} m",
+        _verdict_line(report),
         *([] if report["reproduced"] else [NOT_REPRODUCED]),
         *([f"- no single agent's drop collided: agents {listed_ids(joint)} dropped jointly"] if joint else []),
         _kinds_line(report),
@@ -206,6 +210,17 @@ def _rules_table(report: dict) -> list[str]:
     lines = ["", "| rule | attack | ground truth |", "|---|---|---|"]
     return lines + [f"| {name} | {cell(attack[name] if attack else None)} | {cell(entry)} |"
                      for name, entry in truth.items()]
+
+
+def _verdict_line(report: dict) -> str:
+    """What the attack broke: the collision (the paper's rule), or the attacked rule from its first violating frame."""
+    if report["rule"] == DEFAULT_RULE:
+        return (f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
+                f"min signed distance {report['min_signed_distance']:.3f} m")
+    broken = report["rules"][report["rule"]]
+    return (f"- rule {report['rule']} violated from frame {broken['frame']}, r = {broken['value']:.3f}; closest approach "
+            f"to agent {report['collision_agent']} at frame {report['collision_frame']}, "
+            f"{report['min_signed_distance']:.3f} m")
 
 
 def _kinds_line(report: dict) -> str:

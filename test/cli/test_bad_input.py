@@ -205,6 +205,8 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "params file a device (`/dev/zero`, endless)", lambda f: ["attack", "/dev/zero", "--output", str(f / "out")], "not a regular file", "/dev/zero"),
         Case("advperc attack P.yaml", "unknown parameter", attack(**{"search.random.stepz": 3}), "unknown parameter 'search.random.stepz'"),
         Case("advperc attack P.yaml", "`bag` missing", attack(bag=None), "'bag' is required"),
+        Case("advperc attack P.yaml", "`rule.name` not a rule of the rulebook", attack(**{"rule.name": "speeding"}), "'rule.name' must be one of"),
+        Case("advperc attack P.yaml", "`rule.at_fault_only` with another rule than the collision rule", attack(**{"rule.name": "progress", "rule.at_fault_only": True}), "'rule.at_fault_only' is true, but it is of the collision rule"),
         Case("advperc attack P.yaml", "`bag` names nothing", attack(bag="bags/no_such_bag"), "'bag' names 'bags/no_such_bag'"),
         Case("advperc attack P.yaml", "`bag` a number", attack(bag=3), "'bag' must be of type str"),
         Case("advperc attack P.yaml", "`planner` unknown", attack(planner="fast"), "unknown planner 'fast'", None),

@@ -11,6 +11,7 @@ import sys
 import pytest
 from conftest import REPO
 
+from advperc_ros.exceptions import ParamsError
 from advperc_ros.launch_plan import DEFAULTS, main, plan
 from advperc_ros.nodes.graph_nodes import SPECS
 from advperc_ros.params import load_params, resolve_bag
@@ -63,7 +64,7 @@ def test_external_nodes_are_left_out_and_graph_arguments_override_the_params_fil
 
 @pytest.mark.parametrize("words, line", [
     ([f"params:={PARAMS}", "planer:=external"],
-     "unknown launch argument 'planer' (arguments: params, planner, tracker, output, resume, interface, drive)"),
+     "unknown launch argument 'planer' (arguments: params, planner, tracker, output, resume, interface, drive, rule)"),
     ([], "launch argument 'params' is required: params:=PARAMS.yaml (as for `advperc attack`)"),
     ([f"params:={PARAMS}", "tracker:=theirs"], "launch argument 'tracker' must be ours or external, got 'theirs'"),
     ([f"params:={PARAMS}", "resume:=yes"], "launch argument 'resume' must be true or false, got 'yes'"),
@@ -82,3 +83,9 @@ def test_the_executable_prints_the_plan_as_one_json_object():
                           text=True, timeout=120, cwd=REPO)
     assert done.returncode == 0, done.stderr
     assert [node["executable"] for node in json.loads(done.stdout)["nodes"]] == [spec.name for spec in SPECS]
+
+
+def test_a_rule_argument_is_the_orchestrator_s_rule_and_is_checked():
+    assert plan({"params": PARAMS, "rule": "phantom_braking"}).overrides["rule.name"] == "phantom_braking"
+    with pytest.raises(ParamsError, match="launch argument 'rule' must be one of collision, at_fault_collision"):
+        plan({"params": PARAMS, "rule": "speeding"})

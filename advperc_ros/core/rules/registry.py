@@ -1,10 +1,9 @@
-"""The rulebook: every rule by name, imported only when asked for (as the planners' registry).
+"""The rulebook: every rule by name, imported only when asked for (`core.plugins`, as every plug-in).
 
 Adding a rule: a module with a class that has the `base.Rule` protocol, and one line here.
 """
 
-import importlib
-
+from advperc_ros.core.plugins import PluginKind, load
 from advperc_ros.core.rules.base import Rule, RuleValue, evaluate
 from advperc_ros.core.rules.inputs import RuleInputs
 
@@ -22,13 +21,13 @@ RULES = {
 }
 
 
-def rule_class(name: str) -> type[Rule]:
-    """The class of the rule `name` (a key of RULES)."""
-    if name not in RULES:
-        raise ValueError(f"unknown rule '{name}' (known: {', '.join(RULES)})")
-    module_name, _, class_name = RULES[name].partition(":")
-    return getattr(importlib.import_module(module_name), class_name)
+RULEBOOK = PluginKind("rule", RULES, type, "a class", plug_ins=False)
 
+
+def rule_class(name: str) -> type[Rule]:
+    """The class of the rule `name` (a key of RULES); a PluginError otherwise."""
+    cls: type[Rule] = load(name, RULEBOOK)
+    return cls
 
 
 def evaluate_rulebook(inputs: RuleInputs, reference: RuleInputs) -> dict[str, RuleValue]:

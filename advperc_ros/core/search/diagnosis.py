@@ -23,21 +23,24 @@ def listed_ids(ids: list[int], shown: int = 10) -> str:
 
 
 def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, approach: Approach | None = None,
-                     distance: Callable[[float], float] = float) -> dict:
+                     distance: Callable[[float], float] = float, rule: str | None = None) -> dict:
     """Why a search found nothing, from its log: the agents whose whole track was dropped (the heuristic
     refines only a drop that collides) and how close the ego came, hidden agent or not; from the
     joint drops' `blind` rollout (every vehicle hidden), whether any drop could matter; and how close
     the `approach` phase (cars shown displaced) brought the ego at its fault. `distance`: how a
-    distance is to be written (the report rounds them, `advperc_ros.results.report.rounded`)."""
+    distance is to be written (the report rounds them, `advperc_ros.results.report.rounded`); `rule`: the
+    attacked rule when not the collision rule, whose violation is what was not found (the margins are then its r)."""
     truth = next(row for row in log if row.phase == "ground_truth")  # the first rollout, always conclusive
     drops = [row for row in log if row.phase == "heuristic_drop"]
     conclusive = [row for row in drops if not row.inconclusive and math.isfinite(row.min_signed_distance)]
     inconclusive = [row for row in drops if row.inconclusive]
+    found, broke = ("no collision found", "made the ego collide") if rule is None else (
+        f"no violation of rule {rule} found", f"made the ego break {rule}")
     if not drops:
-        text = "no collision found: no agent to attack, the scenario has none"
+        text = f"{found}: no agent to attack, the scenario has none"
     else:
-        text = (f"no collision found: no agent is influential (dropping any one of the {len(drops)} agents "
-                f"({listed_ids([r.agent for r in drops])}) for the whole scenario never made the ego collide), so the "
+        text = (f"{found}: no agent is influential (dropping any one of the {len(drops)} agents "
+                f"({listed_ids([r.agent for r in drops])}) for the whole scenario never {broke}), so the "
                 f"heuristic had no failure to narrow and the search none to improve")
     if inconclusive:
         text += (f"; the drops of agents {listed_ids([r.agent for r in inconclusive])} were inconclusive "
@@ -52,13 +55,13 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, appr
                  f"closest approach {truth.min_signed_distance:.2f} m")
     blind_report = None
     if blind is not None:
-        text += "; " + _blind_clause(blind)
+        text += "; " + _blind_clause(blind, rule)
         blind_report = {"collided": blind.collided, "inconclusive": blind.inconclusive,
                         "min_signed_distance": distance(blind.min_signed_distance),
                         "margin": distance(blind.margin)}
     approach_report = None
     if approach is not None:
-        text += "; " + _approach_clause(approach)
+        text += "; " + _approach_clause(approach, rule)
         approach_report = {"rollouts": approach.rollouts,
                            "start_margin": distance(approach.start.rollout.margin),
                            "closest_margin": distance(approach.closest.rollout.margin)}
@@ -79,20 +82,27 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, appr
     }
 
 
-def _blind_clause(blind: RolloutResult) -> str:
+def _blind_clause(blind: RolloutResult, rule: str | None) -> str:
     """What hiding every vehicle does, which tells whether missed detections can matter at all: an ego
     that stays clear of the recorded traffic even blind to it is not put in its way by hiding some. (A
     blind rollout that collides is an attack: the joint drops narrow it.)"""
     if blind.inconclusive is not None:
         return f"with every vehicle hidden at once the rollout was inconclusive ({blind.inconclusive})"
+    if rule is not None:
+        return f"even with every vehicle hidden at once the ego does not break {rule} (r = {blind.margin:.2f})"
     at_fault = (f", {blind.margin:.2f} m where a contact would be its fault"
                 if blind.margin != blind.min_signed_distance else "")
     return (f"even with every vehicle hidden at once the ego collides with none at its fault (closest approach "
             f"{blind.min_signed_distance:.2f} m{at_fault}): unseen, the recorded traffic still does not come into its way")
 
 
-def _approach_clause(approach: Approach) -> str:
-    """How near showing the cars nearest the ego wrongly brought it to a collision at its fault."""
+def _approach_clause(approach: Approach, rule: str | None) -> str:
+    """How near showing the cars nearest the ego wrongly brought it to a collision at its fault (or to
+    breaking the attacked rule)."""
+    if rule is not None:
+        return (f"showing the cars nearest the ego displaced or hidden for a while ({approach.rollouts} rollouts of "
+                f"the approach phase) brought {rule}'s r from {approach.start.rollout.margin:.2f} to "
+                f"{approach.closest.rollout.margin:.2f}")
     return (f"showing the cars nearest the ego displaced or hidden for a while ({approach.rollouts} rollouts of "
             f"the approach phase) "
             f"brought its margin to a collision at its fault from {approach.start.rollout.margin:.2f} m to "

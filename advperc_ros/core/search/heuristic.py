@@ -124,10 +124,14 @@ def bisect(problem: AttackProblem, fails: int, passes: int, errors_at: Callable[
     return run_one(problem, bisecting(fails, passes, errors_at, phase, agent, iterations, failing))
 
 
-def check_ground_truth(truth: Evaluation) -> None:
-    """Refuse to attack a stack that breaks the rule with perfect perception."""
+def check_ground_truth(truth: Evaluation, rule: str | None = None) -> None:
+    """Refuse to attack a stack that breaks the rule with perfect perception (`rule`: the attacked rule,
+    when it is not a contact rule)."""
     if truth.rollout.inconclusive:
         raise GroundTruthFails(f"the ground-truth rollout is inconclusive: {truth.rollout.inconclusive}")
+    if truth.adversarial and rule is not None:
+        raise GroundTruthFails(f"the stack already breaks rule {rule} with perfect perception "
+                               f"(r = {truth.rollout.margin:.3f}); nothing to attack")
     if truth.adversarial:
         raise GroundTruthFails(
             f"the planner already collides with perfect perception "
@@ -147,7 +151,7 @@ def heuristic_search(problem: AttackProblem, iterations: int = 3, batched: bool 
              for j in range(num_agents)]
     upfront = problem.evaluate_many([perfect, *whole]) if batched else None
     truth = upfront[0] if upfront else problem.evaluate(*perfect)
-    check_ground_truth(truth)
+    check_ground_truth(truth, None if problem.attacked_rule is None else problem.attacked_rule.name)
     if upfront:  # the influential agents' bisections are independent: in lockstep
         drops = upfront[1:]
         influential = [j for j in range(num_agents) if drops[j].adversarial]

@@ -10,6 +10,7 @@ from advperc_ros.core.metrics.scores import PerceptionScores, score
 from advperc_ros.core.pem import default_pem, features
 from advperc_ros.core.perception_errors import PAPER_KINDS, PerceptionErrors, inject
 from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.rules.verdict import AttackedRule
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import BudgetSpent
 
@@ -123,6 +124,9 @@ class AttackProblem:
     log: list[LogRow] = field(default_factory=list)
     best: Evaluation | None = None
     truth: Evaluation | None = None  # the first ground-truth rollout logged: perfect perception, for the report's rules
+    # the rule attacked when it is not a contact rule: every rollout is judged by it here, once, before it is
+    # scored and logged (against the ground truth's rollout, the first logged); None: the backends' contact verdict
+    attacked_rule: AttackedRule | None = None
     _reference: RolloutResult | None = field(default=None, repr=False)
     _reference_phi: np.ndarray | None = field(default=None, repr=False)
 
@@ -173,6 +177,8 @@ class AttackProblem:
         return [self._record(e, result, phase, agent) for (e, phase, agent), result in zip(batch, results)]
 
     def _record(self, errors: PerceptionErrors, result: RolloutResult, phase: Phase, agent: int) -> Evaluation:
+        if self.attacked_rule is not None:
+            result = self.attacked_rule.judge(result, None if self.truth is None else self.truth.rollout)
         scores = self.scores(errors, result.num_frames, result.ego_xy)
         evaluation = Evaluation(errors, result, scores, getattr(scores, self.objective))
         if phase == Phase.GROUND_TRUTH and self.truth is None:

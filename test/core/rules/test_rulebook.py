@@ -122,18 +122,22 @@ def test_comfort_is_the_smallest_margin_as_a_fraction_of_its_bound():
     assert turning.first_violation == 0
 
 
-def test_phantom_braking_is_braking_the_ground_truth_does_not_need_with_nobody_ahead():
+def test_phantom_braking_is_braking_the_ground_truth_and_the_agents_ahead_do_not_need():
     x, v = braking(20.0, 5.0, 31)
     cruising = drive(20.0 * DT * np.arange(31), v=20.0)
-    assert value("phantom_braking", drive(x, v=v), cruising).value == pytest.approx(-5.0 + 4.05, abs=1e-9)
+    assert value("phantom_braking", drive(x, v=v), cruising).value == pytest.approx(-5.0 + 2.94, abs=1e-9)
     # the ground truth brakes as hard: no phantom
     assert value("phantom_braking", drive(x, v=v), drive(x, v=v)).value == pytest.approx(0.0, abs=1e-9)
-    # a car 8 m ahead (under the 2 s gap at every speed from 20 m/s down to 5) explains it
-    ahead = [car(float(xk) + 8.0 + LENGTH) for xk in x]
-    assert value("phantom_braking", drive(x, v=v, agents=ahead), cruising).value == np.inf
-    # one beside the ego's path does not
-    beside = [car(float(xk) + 8.0 + LENGTH, y=3.5) for xk in x]
+    # a standing car 41 m ahead of an ego at 20 m/s: stopping 1 m short of it takes 5 m/s^2, and its DRAC
+    # 25 (4 - t)^2 / (5 (t - 4)^2 + 2) stays within [4.88, 5) m/s^2 >= 2.94 all the way: it explains the braking
+    standing = [car(41.0 + LENGTH) for _ in x]
+    assert value("phantom_braking", drive(x, v=v, agents=standing), cruising).value == np.inf
+    # the same car beside the ego's path does not
+    beside = [car(41.0 + LENGTH, y=3.5) for _ in x]
     assert value("phantom_braking", drive(x, v=v, agents=beside), cruising).violated
+    # nor does a lead 8 m ahead at the ego's own speed: closing at 0 m/s, it needs no braking at all
+    lead = [car(float(xk) + 8.0 + LENGTH, speed=float(vk)) for xk, vk in zip(x, v)]
+    assert value("phantom_braking", drive(x, v=v, agents=lead), cruising).value == pytest.approx(-5.0 + 2.94, abs=1e-9)
 
 
 # ---------------------------------------------------------------- time to collision

@@ -1,0 +1,88 @@
+"""`advperc attack --rule`: the search attacks a rule of the rulebook other than the collision rule, judging
+every rollout by it, refuses to attack one the ground truth already breaks, and refuses bad rule settings
+in one line with exit code 2."""
+
+import json
+import shutil
+
+import pytest
+from test_cli import write_params
+
+from advperc_ros.cli import main
+from advperc_ros.core.rules.registry import RULES
+
+
+def _attack(capsys, *argv: str) -> tuple[int, str]:
+    capsys.readouterr()
+    code = main(["attack", *argv, "--quiet"])
+    return code, capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def phantom(repo, tmp_path_factory):
+    """The bundled IDM lane following attacked through phantom braking with every error kind."""
+    output = tmp_path_factory.mktemp("phantom") / "attack"
+    assert main(["attack", str(repo / "config" / "idm_lane_following.yaml"), "--rule", "phantom_braking", "--errors",
+                 "all", "--output", str(output), "--quiet"]) == 0
+    return output
+
+
+def test_phantom_braking_is_attacked_at_a_high_nds_t_and_reproduces(phantom):
+    report = json.loads((phantom / "report.json").read_text())
+    assert report["rule"] == "phantom_braking" and report["collision"] and report["reproduced"]
+    assert report["nds_t"] >= 0.9
+    assert report["rules"]["phantom_braking"]["violated"] and not report["ground_truth_rules"]["phantom_braking"]["violated"]
+    assert not report["rules"]["collision"]["violated"]  # it braked for nothing, it hit nothing
+    assert "rule phantom_braking violated from frame" in (phantom / "report.md").read_text()
+
+
+def test_every_rollout_of_the_search_is_judged_by_the_attacked_rule(phantom):
+    """A ghost that makes the ego brake hard is an attack though it comes no nearer anything: the log's
+    verdict column is the rule's, its distance column still the collision rule's."""
+    rows = [line.split(",") for line in (phantom / "search_log.csv").read_text().splitlines()]
+    header, rows = rows[0], rows[1:]
+    broken = [row for row in rows if row[header.index("collided")] == "True"]
+    assert broken and all(float(row[header.index("min_signed_distance")]) > 0 for row in broken)
+
+
+def test_a_rule_the_ground_truth_already_breaks_is_nothing_to_attack(repo, tmp_path, capsys):
+    """The bundled ObP overtake turns harder than nuPlan's comfort bounds allow with perfect perception."""
+    code, err = _attack(capsys, str(repo / "config" / "obp_overtake.yaml"), "--rule", "comfort", "--output",
+                        str(tmp_path / "out"))
+    assert code == 1 and "the stack already breaks rule comfort with perfect perception" in err, err
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("change, says", [
+    ({"rule.name": "speeding"}, "parameter 'rule.name' must be one of collision, at_fault_collision"),
+    ({"rule.name": "phantom_braking", "rule.at_fault_only": True},
+     "parameter 'rule.at_fault_only' is true, but it is of the collision rule and rule.name is phantom_braking"),
+])
+def test_bad_rule_settings_are_one_line_and_exit_2(repo, tmp_path, capsys, change, says):
+    params = write_params(tmp_path / "p.yaml", repo, **change)
+    code, err = _attack(capsys, str(params), "--output", str(tmp_path / "out"))
+    assert code == 2 and len(err.strip().splitlines()) == 1 and says in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.yaml"]
+
+
+def test_an_unknown_rule_on_the_command_line_is_refused(repo, tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["attack", str(repo / "config" / "idm_lane_following.yaml"), "--rule", "speeding", "--quiet"])
+    assert exit_.value.code == 2 and "invalid choice: 'speeding'" in capsys.readouterr().err
+
+
+def test_at_fault_collision_is_the_at_fault_variant_of_the_collision_rule(repo, tmp_path, capsys):
+    """`rule.name at_fault_collision` and `rule.at_fault_only true` are one configuration of the search."""
+    first = write_params(tmp_path / "a.yaml", repo, **{"rule.name": "at_fault_collision"})
+    second = write_params(tmp_path / "b.yaml", repo, **{"rule.at_fault_only": True})
+    for params, output in ((first, "a"), (second, "b")):
+        assert _attack(capsys, str(params), "--output", str(tmp_path / output))[0] == 0
+    logs = [(tmp_path / name / "search_log.csv").read_text() for name in ("a", "b")]
+    assert logs[0] == logs[1]
+    shutil.rmtree(tmp_path / "a")
+
+
+def test_the_rule_choices_are_the_registry_s(repo):
+    from advperc_ros.params import SCHEMA
+
+    assert SCHEMA["rule.name"].choices == tuple(RULES) and SCHEMA["rule.name"].default == "collision"

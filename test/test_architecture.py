@@ -212,3 +212,25 @@ def test_docs_architecture_names_every_module():
         elif not re.search(rf"\b{re.escape(path.stem)}\b", block):
             missing.append(str(path.relative_to(REPO)))
     assert not missing, f"docs/architecture.md does not name: {missing}"
+
+
+MAX_MODULE_LINES = 500
+PACKAGES = ("params", "results", "core/perception_errors", "core/perception_errors/kinds", "core/pem", "core/rules")
+
+
+def test_the_layout_every_concern_in_its_package_and_no_module_too_long():
+    """Where knowledge lives: the params, the output, the error kinds (one module each), the PEM and the rulebook
+    are packages of their own, no module outgrows MAX_MODULE_LINES, and the tests mirror the package's folders."""
+    assert all((PACKAGE / package / "__init__.py").is_file() for package in PACKAGES)
+    too_long = {str(path.relative_to(REPO)): lines for path in PACKAGE.rglob("*.py")
+                if (lines := len(path.read_text().splitlines())) > MAX_MODULE_LINES}
+    assert not too_long, too_long
+    from advperc_ros.core.perception_errors.registry import KINDS
+
+    kinds = {path.stem for path in (PACKAGE / "core" / "perception_errors" / "kinds").glob("*.py")} - {"__init__"}
+    assert kinds == {kind.name for kind in KINDS}, "one module per error kind, each registered"
+    from advperc_ros.core.rules.registry import RULES
+
+    assert all((PACKAGE / "core" / "rules" / f"{name}.py").is_file() for name in RULES), "one module per rule"
+    folders = {path.parent.relative_to(REPO / "test") for path in (REPO / "test").rglob("test_*.py")}
+    assert {Path("core"), Path("ros"), Path("backends"), Path("nodes"), Path("campaign"), Path("fuzz"), Path("cli")} <= folders

@@ -327,7 +327,7 @@ def _strengths(text: str) -> tuple[float, ...]:
 def _import_bag_epilog() -> str:
     """What import-bag reads, listed from the interface profiles and the importer's own tables, so that
     the help names exactly the types the decoders take."""
-    from advperc_ros.ros.drive_log import ODOMETRY_TOPICS, ODOMETRY_TYPE, object_decoders
+    from advperc_ros.ros.drive_log import ODOMETRY_TOPICS, ODOMETRY_TYPE, object_layers
     from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
     from advperc_ros.ros.topics import LANES, ROUTE, TOPIC_TYPES
 
@@ -336,7 +336,7 @@ def _import_bag_epilog() -> str:
     for name in BUNDLED:
         profile = load_profile(name)
         lines.append(f"    {name}: detections {profile.detections.msgtype}, tracks {profile.tracks.msgtype}")
-    lines.append(f"  several objects topics: the first type present of {', '.join(object_decoders())}")
+    lines.append(f"  several objects topics: the first type present of {', '.join(object_layers())}")
     lines.append(f"  ego (--odometry): {ODOMETRY_TYPE}; of several, {' then '.join(ODOMETRY_TOPICS)}")
     lines.append(f"  road: {LANES} ({TOPIC_TYPES[LANES]}) and {ROUTE} ({TOPIC_TYPES[ROUTE]}) when the log has them, "
                  "else a corridor around the recorded ego path")

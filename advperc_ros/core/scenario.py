@@ -4,7 +4,8 @@ This is what a ground-truth bag decodes to and what every rollout reads; the sea
 thousands of rollouts, so agents are kept as (frames x agents) numpy arrays, not objects.
 """
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -45,6 +46,9 @@ class Scenario:
     lanes: tuple[Lane, ...]
     route: Polyline
     ego_start: EgoState
+    # an agent's id -> the UUID (32 hex digits) its stack named it by, for a drive imported from a stack that
+    # names objects by UUID (Autoware's): kept in every bag made from it, so a team's own ids travel with its attacks
+    object_uuids: Mapping[int, str] = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:

@@ -6,6 +6,7 @@ sibling directory and renamed into place once complete: a killed run leaves no b
 """
 
 import hashlib
+import json
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +28,7 @@ from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.topics import CLOCK, GROUND_TRUTH, LANES, LATCHED, ODOMETRY, ROUTE, TOPIC_TYPES, depth
 
 SCENARIO_KEY = "advperc.scenario"
+UUIDS_KEY = "advperc.object_uuids"  # custom data: {agent id: the UUID its stack named it by}, for imported drives
 ROS_DISTRO = "jazzy"  # the message definitions come from rosbags' Jazzy typestore
 
 
@@ -112,6 +114,8 @@ def write_scenario_static(bag: BagWriter, scenario: Scenario) -> None:
     """What does not change over a scenario: its name, the lanes and the ego's route."""
     t0 = int(scenario.stamps_ns[0])
     bag.set_custom_data(SCENARIO_KEY, scenario.name)
+    if scenario.object_uuids:  # in the metadata: the messages, and so the bag's digest, are the same without it
+        bag.set_custom_data(UUIDS_KEY, json.dumps({str(i): uuid for i, uuid in sorted(scenario.object_uuids.items())}))
     bag.write(LANES, t0, msgs.lanes_to_markers(scenario.lanes, t0))
     route = scenario.route
     headings = route.heading(route.stations)
@@ -315,6 +319,21 @@ class GroundTruthCheck(NamedTuple):
     problems: list[str]  # one line each, naming the bag, the topic or field, the frame
 
 
+def _object_uuids(text: str | None, path: Path) -> dict[int, str]:
+    """The custom data UUIDS_KEY of a bag: agent id -> 32 hex digits; a BagError naming the field otherwise."""
+    if text is None:
+        return {}
+    try:
+        table = json.loads(text)
+        uuids = {int(i): str(uuid) for i, uuid in table.items()}
+    except (ValueError, AttributeError, TypeError) as exc:
+        raise BagError(f"{path}: field 'custom_data.{UUIDS_KEY}' is not a mapping of agent ids to UUIDs: {exc}") from None
+    bad = next((uuid for uuid in uuids.values() if len(uuid) != 32 or any(c not in "0123456789abcdef" for c in uuid)), None)
+    if bad is not None:
+        raise BagError(f"{path}: field 'custom_data.{UUIDS_KEY}' holds {bad!r}, not a UUID of 32 hex digits")
+    return uuids
+
+
 def check_ground_truth(path: Path) -> GroundTruthCheck:
     """A ground-truth bag against the contract: /ground_truth/objects (at least two frames,
     uniformly stamped, in stamp order, ids unique per frame, finite values, positive sizes),
@@ -338,15 +357,18 @@ def check_ground_truth(path: Path) -> GroundTruthCheck:
         expected = TOPIC_TYPES.get(topic)  # a wrong /clock failed the report's digest, after the whole search
         if expected is not None and msgtype != expected and topic not in contents.wrong:
             problems.append(f"{path}: topic '{topic}' has type {msgtype!r}, expected '{expected}'")
+    uuids: dict[int, str] = {}
     try:
-        name = _custom_data(path).get(SCENARIO_KEY, path.name)
+        custom = _custom_data(path)
+        name = custom.get(SCENARIO_KEY, path.name)
+        uuids = _object_uuids(custom.get(UUIDS_KEY), path)
     except BagError as exc:
         problems.append(str(exc))
     if problems:
         return GroundTruthCheck(None, contents.topics, problems)
     stamps, agents = parts[GROUND_TRUTH]
     scenario = Scenario(name=name, stamps_ns=stamps, agents=agents, lanes=parts[LANES], route=parts[ROUTE],
-                        ego_start=parts[ODOMETRY])
+                        ego_start=parts[ODOMETRY], object_uuids=uuids)
     problems = scenario.problems(str(path))
     return GroundTruthCheck(None if problems else scenario, contents.topics, problems)
 

@@ -24,7 +24,6 @@ another type, fewer than two frames, stamps out of order, a field not finite.
 """
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +35,7 @@ from advperc_ros.core.scenario import EgoState, Lane, Scenario
 from advperc_ros.exceptions import BagError, MessageError
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr
-from advperc_ros.ros.interfaces.base import Objects
+from advperc_ros.ros.interfaces.base import Objects, ObjectsLayer
 from advperc_ros.ros.interfaces.registry import BUNDLED, load_profile
 from advperc_ros.ros.topics import LANES, ROUTE, TOPIC_TYPES
 
@@ -47,22 +46,40 @@ SIDE_LANES = 1
 ROUTE_EXTENSION = 300.0  # m beyond the recorded path: a faster ego must not run off its route
 ROUTE_SPACING = 0.5  # m: recorded positions closer than this to the last route point are not route points
 MAX_FRAMES = 100_000
+OUR_UUID_TAIL = "00" * 8  # a UUID of our layout: an id in its first 8 bytes, the rest zero (interfaces/autoware.py)
 
 
-Decoder = Callable[[cdr.Cdr, str], tuple[int | None, Objects]]
-
-
-def object_decoders() -> dict[str, Decoder]:
-    """Every objects type a bundled profile speaks -> its decoder (the profiles' own: one reading), in
+def object_layers() -> dict[str, ObjectsLayer]:
+    """Every objects type a bundled profile speaks -> its layer (the profiles' own: one reading), in
     the order of their layers' `import_rank`: when a log holds several objects topics, what the planner
     saw first (predictions, tracks), detections last."""
     profiles = [load_profile(name) for name in BUNDLED]
     layers = sorted((layer for profile in profiles for layer in (profile.detections, profile.tracks)),
                     key=lambda layer: layer.import_rank)
-    decoders: dict[str, Decoder] = {}
+    out: dict[str, ObjectsLayer] = {}
     for layer in layers:
-        decoders.setdefault(layer.msgtype, layer.decode)
-    return decoders
+        out.setdefault(layer.msgtype, layer)
+    return out
+
+
+def _numbered_by_uuid(frames: list[tuple[int, Objects]], uuids: list[dict[int, str]]
+                      ) -> tuple[list[tuple[int, Objects]], dict[int, str]]:
+    """The frames with their objects numbered 1..n by UUID, in order of first appearance (a frame's new
+    ones in UUID order), and each number's UUID: a log's random UUIDs as ids that fit every message type
+    and reproduce on every import. A log of our own UUIDs keeps the ids they hold."""
+    table = {uuid: object_id for frame in uuids for object_id, uuid in frame.items()}
+    if all(uuid.endswith(OUR_UUID_TAIL) for uuid in table):  # ids of ours (an id in the first 8 bytes)
+        return frames, {object_id: uuid for uuid, object_id in table.items()}
+    number: dict[str, int] = {}
+    out = []
+    for (stamp, objects), frame_uuids in zip(frames, uuids):
+        for uuid in sorted(frame_uuids[int(i)] for i in objects["ids"]):
+            number.setdefault(uuid, len(number) + 1)
+        ids = np.array([number[frame_uuids[int(i)]] for i in objects["ids"]], dtype=np.int64)
+        order = np.argsort(ids, kind="stable")
+        out.append((stamp, {**{name: values[order] for name, values in objects.items() if name != "ids"},
+                            "ids": ids[order]}))
+    return out, {object_id: uuid for uuid, object_id in number.items()}
 
 
 @dataclass(frozen=True)
@@ -199,8 +216,8 @@ def import_drive(path: str | Path, objects_topic: str | None = None, odometry_to
     if not (dt > 0.0 and math.isfinite(dt)):
         raise BagError(f"{path}: the frame period must be a positive number of seconds, got {dt}")
     listing = bags.bag_topics(path)
-    decoders = object_decoders()
-    objects_topic = _choose(path, listing, objects_topic, tuple(decoders), (), "objects",
+    layers = object_layers()
+    objects_topic = _choose(path, listing, objects_topic, tuple(layers), (), "objects",
                             "--objects")
     odometry_topic = _choose(path, listing, odometry_topic, (ODOMETRY_TYPE,), ODOMETRY_TOPICS, "odometry",
                              "--odometry")
@@ -208,15 +225,20 @@ def import_drive(path: str | Path, objects_topic: str | None = None, odometry_to
     wanted = [objects_topic, odometry_topic, *road]
     messages, _ = bags.read_topics(path, wanted, raw=True)
     where = f"{path}: topic '{objects_topic}'"
-    decode = decoders[listing[objects_topic][0] or ""]
-    frames = []
+    layer = layers[listing[objects_topic][0] or ""]
+    frames, uuids = [], []
     for k, (log_time, data) in enumerate(messages[objects_topic]):
         try:
-            stamp, objects = decode(data, f"{where}, message {k}")
+            stamp, objects = layer.decode(data, f"{where}, message {k}")
+            if layer.uuids is not None:
+                uuids.append(layer.uuids(data, f"{where}, message {k}"))
         except MessageError as exc:
             raise BagError(str(exc)) from None
         frames.append((log_time if stamp is None else stamp, objects))
     _in_order([stamp for stamp, _ in frames], where)
+    object_uuids: dict[int, str] = {}
+    if layer.uuids is not None:
+        frames, object_uuids = _numbered_by_uuid(frames, uuids)
     odometry_stamps, odometry = _odometry(messages[odometry_topic], f"{path}: topic '{odometry_topic}'")
     first = max(frames[0][0], odometry_stamps[0]) if frames and odometry_stamps else 0
     last = min(frames[-1][0], odometry_stamps[-1]) if frames and odometry_stamps else -1
@@ -245,8 +267,9 @@ def import_drive(path: str | Path, objects_topic: str | None = None, odometry_to
     if not lanes:
         lanes = _corridor(route)
     source = "the log's " + " and ".join(road) if road else "a corridor around the recorded ego path"
+    present = set(np.unique(agents.ids[agents.valid]).tolist())
     scenario = Scenario(name=name or path.name, stamps_ns=stamps, agents=agents, lanes=tuple(lanes), route=route,
-                        ego_start=start)
+                        ego_start=start, object_uuids={i: uuid for i, uuid in object_uuids.items() if i in present})
     scenario.validate(str(path))
     speed = float(np.percentile(odometry[:, 3], 95))
     return ImportedDrive(scenario, objects_topic, odometry_topic, source, max(speed, 1.0))

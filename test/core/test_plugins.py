@@ -6,7 +6,7 @@ from advperc_ros.core.plugins import PluginKind, load
 from advperc_ros.core.search.registry import SEARCH_METHODS
 from advperc_ros.exceptions import PluginError
 from advperc_ros.exits import expected_failure
-from advperc_ros.ros.drive_log import object_decoders
+from advperc_ros.ros.drive_log import object_layers
 from advperc_ros.ros.interfaces.base import Profile
 from advperc_ros.ros.interfaces.registry import PROFILES
 
@@ -44,6 +44,6 @@ def test_a_registry_without_plug_ins_takes_only_its_names():
 
 def test_import_bag_reads_what_the_planner_saw_before_detections():
     """The profiles' import ranks give import-bag's order of objects types: predictions, tracks, then detections."""
-    assert tuple(object_decoders()) == ("autoware_perception_msgs/msg/PredictedObjects",
+    assert tuple(object_layers()) == ("autoware_perception_msgs/msg/PredictedObjects",
                                   "autoware_perception_msgs/msg/TrackedObjects", "visualization_msgs/msg/MarkerArray",
                                   "autoware_perception_msgs/msg/DetectedObjects", "vision_msgs/msg/Detection3DArray")

@@ -3,10 +3,13 @@
 
 Conversions, and where they cannot be exact:
 
-- ids: Autoware names an object by a 16-byte UUID. An id of ours is its first 8 bytes (int64,
-  little endian), the rest zero; any UUID reads back as the int64 of its first 8 bytes, so a
-  tracker's own UUIDs keep telling objects apart. `DetectedObject` has no id: detections read
-  back numbered 0..n-1, as a detector's boxes are.
+- ids: Autoware names an object by a 16-byte UUID. An id of ours goes out as its int32 in the first
+  8 bytes (int64, little endian), the rest zero, and reads back as itself. Any other UUID (a
+  tracker's random uuid4, a counter in the low bytes) reads back as a stable id in [2^30, 2^31): 30
+  bits of its BLAKE2b digest, within every message type's range (a Marker's id is an int32), so a
+  tracker's own UUIDs keep telling objects apart; import-bag numbers a log's objects 1..n instead and
+  keeps their UUIDs (`uuids_of`, ros/drive_log.py). `DetectedObject` has no id: detections read back
+  numbered 0..n-1, as a detector's boxes are.
 - velocity: Autoware's twist is in the object's own frame (x along its heading); ours is in `map`.
   It is rotated on the way out and back (a round trip is exact to within 1e-15 m/s).
 - confidence: `existence_probability` is a float32, so a score comes back rounded to float32;
@@ -24,6 +27,7 @@ Conversions, and where they cannot be exact:
   speed falls to zero (`STOPPED_SPEED`) the ego stops and waits at that point.
 """
 
+import hashlib
 import math
 from collections.abc import Callable
 from typing import Any
@@ -306,8 +310,34 @@ def _box(pose, twist, shape, score: float, where: str) -> tuple[float, ...]:
             *_dimensions(shape, where), float(score))
 
 
+HASHED_IDS = 1 << 30  # a UUID not of our layout reads back as an id in [HASHED_IDS, 2 * HASHED_IDS)
+
+
+def uuid_id(uuid: bytes) -> int:
+    """The id a 16-byte UUID reads back as: ours (an int32 in the first 8 bytes, the rest zero) as itself,
+    so an id read back and sent out again stays itself; any other as 30 bits of its BLAKE2b digest above
+    HASHED_IDS (stable across runs and machines)."""
+    ours = int.from_bytes(uuid[:8], "little", signed=True)
+    if not any(uuid[8:]) and -2 * HASHED_IDS <= ours < 2 * HASHED_IDS:  # an int32: ours, or read back before
+        return ours
+    digest = int.from_bytes(hashlib.blake2b(uuid, digest_size=8).digest(), "little")
+    return HASHED_IDS | (digest & (HASHED_IDS - 1))
+
+
+def _uuid_bytes(uuid) -> bytes:
+    return bytes(np.asarray(uuid.uuid, dtype=np.uint8))
+
+
 def _object_id(uuid) -> int:
-    return int.from_bytes(bytes(np.asarray(uuid.uuid, dtype=np.uint8)[:8]), "little", signed=True)
+    return uuid_id(_uuid_bytes(uuid))
+
+
+def _uuids_of(msgtype: str) -> Callable[[Cdr, str], dict[int, str]]:
+    def uuids(data: Cdr, where: str) -> dict[int, str]:
+        """Each object's id (as `decode` gives it) -> its UUID as 32 hex digits."""
+        return {_object_id(item.object_id): _uuid_bytes(item.object_id).hex()
+                for item in deserialize(data, msgtype, where).objects}
+    return uuids
 
 
 def decode_detected(data: Cdr, where: str) -> tuple[int | None, Objects]:
@@ -411,7 +441,8 @@ PROFILE = Profile(
     description="Autoware's types and topic names: DetectedObjects in, PredictedObjects to the planner, "
                 "Trajectory back, Odometry on /localization/kinematic_state",
     detections=ObjectsLayer(DETECTIONS_TOPIC, DETECTED, encode_detected, decode_detected, import_rank=3),
-    tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted, import_rank=0),
+    tracks=ObjectsLayer(OBJECTS_TOPIC, PREDICTED, encode_predicted, decode_predicted, import_rank=0,
+                        uuids=_uuids_of(PREDICTED)),
     plan=PlanLayer(TRAJECTORY_TOPIC, TRAJECTORY, encode_trajectory, decode_trajectory),
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,
@@ -424,7 +455,8 @@ TRACKED_PROFILE = Profile(
     description="as autoware, but the tracked objects go out as TrackedObjects on "
                 "/perception/object_recognition/tracking/objects, for a team that brings its own prediction node",
     detections=PROFILE.detections,
-    tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked, import_rank=1),
+    tracks=ObjectsLayer(TRACKED_TOPIC, TRACKED, encode_tracked, decode_tracked, import_rank=1,
+                        uuids=_uuids_of(TRACKED)),
     plan=PROFILE.plan,
     ego_topic=KINEMATIC_STATE_TOPIC,
     acceleration_topic=ACCELERATION_TOPIC,

@@ -49,6 +49,9 @@ class ObjectsLayer:
     decode: Callable[[Cdr, str], tuple[int | None, Objects]]
     import_rank: int
     carries_velocity: bool = True  # False: the type has no velocity field, so decoded vx, vy are 0
+    # a type naming objects by UUID: a message's ids (as `decode` gives them) -> their UUIDs (hex), which
+    # import-bag keeps in the bags so a team's own ids travel with its attacks; None: the ids are the ids
+    uuids: Callable[[Cdr, str], dict[int, str]] | None = None
 
 
 @dataclass(frozen=True)

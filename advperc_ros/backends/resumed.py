@@ -18,7 +18,8 @@ row of a finite number or null (+inf) per agent of the scenario, `inconclusive` 
 line's chain and the line's own content, so a value edited by hand, a line moved, or one taken from
 another attack's checkpoint is refused as well (against accidents, not a forger: sha256 has no
 key). Anything wrong refuses the checkpoint in one line naming the file and line, before the files
-are touched; deleting the folder starts the attack over. Only the last line may be cut short (a
+are touched; deleting the folder starts the attack over. A resume runs the first inconclusive rollout again
+(a planner that had died, a node gone silent) and drops what followed it. Only the last line may be cut short (a
 kill mid-write: no newline, not JSON): it is dropped and that rollout runs again. An attack killed
 before its first checkpoint resumes from the start. The folder goes when the results folder is
 complete; a fresh attack refuses to start over a checkpoint it would lose. The caller holds the
@@ -175,7 +176,8 @@ class Checkpoint:
 
     def _load(self, path: Path, shape: tuple[int, int]) -> tuple[list[Stored], str]:
         """The checkpointed rollouts and the last one's chain, every line checked before the file is
-        touched; then the file keeps its whole lines alone (a last line cut short is dropped)."""
+        touched; then the file keeps its whole lines alone (a last line cut short is dropped), up to the
+        first inconclusive rollout: a resume rolls that one out again, never reports on it."""
         data = self._read(path)
         *lines, tail = data.split(b"\n")  # tail: b"" when the last line is whole
         done: list[Stored] = []
@@ -190,10 +192,14 @@ class Checkpoint:
                 raise self._damaged(path, f"line {n} is not JSON (only the last line may be cut short, by a kill)") from None
             try:
                 fields = _fields(line)
-                done.append(_stored(fields, shape))
+                stored = _stored(fields, shape)
             except ValueError as exc:
                 raise self._damaged(path, f"line {n}: {exc}") from None
-            last = self._follow(path, n, fields, last)
+            chain = self._follow(path, n, fields, last)
+            if stored.result.inconclusive is not None:  # a planner or node that failed then: run it again, and what
+                break  # followed it, which the search decided on an inconclusive rollout, is not this search's
+            done.append(stored)
+            last = chain
             kept.append(raw)
         whole = b"".join(raw + b"\n" for raw in kept)
         if whole != data:

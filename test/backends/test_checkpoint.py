@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pytest
 from conftest import REPO
 from test_cli import write_params
@@ -297,3 +298,34 @@ def test_a_lock_file_removed_while_it_was_being_taken_is_taken_anew(tmp_path, mo
     with exclusive(lock, "busy"):
         assert len(held) == 2 and os.stat(lock).st_ino == held[-1]
     assert not lock.exists()
+
+
+def test_a_resume_rolls_an_inconclusive_rollout_out_again_and_drops_what_followed(tmp_path):
+    """A planner that had died or a node that went silent gave no verdict: a resume must not report on that
+    rollout, nor on what the search decided after it, so the checkpoint keeps only the rollouts before it."""
+    from advperc_ros.configs import core_configs
+    from advperc_ros.core.perception_errors import PerceptionErrors
+    from advperc_ros.core.rollout import RolloutResult
+    from advperc_ros.params import load_params, resolve_bag
+    from advperc_ros.ros.bag import read_scenario
+
+    params = load_params(REPO / "config" / "idm_lane_following.yaml")
+    scenario, canonical = read_scenario(resolve_bag(params)), core_configs(params).canonical
+    output = tmp_path / "out"
+    frames, agents = 3, scenario.agents.shape[1]
+
+    def result(inconclusive: str | None) -> RolloutResult:
+        return RolloutResult(ego=np.zeros((frames, 4)), distances=np.ones((frames, agents)), inconclusive=inconclusive)
+
+    errors = [PerceptionErrors.none(*scenario.agents.shape)] * 4
+    written = Checkpoint(output, canonical, scenario, resume=False)
+    for e, verdict in zip(errors, (None, None, "frame 2: planner raised RuntimeError: died", None)):
+        written.append(e, result(verdict))
+    written.close(finished=False)
+    resumed = Checkpoint(output, canonical, scenario, resume=True)
+    assert [stored.result.inconclusive for stored in resumed.done] == [None, None]
+    resumed.close(finished=False)
+    assert (checkpoint_folder(output) / ROLLOUTS).read_bytes().count(b"\n") == 2
+    again = Checkpoint(output, canonical, scenario, resume=True)  # the file it left resumes as it was
+    assert len(again.done) == 2
+    again.close(finished=False)

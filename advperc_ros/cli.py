@@ -98,9 +98,9 @@ def _write_imported(command: str, source: str, scenario: Scenario, params_of: Ca
     first = Path(params) if params else bag.with_name(f"{bag.name}.yaml")
     files = {planner: first.with_name(f"{first.stem}{suffix}{first.suffix}") for planner, suffix in planners.items()}
     for target in (bag, *files.values()):
+        check_output(target, "bag folder" if target == bag else "params file")  # first: a name too long to look up
         if target.exists():
             raise BagError(f"{target}: exists already, not overwriting")
-        check_output(target, "bag folder" if target == bag else "params file")
     write_ground_truth_bag(bag, scenario)
     for planner, path in files.items():
         path.parent.mkdir(parents=True, exist_ok=True)

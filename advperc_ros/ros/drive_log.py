@@ -46,6 +46,7 @@ SIDE_LANES = 1
 ROUTE_EXTENSION = 300.0  # m beyond the recorded path: a faster ego must not run off its route
 ROUTE_SPACING = 0.5  # m: recorded positions closer than this to the last route point are not route points
 MAX_FRAMES = 100_000
+MIN_DT, MAX_DT = 1e-3, 60.0  # s: a frame period between a 1 kHz sensor's and a minute's
 OUR_UUID_TAIL = "00" * 8  # a UUID of our layout: an id in its first 8 bytes, the rest zero (interfaces/autoware.py)
 
 
@@ -101,9 +102,10 @@ class ImportedDrive:
 
 
 def _choose(path: Path, listing: dict[str, tuple[str | None, int]], given: str | None, kinds: tuple[str, ...],
-            preferred: tuple[str, ...], what: str, flag: str) -> str:
+            preferred: tuple[str, ...], what: str, flag: str, besides: tuple[str, ...] = ()) -> str:
     """The topic to read: the one given (it must be of one of `kinds`), else the only one of the
-    best-ranked kind present (by `preferred` names among several)."""
+    best-ranked kind present (by `preferred` names among several), never one of `besides` (the road's
+    topics, whose MarkerArray is no objects topic)."""
     chosen = given
     if given is not None:
         if given not in listing:
@@ -111,7 +113,7 @@ def _choose(path: Path, listing: dict[str, tuple[str | None, int]], given: str |
         if listing[given][0] not in kinds:
             raise BagError(f"{path}: topic '{given}' has type {listing[given][0]!r}, not one of {', '.join(kinds)}")
     for kind in kinds if given is None else ():
-        found = sorted(topic for topic, (msgtype, _) in listing.items() if msgtype == kind)
+        found = sorted(topic for topic, (msgtype, _) in listing.items() if msgtype == kind and topic not in besides)
         named = [topic for topic in preferred if topic in found]
         if len(found) > 1 and not named:
             raise BagError(f"{path}: several {what} topics of type {kind} ({', '.join(found)}): choose one with {flag}")
@@ -213,12 +215,12 @@ def import_drive(path: str | Path, objects_topic: str | None = None, odometry_to
                  dt: float = 0.1, name: str | None = None) -> ImportedDrive:
     """Read a recorded drive as the module docstring says; a BagError naming the problem otherwise."""
     path = Path(path)
-    if not (dt > 0.0 and math.isfinite(dt)):
-        raise BagError(f"{path}: the frame period must be a positive number of seconds, got {dt}")
+    if not MIN_DT <= dt <= MAX_DT:  # also NaN; a period of 1e-12 s rounded to 0 ns, one of 1e300 s overflowed
+        raise BagError(f"{path}: the frame period --dt must be between {MIN_DT:g} and {MAX_DT:g} s, got {dt}")
     listing = bags.bag_topics(path)
     layers = object_layers()
     objects_topic = _choose(path, listing, objects_topic, tuple(layers), (), "objects",
-                            "--objects")
+                            "--objects", besides=(LANES,))
     odometry_topic = _choose(path, listing, odometry_topic, (ODOMETRY_TYPE,), ODOMETRY_TOPICS, "odometry",
                              "--odometry")
     road = [topic for topic in (LANES, ROUTE) if listing.get(topic, (None, 0))[0] == TOPIC_TYPES[topic]]

@@ -360,6 +360,10 @@ def _cases() -> list[Case]:
         Case("advperc import-bag LOG", "log missing", lambda f: ["import-bag", str(f / "none")], "no such bag", "none"),
         Case("advperc import-bag LOG", "log without odometry", lambda f: _drive_log(f, odometry=False) + ["--output", str(f / "bag")], "no odometry topic", "log"),
         Case("advperc import-bag LOG --objects", "objects topic of another type", lambda f: _drive_log(f) + ["--objects", "/localization/kinematic_state", "--output", str(f / "bag")], "has type 'nav_msgs/msg/Odometry', not one of", "log"),
+        Case("advperc import-bag LOG --dt", "`--dt 1e-12` (rounded to 0 ns: a traceback)", lambda f: _drive_log(f) + ["--dt", "1e-12", "--output", str(f / "bag")], "the frame period --dt must be between", "log"),
+        Case("advperc import-bag LOG --dt", "`--dt 1e300` (overflowed: a traceback)", lambda f: _drive_log(f) + ["--dt", "1e300", "--output", str(f / "bag")], "the frame period --dt must be between", "log"),
+        Case("advperc import-bag LOG --output", "a 300-byte output name (a traceback)", lambda f: _drive_log(f) + ["--output", str(f / ("x" * 300))], "a name in its path is longer than the file system allows", None),
+        Case("advperc import-bag LOG", "no objects topic but the map's `/map/lanes` (imported as objects, 0 agents)", lambda f: _lanes_only_log(f), "no objects topic", "log"),
         Case("advperc import-bag LOG", "log shorter than two frames", lambda f: _drive_log(f, frames=1) + ["--output", str(f / "bag")], "overlap for less than two frames", "log"),
         Case("advperc make-bags SCENARIO", "scenario file missing", lambda f: ["make-bags", str(f / "none.yaml"), "--output-dir", str(f / "bags")], "none.yaml", "none.yaml"),
         Case("advperc make-bags SCENARIO --output-dir", "output folder a file", lambda f: (f / "file").write_text("x") and ["make-bags", str(REPO / "scenarios" / "idm_lane_following.yaml"), "--output-dir", str(f / "file")], "is not a folder", "file"),
@@ -379,6 +383,21 @@ def _cases() -> list[Case]:
         Case("advperc make-bags SCENARIO", "scenario not YAML", lambda f: (f / "s.yaml").write_text("a: [") and ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "s.yaml", "s.yaml"),
     ]
     return cases
+
+
+def _lanes_only_log(folder: Path) -> list[str]:
+    """`import-bag` of a log with the ego's odometry and the map's lanes (a MarkerArray), but no objects."""
+    from test_import_bag import BUNDLED, ODOMETRY, write_log
+
+    from advperc_ros.core.scenario import EgoState
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros.bag import read_topics
+    from advperc_ros.ros.topics import LANES
+
+    lanes, _ = read_topics(BUNDLED, [LANES], raw=True)
+    odometry = [(k * 100_000_000, msgs.ego_to_cdr(EgoState(0.5 * k, 0.0, 0.0, 5.0), k * 100_000_000)) for k in range(5)]
+    topics = {LANES: ("visualization_msgs/msg/MarkerArray", lanes[LANES]), ODOMETRY: ("nav_msgs/msg/Odometry", odometry)}
+    return ["import-bag", str(write_log(folder / "log", topics)), "--output", str(folder / "bag")]
 
 
 def _drive_log(folder: Path, odometry: bool = True, frames: int = 5) -> list[str]:

@@ -7,6 +7,7 @@ backend that cannot start (`--backend graph`) ends the same way with exit code 4
 
 import argparse
 import json
+import math
 import shutil
 import sys
 from collections.abc import Callable
@@ -235,7 +236,9 @@ def cmd_score(args: argparse.Namespace) -> int:
     pem = PEM.load(Path(args.model)) if args.model else default_pem(args.errors)
     truth, perceived, ego_xy = aligned_objects(Path(args.ground_truth), Path(args.perceived), args.topic)
     result = score(truth, perceived, ego_xy, pem)
-    print(json.dumps({"frames": int(truth.shape[0]), **result.as_dict()}, indent=2))
+    scores = {name: value if not isinstance(value, float) or math.isfinite(value) else None  # JSON has no NaN
+              for name, value in result.as_dict().items()}
+    print(json.dumps({"frames": int(truth.shape[0]), **scores}, indent=2, allow_nan=False))
     return 0
 
 

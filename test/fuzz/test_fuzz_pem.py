@@ -112,7 +112,7 @@ def test_garbage_files_fail_with_one_line_naming_the_file(data, tmp_path_factory
     ({"detection": [4.6, -2.4, 0.0]}, ["'detection'", "5 numbers"]),
     ({"position_rho": 1.0}, ["'position_rho'", "(-1.0, 1.0)"]),
     ({"yaw_nu": -4.0}, ["'yaw_nu'"]),
-    ({"radial_log_scale": [float("nan"), 0.98, 0.0, 0.4, 0.0]}, ["'radial_log_scale'", "finite"]),
+    ({"radial_log_scale": [float("nan"), 0.98, 0.0, 0.4, 0.0]}, ["'radial_log_scale'", "in (-30, 30)"]),
     ({"position_nu": True}, ["'position_nu'", "a number"]),
     ({"colour": "red"}, ["'colour'", "unknown"]),
 ])
@@ -132,3 +132,14 @@ def test_missing_field_and_missing_file_are_named(tmp_path):
     with pytest.raises(PEMError) as caught:
         PEM.load(tmp_path / "absent.json")
     one_line_naming(caught.value, "absent.json")
+
+
+def test_a_log_scale_beyond_its_bound_is_refused_on_loading(tmp_path):
+    """A scale of e^300 made every density 0 and `advperc score` print "pem_ll": -Infinity, which is not JSON."""
+    path = tmp_path / "model.json"
+    default_pem().save(path)
+    model = json.loads(path.read_text())
+    model["radial_log_scale"] = [300.0, 0.0, 0.0, 0.0, 0.0]
+    path.write_text(json.dumps(model))
+    with pytest.raises(PEMError, match=r"field 'radial_log_scale' must be a list of 5 numbers in \(-30, 30\)"):
+        PEM.load(path)

@@ -23,6 +23,7 @@ class Field:
 
     def describe(self) -> str:
         if self.count is not None:
-            return f"a list of {self.count} numbers, finite"
+            bounded = math.isfinite(self.low) or math.isfinite(self.high)
+            return f"a list of {self.count} numbers" + (f" in ({self.low:g}, {self.high:g})" if bounded else ", finite")
         what = "a whole number" if self.whole else "a number"
         return f"{what} in {'[' if self.closed else '('}{self.low}, {self.high})"

@@ -11,15 +11,18 @@ from advperc_ros.exceptions import PEMError
 if TYPE_CHECKING:
     from advperc_ros.core.pem.model import PEM
 
+# a log-scale coefficient's bound: e^30 is a scale no detector's error has, and beyond it a density underflows to 0
+# (a PEM LL of -inf, which is no number a report or `advperc score` can print)
+LOG_SCALE_BOUND = 30.0
 # the paper's parts' fields and the model's own persistence; each term beyond the paper declares its own (`terms`)
 PAPER_FIELDS = {
     "detection": Field(NUM_FEATURES),
     "position_loc": Field(2),
-    "radial_log_scale": Field(NUM_FEATURES),
-    "tangential_log_scale": Field(NUM_FEATURES),
+    "radial_log_scale": Field(NUM_FEATURES, -LOG_SCALE_BOUND, LOG_SCALE_BOUND),
+    "tangential_log_scale": Field(NUM_FEATURES, -LOG_SCALE_BOUND, LOG_SCALE_BOUND),
     "position_rho": Field(None, -1.0, 1.0),
     "position_nu": Field(None, 0.0),
-    "yaw_log_scale": Field(NUM_FEATURES),
+    "yaw_log_scale": Field(NUM_FEATURES, -LOG_SCALE_BOUND, LOG_SCALE_BOUND),
     "yaw_nu": Field(None, 0.0),
     "position_ar": Field(None, -1.0, 1.0),
 }

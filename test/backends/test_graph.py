@@ -356,7 +356,7 @@ def test_graph_search_writes_the_embedded_report(tmp_path, capsys):
 
 
 def test_an_inconclusive_warm_up_is_sent_again_before_the_search_starts(tmp_path, scenario, monkeypatch):
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent), str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
     params = load_params(params_for(tmp_path, planner="test_graph:UnreadyPlanner"))
     truth = PerceptionErrors.none(*scenario.agents.shape)
     expected = Stack(scenario, core_configs(params.with_values(planner="idm"))).rollout(truth)
@@ -369,7 +369,7 @@ def test_an_inconclusive_warm_up_is_sent_again_before_the_search_starts(tmp_path
 def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenario, monkeypatch, caplog):
     arm = tmp_path / "hang"
     monkeypatch.setenv(ARM, str(arm))
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent), str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
     params = load_params(params_for(tmp_path, planner="test_graph:HangingPlanner", **{"graph.timeout": 2.0}))
     truth = PerceptionErrors.none(*scenario.agents.shape)
     expected = Stack(scenario, core_configs(params.with_values(planner="idm"))).rollout(truth)

@@ -34,6 +34,9 @@ class Lane:
     width: float
 
 
+MIN_PERIOD_NS, MAX_PERIOD_NS = 1_000_000, 60_000_000_000  # a frame period between a 1 kHz sensor's and a minute's
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A recorded drive, what an attack is run on: the agents' ground truth (which they replay whatever
@@ -82,6 +85,9 @@ class Scenario:
         steps = np.diff(self.stamps_ns)
         if steps.size and (np.any(steps <= 0) or np.any(np.abs(steps - steps[0]) > max(1, steps[0] // 1000))):
             problems.append(f"{source}: field 'header.stamp' must increase by a constant period")
+        elif steps.size and not MIN_PERIOD_NS <= steps[0] <= MAX_PERIOD_NS:  # caught here, not after a rollout of it
+            problems.append(f"{source}: field 'header.stamp' steps by {int(steps[0])} ns: the frame period must be "
+                            f"between {MIN_PERIOD_NS / 1e9:g} and {MAX_PERIOD_NS / 1e9:g} s")
         bad = self.agents.first_invalid_field()
         if bad is not None:
             name, k, j = bad

@@ -82,8 +82,8 @@ def _param(default: Any, description: str, **bounds: Any) -> Any:
 class EgoParams:
     """The ego's box: the rule monitor's collisions and a planner's footprint are both measured with it."""
 
-    length: float = _param(4.6, "ego box length (m)", positive=True)
-    width: float = _param(1.9, "ego box width (m)", positive=True)
+    length: float = _param(4.6, "ego box length (m): at most a road train's 60 m", positive=True, high=60.0)
+    width: float = _param(1.9, "ego box width (m): at most a lane's 5 m", positive=True, high=5.0)
 
 
 @dataclass(frozen=True)
@@ -212,7 +212,8 @@ class GraphParams:
     which stack's messages it speaks."""
 
     timeout: float = _param(10.0, "seconds a frame's plan (graph backend: and rule value) may take before the "
-                            "rollout is inconclusive; embedded, one plan call", positive=True, high=3600.0)
+                            "rollout is inconclusive; embedded, one plan call (at least 1 ms, a timer's tick)",
+                            positive=True, low=1e-3, high=3600.0)
     spawn_nodes: bool = _param(True, "graph backend: start the five graph nodes as child processes (Cyclone DDS); "
                                "false uses nodes already running, e.g. from launch/attack.launch.py")
     drive: str = _param("messages", "graph backend: how the player hands frames to the planner: messages (a plan "

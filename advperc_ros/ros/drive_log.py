@@ -31,7 +31,7 @@ import numpy as np
 
 from advperc_ros.core.boxes import BOX_FIELDS, MAGNITUDE_BOUND
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.scenario import EgoState, Lane, Scenario
+from advperc_ros.core.scenario import MAX_PERIOD_NS, MIN_PERIOD_NS, EgoState, Lane, Scenario
 from advperc_ros.exceptions import BagError, MessageError
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr
@@ -46,7 +46,7 @@ SIDE_LANES = 1
 ROUTE_EXTENSION = 300.0  # m beyond the recorded path: a faster ego must not run off its route
 ROUTE_SPACING = 0.5  # m: recorded positions closer than this to the last route point are not route points
 MAX_FRAMES = 100_000
-MIN_DT, MAX_DT = 1e-3, 60.0  # s: a frame period between a 1 kHz sensor's and a minute's
+MIN_DT, MAX_DT = MIN_PERIOD_NS / 1e9, MAX_PERIOD_NS / 1e9  # s: the periods a scenario may have
 OUR_UUID_TAIL = "00" * 8  # a UUID of our layout: an id in its first 8 bytes, the rest zero (interfaces/autoware.py)
 
 

@@ -258,6 +258,8 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "`search.random` a number", attack(**{"search.random": 3}), "unknown parameter 'search.random'"),
         Case("advperc attack P.yaml", "`search.guided.candidates` a million (memory)", attack(**{"search.guided.candidates": 1_000_000}), "'search.guided.candidates' must be at most 10000"),
         Case("advperc attack P.yaml", "`search.random.proposals` a million (memory)", attack(**{"search.random.proposals": 1_000_000}), "'search.random.proposals' must be at most 10000"),
+        Case("advperc attack P.yaml", "`graph.timeout` 1e-300 (every plan timed out, after the ground truth's rollout)", attack(**{"graph.timeout": 1e-300}), "'graph.timeout' must be at least 0.001"),
+        Case("advperc attack P.yaml", "`ego.length` 1e300 (caught after the ground truth's rollout)", attack(**{"ego.length": 1e300}), "'ego.length' must be at most 60"),
         Case("advperc attack P.yaml", "`graph.timeout` 1e10 (beyond any alarm)", attack(**{"graph.timeout": 1e10}), "'graph.timeout' must be at most 3600"),
         Case("advperc attack P.yaml", "IDM horizon 1e9 s (memory)", attack(planner_params={"horizon": 1e9}), "'horizon' must be at most 60", None),
         Case("advperc attack P.yaml", "ObP horizon 1e9 s", attack(planner="obp", planner_params={"horizon": 1e9}), "'horizon' must be at most 30", None),

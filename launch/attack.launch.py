@@ -30,7 +30,7 @@ import os
 import subprocess
 import sys
 
-from ament_index_python.packages import get_package_prefix
+from ament_index_python.packages import PackageNotFoundError, get_package_prefix
 from launch.actions import DeclareLaunchArgument, EmitEvent, OpaqueFunction, RegisterEventHandler
 from launch.event_handlers import OnProcessExit
 from launch.events import Shutdown
@@ -67,9 +67,13 @@ def _plan(context) -> dict:
     """What to start, from the package's `launch_plan` executable: installed with the shebang of the
     interpreter that built the workspace, it imports the package and its dependencies (a venv's), which
     this file, loaded by whatever interpreter runs `ros2`, does not. A refusal is its one line and code."""
-    executable = os.path.join(get_package_prefix(PACKAGE), "lib", PACKAGE, "launch_plan")
+    try:
+        command = [os.path.join(get_package_prefix(PACKAGE), "lib", PACKAGE, "launch_plan")]
+    except PackageNotFoundError:  # this file read from a source tree, not a workspace: the package is this interpreter's
+        command = [sys.executable, "-m", f"{PACKAGE}.launch_plan"]
+    executable = command[0]
     arguments = [f"{name}:={value}" for name, value in sorted(context.launch_configurations.items())]
-    done = subprocess.run([executable, *arguments], capture_output=True, text=True, timeout=PLAN_TIMEOUT)
+    done = subprocess.run([*command, *arguments], capture_output=True, text=True, timeout=PLAN_TIMEOUT)
     if done.returncode:
         _exit_with(done.returncode)
         lines = done.stderr.strip().splitlines() or [f"{executable} exited with code {done.returncode}"]
@@ -108,7 +112,8 @@ def generate_launch_description() -> LaunchDescription:
                               description="messages: planners answer every tracks message; clock: planners on timers "
                                           "under use_sim_time; default: the params file's graph.drive"),
         DeclareLaunchArgument("rule", default_value="",
-                              description="the driving rule to attack (docs/rules.md); default: the params file's rule.name"),
+                              description="the driving rule to attack (docs/rules.md); "
+                                          "default: the params file's rule.name"),
         DeclareLaunchArgument("resume", default_value="false",
                               description="true: finish the attack interrupted while writing to `output`"),
         OpaqueFunction(function=_graph),

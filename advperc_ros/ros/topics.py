@@ -5,13 +5,17 @@ is one rule on every transport and in bags: reliable; volatile keep-last `DEPTH`
 (transient-local, writers keep-last `LATCHED_DEPTH`), which is what ROS 2 calls latching.
 """
 
+from advperc_ros.core.rules.registry import RULES
+
 CLOCK = "/clock"
 GROUND_TRUTH = "/ground_truth/objects"
 PERCEPTION = "/perception/objects"
 TRACKING = "/tracking/objects"
 ODOMETRY = "/ego/odometry"
 PLAN = "/planning/trajectory"
-RULE = "/rules/collision"
+RULE_TOPICS = {name: f"/rules/{name}" for name in RULES}
+"""Each rule of the rulebook's value per frame (std_msgs/Float64, r < 0 a violation), on a topic of its own."""
+RULE = RULE_TOPICS["collision"]  # the minimum signed distance: what the player waits on, with the diagnostics
 RULE_DIAGNOSTICS = "/rules/diagnostics"
 LANES = "/map/lanes"
 ROUTE = "/ego/route"
@@ -32,7 +36,7 @@ TOPIC_TYPES = {
     TRACKING: "visualization_msgs/msg/MarkerArray",
     ODOMETRY: "nav_msgs/msg/Odometry",
     PLAN: "nav_msgs/msg/Path",
-    RULE: "std_msgs/msg/Float64",
+    **{topic: "std_msgs/msg/Float64" for topic in RULE_TOPICS.values()},
     RULE_DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
     LANES: "visualization_msgs/msg/MarkerArray",
     ROUTE: "nav_msgs/msg/Path",

@@ -94,7 +94,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
         backend = rollouts
     config = configs.search
     counter = RolloutProgress(scenario.name, progress, say, params.objective)
-    rule = attacked_rule(params.rule.name, scenario, configs.rollout)
+    rule = attacked_rule(params.rule.name, scenario, configs.rollout, configs.rulebook)
     problem = AttackProblem(scenario, backend.rollout, params.objective,
                             run_rollouts=getattr(backend, "rollout_many", None), kinds=config.errors.kinds,
                             attacked_rule=rule)
@@ -118,7 +118,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
                          planner_node=attacked.node, tracker_node=attacked.tracker_node,
                          planner_version=attacked.version, joint=result.joint,
                          approach=result.approach, ground_truth=problem.truth.rollout if problem.truth else None,
-                         rollout_config=configs.rollout)
+                         rollout_config=configs.rollout, rulebook=configs.rulebook)
 
 
 def default_output(params: AttackParams, scenario_name: str) -> Path:

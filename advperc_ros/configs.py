@@ -18,11 +18,13 @@ from typing import Any
 from advperc_ros.core.perception_errors import ErrorSpace, parse_error_kinds
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.rollout import RolloutConfig
+from advperc_ros.core.rules.base import parameter_info
+from advperc_ros.core.rules.registry import Rulebook, rule_class
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.tracker import TrackerConfig
-from advperc_ros.params import PLANNER_PARAMS, AttackParams
+from advperc_ros.params import PLANNER_PARAMS, RULE_SECTIONS, AttackParams, rule_parameter
 from advperc_ros.ros.interfaces.base import Profile
 from advperc_ros.ros.interfaces.registry import load_profile
 
@@ -51,6 +53,15 @@ TABLES: tuple[tuple[type, Mapping[str, str]], ...] = (
 
 def _fields(table: Mapping[str, str], values: Mapping[str, Any]) -> dict[str, Any]:
     return {name: values[dotted] for name, dotted in table.items()}
+
+
+def rulebook(values: Mapping[str, Any]) -> Rulebook:
+    """The thresholds every rule is judged by (`rule.<rule>.<parameter>`), from dotted values."""
+    parameters = []
+    for name in RULE_SECTIONS:
+        cls = rule_class(name).Parameters
+        parameters.append((name, cls(**{i.name: values[rule_parameter(name, i.name)] for i in parameter_info(cls)})))
+    return Rulebook(tuple(parameters))
 
 
 def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
@@ -136,6 +147,7 @@ class CoreConfigs:
     planner: PlannerSpec
     profile: Profile
     execution: ExecutionConfig
+    rulebook: Rulebook  # the thresholds of every rule: the attacked one's and the report's table's
     canonical: str  # the params that determine the results (`AttackParams.canonical`) as JSON: a checkpoint's identity
 
     def planning_context(self, scenario: Scenario) -> PlanningContext:
@@ -152,4 +164,5 @@ def core_configs(params: AttackParams) -> CoreConfigs:
                        planner=PlannerSpec(params.planner, node_values[PLANNER_PARAMS]),
                        profile=load_profile(params.graph.interface),
                        execution=ExecutionConfig(**_fields(EXECUTION, values), node_values=node_values),
+                       rulebook=rulebook(values),
                        canonical=json.dumps(params.canonical(), sort_keys=True))

@@ -18,7 +18,8 @@ from types import MappingProxyType
 from typing import Any, cast
 
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
-from advperc_ros.core.rules.registry import RULES
+from advperc_ros.core.rules.base import parameter_info
+from advperc_ros.core.rules.registry import RULES, rule_class
 from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.core.search.registry import METHODS
 from advperc_ros.exceptions import ParamsError
@@ -87,15 +88,45 @@ class EgoParams:
 
 
 @dataclass(frozen=True)
-class RuleParams:
+class RuleChoice:
     """The driving rule the search attacks (the paper's collision rule by default; docs/rules.md) and, of
-    the collision rule, which contacts count: every one or only the ego's fault."""
+    the collision rule, which contacts count: every one or only the ego's fault. `RuleParams` adds each
+    rule's thresholds."""
 
     name: str = _param(DEFAULT_RULE, "the driving rule the search attacks, r < 0 a violation (docs/rules.md): "
                        f"{', '.join(RULES)}", choices=tuple(RULES))
     at_fault_only: bool = _param(False, "count only collisions that are the ego's fault (nuPlan's at-fault "
                                  "collisions): not when the ego is stopped or hit from behind; the same as "
                                  "rule.name at_fault_collision")
+
+
+def rule_parameter(rule: str, parameter: str) -> str:
+    """The dotted name of a rule's threshold in the params: `rule.<rule>.<parameter>`."""
+    return f"rule.{rule}.{parameter}"
+
+
+def _rule_section(name: str) -> type | None:
+    """The params section `rule.<name>` of a rule the search judges apart from the rollout: its fields are
+    the rule's parameters, with the rule's defaults, sources and bounds (one definition, in the rule's
+    module). None for a rule without parameters, and for the contact rules, which every backend judges
+    itself as the rollout runs, at their fixed thresholds."""
+    infos = parameter_info(rule_class(name).Parameters)
+    if name in CONTACT_RULES or not infos:
+        return None
+    fields_ = [(i.name, float, _param(i.default, f"{name}: {i.source}", low=i.bounds.low, high=i.bounds.high,
+                                      positive=i.bounds.positive)) for i in infos]
+    doc = f"The thresholds of rule {name} (docs/rules.md), at its defaults unless the params file sets them."
+    return dataclasses.make_dataclass(f"{name.title().replace('_', '')}Params", fields_, frozen=True,
+                                      namespace={"__doc__": doc})
+
+
+RULE_SECTIONS = {name: section for name in RULES if (section := _rule_section(name)) is not None}
+RuleParams: type[RuleChoice] = dataclasses.make_dataclass(
+    "RuleParams", [(name, section, field(default=section())) for name, section in RULE_SECTIONS.items()],
+    bases=(RuleChoice,), frozen=True,
+    namespace={"__doc__": "The attacked rule (`RuleChoice`) and, under `rule.<rule>.<parameter>`, every rule's "
+                          "thresholds: what the search, the report and the rule monitor judge rollouts by."})
+RULE_DEFAULTS = RuleParams()
 
 
 @dataclass(frozen=True)
@@ -238,7 +269,7 @@ class AttackParams:
     attacked_layer: str = _param("detections", "where the errors go in: detections (the detector's output, before "
                                  "the tracker, as the paper) or tracks (the objects the planner reads, our tracker left "
                                  "out: for a team that brings only a planner)", choices=("detections", "tracks"))
-    rule: RuleParams = RuleParams()
+    rule: RuleChoice = RULE_DEFAULTS
     ego: EgoParams = EgoParams()
     tracker: TrackerParams = TrackerParams()
     errors: ErrorsParams = ErrorsParams()
@@ -305,12 +336,19 @@ class AttackParams:
         return hashlib.sha256(json.dumps(identity, sort_keys=True).encode()).hexdigest()[:16]
 
 
+def _section_type(f: dataclasses.Field) -> type | None:
+    """The params dataclass of a section field, its default's type (a section built from the rulebook, as
+    `rule`, is a subclass of its annotation); None for a parameter."""
+    default = f.default
+    return type(default) if dataclasses.is_dataclass(default) and not isinstance(default, type) else None
+
+
 def _schema(cls: type, prefix: str = "") -> dict[str, Param]:
     """The dotted names and `Param`s of a params dataclass tree."""
     out: dict[str, Param] = {}
     for f in dataclasses.fields(cls):
-        if isinstance(f.type, type) and dataclasses.is_dataclass(f.type):
-            out.update(_schema(f.type, f"{prefix}{f.name}."))
+        if (section := _section_type(f)) is not None:
+            out.update(_schema(section, f"{prefix}{f.name}."))
         elif "param" in f.metadata:
             description, bounds = f.metadata["param"]
             out[f"{prefix}{f.name}"] = Param(cast(type, f.type), f.default, description, **bounds)
@@ -347,8 +385,8 @@ def _sections(cls: type, flat: Mapping[str, Any], prefix: str = "") -> dict[str,
         if name in SCHEMA:
             if name in flat:
                 kwargs[f.name] = flat[name]
-        elif isinstance(f.type, type) and dataclasses.is_dataclass(f.type):
-            kwargs[f.name] = f.type(**_sections(f.type, flat, f"{name}."))
+        elif (section := _section_type(f)) is not None:
+            kwargs[f.name] = section(**_sections(section, flat, f"{name}."))
     return kwargs
 
 

@@ -42,12 +42,15 @@ PLAN_COLOR = (1.0, 0.55, 0.0, 1.0)
 
 
 def write_search_log(path: Path, log: list[LogRow]) -> None:
-    names = [f.name for f in fields(LogRow)]
+    """search_log.csv: a row per rollout, with the attacked rule's value (`rule_value`) only when a rule beyond the
+    contact rules was attacked: under the collision rule the log is the paper's, `min_signed_distance` its value."""
+    judged = any(row.rule_value is not None for row in log)
+    names = [f.name for f in fields(LogRow) if judged or f.name != "rule_value"]
     with path.open("w", newline="") as handle:
         writer = csv.DictWriter(handle, fieldnames=names)
         writer.writeheader()
         for row in log:
-            writer.writerow({k: (f"{v:.10g}" if isinstance(v, float) else v) for k, v in asdict(row).items()})
+            writer.writerow({k: (f"{v:.10g}" if isinstance(v, float) else v) for k, v in asdict(row).items() if k in names})
 
 
 def stack_layers(profile: Profile) -> dict[str, ObjectsLayer | PlanLayer]:

@@ -4,6 +4,7 @@ results folder, its pictures and the report are written from."""
 from dataclasses import dataclass, field
 
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult
+from advperc_ros.core.rules.registry import DEFAULT_RULEBOOK, Rulebook
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.approach import Approach
 from advperc_ros.core.search.joint import Joint
@@ -36,6 +37,7 @@ class AttackOutcome:
     ground_truth: RolloutResult | None = None  # perfect perception's rollout (None: the search ended before it)
     # what the rollouts ran with: the ego's footprint, which the rules read
     rollout_config: RolloutConfig = field(default_factory=RolloutConfig)
+    rulebook: Rulebook = DEFAULT_RULEBOOK  # the thresholds its rules were judged by (`rule.<rule>.<parameter>`)
 
     @property
     def attack(self) -> Evaluation:

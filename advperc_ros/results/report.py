@@ -63,10 +63,11 @@ def rulebook(outcome: AttackOutcome) -> dict:
         return {"rules": None, "ground_truth_rules": None}
     scenario, config = outcome.scenario, outcome.rollout_config
     truth = rule_inputs(outcome.ground_truth, scenario, config)
-    judged = {"ground_truth_rules": {name: rule_entry(value) for name, value in evaluate_rulebook(truth, truth).items()}}
+    judged = {"ground_truth_rules": {name: rule_entry(value)
+                                     for name, value in evaluate_rulebook(truth, truth, outcome.rulebook).items()}}
     if outcome.recorded is None:
         return {"rules": None, **judged}
-    attacked = evaluate_rulebook(rule_inputs(outcome.recorded, scenario, config), truth)
+    attacked = evaluate_rulebook(rule_inputs(outcome.recorded, scenario, config), truth, outcome.rulebook)
     return {"rules": {name: rule_entry(value) for name, value in attacked.items()}, **judged}
 
 

@@ -36,7 +36,7 @@ TOPIC_TYPES = {
     TRACKING: "visualization_msgs/msg/MarkerArray",
     ODOMETRY: "nav_msgs/msg/Odometry",
     PLAN: "nav_msgs/msg/Path",
-    **{topic: "std_msgs/msg/Float64" for topic in RULE_TOPICS.values()},
+    **dict.fromkeys(RULE_TOPICS.values(), "std_msgs/msg/Float64"),
     RULE_DIAGNOSTICS: "diagnostic_msgs/msg/DiagnosticArray",
     LANES: "visualization_msgs/msg/MarkerArray",
     ROUTE: "nav_msgs/msg/Path",

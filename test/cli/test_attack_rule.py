@@ -43,6 +43,30 @@ def test_every_rollout_of_the_search_is_judged_by_the_attacked_rule(phantom):
     header, rows = rows[0], rows[1:]
     broken = [row for row in rows if row[header.index("collided")] == "True"]
     assert broken and all(float(row[header.index("min_signed_distance")]) > 0 for row in broken)
+    # the attacked rule's value is a column of its own, below 0 exactly where the verdict is a violation
+    values = [float(row[header.index("rule_value")]) for row in rows]
+    assert [v < 0 for v in values] == [row[header.index("collided")] == "True" for row in rows]
+    assert values[0] == pytest.approx(json.loads((phantom / "report.json").read_text())
+                                      ["ground_truth_rules"]["phantom_braking"]["value"], rel=1e-6)
+
+
+def test_under_the_collision_rule_the_log_has_no_rule_value_column(repo, tmp_path, capsys):
+    """The collision rule's value is the log's min_signed_distance already: the paper's log is unchanged."""
+    assert _attack(capsys, str(write_params(tmp_path / "p.yaml", repo)), "--output", str(tmp_path / "out"))[0] == 0
+    assert "rule_value" not in (tmp_path / "out" / "search_log.csv").read_text().splitlines()[0]
+
+
+def test_a_threshold_in_the_params_is_what_every_rollout_is_judged_by(repo, phantom, tmp_path, capsys):
+    """`rule.phantom_braking.min_lon_acceleration` moves the bound: the ground truth, which never brakes
+    near either bound, is judged 0.44 m/s^2 nearer a violation under -2.5 than under the default -2.94,
+    in the log's first row and in the report's table of every rule."""
+    params = write_params(tmp_path / "p.yaml", repo, **{"rule.name": "phantom_braking",
+                                                        "rule.phantom_braking.min_lon_acceleration": -2.5})
+    assert _attack(capsys, str(params), "--errors", "all", "--output", str(tmp_path / "out"))[0] == 0
+    judged, default = (json.loads((folder / "report.json").read_text()) for folder in (tmp_path / "out", phantom))
+    truth, truth_default = (r["ground_truth_rules"]["phantom_braking"]["value"] for r in (judged, default))
+    assert truth == pytest.approx(truth_default - 0.44, abs=1e-6)
+    assert judged["params"]["rule.phantom_braking.min_lon_acceleration"] == -2.5
 
 
 def test_a_rule_the_ground_truth_already_breaks_is_nothing_to_attack(repo, tmp_path, capsys):
@@ -55,6 +79,14 @@ def test_a_rule_the_ground_truth_already_breaks_is_nothing_to_attack(repo, tmp_p
 
 @pytest.mark.parametrize("change, says", [
     ({"rule.name": "speeding"}, "parameter 'rule.name' must be one of collision, at_fault_collision"),
+    ({"rule.phantom_braking.min_lon_acceleration": 2.0},
+     "parameter 'rule.phantom_braking.min_lon_acceleration' must be at most 0, got 2.0"),
+    ({"rule.time_to_collision.time_step": 0.0}, "parameter 'rule.time_to_collision.time_step' must be positive"),
+    ({"rule.progress.min_progress_ratio": 1}, "parameter 'rule.progress.min_progress_ratio' must be a float (write 1.0)"),
+    ({"rule.comfort.max_abs_yaw_rate": float("nan")}, "parameter 'rule.comfort.max_abs_yaw_rate' must be a finite number"),
+    ({"rule.comfort.speed": 1.0}, "unknown parameter 'rule.comfort.speed'"),
+    # the contact rules' thresholds are fixed: every backend judges them as the rollout runs
+    ({"rule.at_fault_collision.stopped_speed": 0.1}, "unknown parameter 'rule.at_fault_collision.stopped_speed'"),
     ({"rule.name": "phantom_braking", "rule.at_fault_only": True},
      "parameter 'rule.at_fault_only' is true, but it is of the collision rule and rule.name is phantom_braking"),
 ])

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import ParameterisedRule, parameter
+from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
 from advperc_ros.core.rules.contact import STOPPED_SPEED, excusable
 from advperc_ros.core.rules.inputs import RuleInputs
 
@@ -20,7 +20,8 @@ class AtFaultCollisionParameters:
     """When a contact is not the ego's fault."""
 
     stopped_speed: float = parameter(
-        STOPPED_SPEED, "nuPlan no_ego_at_fault_collisions.py, _ego_is_stopped's stopped_speed_threshold (5e-02 m/s)")
+        STOPPED_SPEED, "nuPlan no_ego_at_fault_collisions.py, _ego_is_stopped's stopped_speed_threshold (5e-02 m/s)",
+        Bounds(low=0.0, high=5.0))
 
 
 class AtFaultCollision(ParameterisedRule):

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import ParameterisedRule, parameter
-from advperc_ros.core.rules.hard_braking import MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE
+from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.rules.hard_braking import BRAKING_BOUNDS, MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE
 from advperc_ros.core.rules.inputs import RuleInputs
 from advperc_ros.core.rules.motion import ego_motion
 
@@ -25,15 +25,20 @@ CONFIG = "nuPlan low_level/{}_statistics.yaml: {}"
 class ComfortParameters:
     """nuPlan's comfort bounds."""
 
-    min_lon_acceleration: float = parameter(MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE)
-    max_lon_acceleration: float = parameter(2.40, CONFIG.format("ego_lon_acceleration", "max_lon_accel (m/s^2)"))
+    min_lon_acceleration: float = parameter(MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE,
+                                            BRAKING_BOUNDS)
+    max_lon_acceleration: float = parameter(2.40, CONFIG.format("ego_lon_acceleration", "max_lon_accel (m/s^2)"),
+                                            Bounds(positive=True, high=30.0))
     max_abs_lat_acceleration: float = parameter(
-        4.89, CONFIG.format("ego_lat_acceleration", "max_abs_lat_accel (m/s^2)"))
-    max_abs_yaw_rate: float = parameter(0.95, CONFIG.format("ego_yaw_rate", "max_abs_yaw_rate (rad/s)"))
+        4.89, CONFIG.format("ego_lat_acceleration", "max_abs_lat_accel (m/s^2)"), Bounds(positive=True, high=30.0))
+    max_abs_yaw_rate: float = parameter(0.95, CONFIG.format("ego_yaw_rate", "max_abs_yaw_rate (rad/s)"),
+                                        Bounds(positive=True, high=10.0))
     max_abs_yaw_acceleration: float = parameter(
-        1.93, CONFIG.format("ego_yaw_acceleration", "max_abs_yaw_accel (rad/s^2)"))
-    max_abs_lon_jerk: float = parameter(4.13, CONFIG.format("ego_lon_jerk", "max_abs_lon_jerk (m/s^3)"))
-    max_abs_jerk_magnitude: float = parameter(8.37, CONFIG.format("ego_jerk", "max_abs_mag_jerk (m/s^3)"))
+        1.93, CONFIG.format("ego_yaw_acceleration", "max_abs_yaw_accel (rad/s^2)"), Bounds(positive=True, high=50.0))
+    max_abs_lon_jerk: float = parameter(4.13, CONFIG.format("ego_lon_jerk", "max_abs_lon_jerk (m/s^3)"),
+                                        Bounds(positive=True, high=100.0))
+    max_abs_jerk_magnitude: float = parameter(8.37, CONFIG.format("ego_jerk", "max_abs_mag_jerk (m/s^3)"),
+                                              Bounds(positive=True, high=100.0))
 
 
 class Comfort(ParameterisedRule):

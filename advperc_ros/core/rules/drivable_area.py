@@ -13,9 +13,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.geometry import box_corners
-from advperc_ros.core.rules.base import ParameterisedRule, parameter
+from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
 from advperc_ros.core.rules.inputs import RuleInputs
-from advperc_ros.core.rules.lanes import ROUTE_WIDTH, ROUTE_WIDTH_SOURCE, outside_road, road
+from advperc_ros.core.rules.lanes import ROUTE_WIDTH, ROUTE_WIDTH_BOUNDS, ROUTE_WIDTH_SOURCE, outside_road, road
 
 
 @dataclass(frozen=True)
@@ -23,8 +23,8 @@ class DrivableAreaParameters:
     """How far off the road a corner may be, and the road of a scenario without lanes."""
 
     max_violation: float = parameter(
-        0.3, "nuPlan drivable_area_compliance_statistics.yaml: max_violation_threshold (m)")
-    route_width: float = parameter(ROUTE_WIDTH, ROUTE_WIDTH_SOURCE)
+        0.3, "nuPlan drivable_area_compliance_statistics.yaml: max_violation_threshold (m)", Bounds(low=0.0, high=10.0))
+    route_width: float = parameter(ROUTE_WIDTH, ROUTE_WIDTH_SOURCE, ROUTE_WIDTH_BOUNDS)
 
 
 class DrivableArea(ParameterisedRule):

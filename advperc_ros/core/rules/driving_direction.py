@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import ParameterisedRule, parameter
+from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
 from advperc_ros.core.rules.inputs import RuleInputs
-from advperc_ros.core.rules.lanes import ROUTE_WIDTH, ROUTE_WIDTH_SOURCE, containing_lane, road
+from advperc_ros.core.rules.lanes import ROUTE_WIDTH, ROUTE_WIDTH_BOUNDS, ROUTE_WIDTH_SOURCE, containing_lane, road
 
 NUPLAN_CONFIG = "nuPlan driving_direction_compliance_statistics.yaml"
 
@@ -25,9 +25,10 @@ NUPLAN_CONFIG = "nuPlan driving_direction_compliance_statistics.yaml"
 class DrivingDirectionParameters:
     """How far against the lane is a violation, over how long."""
 
-    violation_threshold: float = parameter(6.0, f"{NUPLAN_CONFIG}: driving_direction_violation_threshold (m)")
-    time_horizon: float = parameter(1.0, f"{NUPLAN_CONFIG}: time_horizon (s)")
-    route_width: float = parameter(ROUTE_WIDTH, ROUTE_WIDTH_SOURCE)
+    violation_threshold: float = parameter(6.0, f"{NUPLAN_CONFIG}: driving_direction_violation_threshold (m)",
+                                                Bounds(positive=True, high=1000.0))
+    time_horizon: float = parameter(1.0, f"{NUPLAN_CONFIG}: time_horizon (s)", Bounds(positive=True, high=60.0))
+    route_width: float = parameter(ROUTE_WIDTH, ROUTE_WIDTH_SOURCE, ROUTE_WIDTH_BOUNDS)
 
 
 class DrivingDirection(ParameterisedRule):

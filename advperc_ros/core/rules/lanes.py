@@ -8,11 +8,13 @@ time_to_collision (which looks sideways only when the ego is not within one lane
 
 import numpy as np
 
+from advperc_ros.core.rules.base import Bounds
 from advperc_ros.core.rules.inputs import RuleInputs
 from advperc_ros.core.scenario import Lane
 
 ROUTE_WIDTH = 3.5  # m: the road of a scenario without lanes, a corridor about its route
 ROUTE_WIDTH_SOURCE = "a lane's width: the bundled scenarios' lanes and a typical urban lane, 3.5 m (m)"
+ROUTE_WIDTH_BOUNDS = Bounds(positive=True, high=50.0)  # m: a corridor at most a motorway's width
 
 
 def road(inputs: RuleInputs, route_width: float) -> tuple[Lane, ...]:

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import minimum_filter1d
 
-from advperc_ros.core.rules.base import ParameterisedRule, parameter
+from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.rules.hard_braking import BRAKING_BOUNDS
 from advperc_ros.core.rules.inputs import RuleInputs, held
 from advperc_ros.core.rules.motion import longitudinal_acceleration
 
@@ -35,8 +36,9 @@ class PhantomBrakingParameters:
     """What braking counts as hard, and over what time the ground truth's own braking excuses it."""
 
     min_lon_acceleration: float = parameter(-2.94, "0.3 g, a hard braking event in studies of drivers' braking "
-                                                   "(Naito et al. 2009) (m/s^2)")
-    window: float = parameter(1.0, "a judgment: a few frames' shift of a braking the ground truth has (s)")
+                                                   "(Naito et al. 2009) (m/s^2)", BRAKING_BOUNDS)
+    window: float = parameter(1.0, "a judgment: a few frames' shift of a braking the ground truth has (s)",
+                              Bounds(low=0.0, high=60.0))
 
 
 class PhantomBraking(ParameterisedRule):

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import ParameterisedRule, parameter
+from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
 from advperc_ros.core.rules.inputs import RuleInputs, held
 
 
@@ -24,9 +24,11 @@ class ProgressParameters:
     """Least progress, as a fraction of the ground truth's, and the distance below which both count alike."""
 
     min_progress_ratio: float = parameter(
-        0.2, "nuPlan ego_is_making_progress_statistics.yaml: min_progress_threshold (fraction)")
+        0.2, "nuPlan ego_is_making_progress_statistics.yaml: min_progress_threshold (fraction)",
+        Bounds(low=0.0, high=1.0))
     score_progress_threshold: float = parameter(
-        2.0, "nuPlan ego_progress_along_expert_route_statistics.yaml: score_progress_threshold (m)")
+        2.0, "nuPlan ego_progress_along_expert_route_statistics.yaml: score_progress_threshold (m)",
+        Bounds(low=0.0, high=10_000.0))
 
 
 class Progress(ParameterisedRule):

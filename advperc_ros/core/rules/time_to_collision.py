@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.geometry import box_corners, signed_box_distance_pairs, wrap_angle
-from advperc_ros.core.rules.base import ParameterisedRule, parameter
+from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
 from advperc_ros.core.rules.contact import excusable
 from advperc_ros.core.rules.inputs import RuleInputs
 from advperc_ros.core.rules.lanes import ROUTE_WIDTH, containing_lane, road
@@ -33,12 +33,15 @@ NUPLAN_CONFIG = "nuPlan time_to_collision_within_bound_statistics.yaml"
 class TimeToCollisionParameters:
     """The bound on the time to collision and how it is projected."""
 
-    least_min_ttc: float = parameter(0.95, f"{NUPLAN_CONFIG}: least_min_ttc (s)")
-    time_step: float = parameter(0.1, f"{NUPLAN_CONFIG}: time_step_size (s)")
-    time_horizon: float = parameter(3.0, f"{NUPLAN_CONFIG}: time_horizon (s)")
-    stopped_speed: float = parameter(5e-3, "nuPlan compute_time_to_collision: stopped_speed_threshold (m/s)")
-    ahead_angle: float = parameter(30.0, "nuPlan idm/utils.py is_agent_ahead: angle_tolerance (deg)")
-    behind_angle: float = parameter(150.0, "nuPlan idm/utils.py is_agent_behind: angle_tolerance (deg)")
+    least_min_ttc: float = parameter(0.95, f"{NUPLAN_CONFIG}: least_min_ttc (s)", Bounds(low=0.0, high=60.0))
+    time_step: float = parameter(0.1, f"{NUPLAN_CONFIG}: time_step_size (s)", Bounds(positive=True, high=10.0))
+    time_horizon: float = parameter(3.0, f"{NUPLAN_CONFIG}: time_horizon (s)", Bounds(positive=True, high=60.0))
+    stopped_speed: float = parameter(5e-3, "nuPlan compute_time_to_collision: stopped_speed_threshold (m/s)",
+                                    Bounds(low=0.0, high=5.0))
+    ahead_angle: float = parameter(30.0, "nuPlan idm/utils.py is_agent_ahead: angle_tolerance (deg)",
+                                 Bounds(positive=True, high=180.0))
+    behind_angle: float = parameter(150.0, "nuPlan idm/utils.py is_agent_behind: angle_tolerance (deg)",
+                                  Bounds(positive=True, high=180.0))
 
 
 class TimeToCollision(ParameterisedRule):

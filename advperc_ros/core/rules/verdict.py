@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult
 from advperc_ros.core.rules.base import Rule, RuleValue, evaluate
 from advperc_ros.core.rules.inputs import rule_inputs
-from advperc_ros.core.rules.registry import RULES, rule_class
+from advperc_ros.core.rules.registry import DEFAULT_RULEBOOK, RULES, Rulebook
 from advperc_ros.core.scenario import Scenario
 
 CONTACT_RULES = ("collision", "at_fault_collision")
@@ -31,11 +31,12 @@ def contact_rule(at_fault_only: bool) -> str:
 @dataclass(frozen=True)
 class AttackedRule:
     """A rule beyond the contact rules, judging the rollouts of one scenario run with `config` (the
-    ego's footprint the rule reads); `verdict` is the rule's value on a rollout."""
+    ego's footprint the rule reads) by the thresholds of `rulebook`; `verdict` is the rule's value on a rollout."""
 
     name: str
     scenario: Scenario
     config: RolloutConfig
+    rulebook: Rulebook = DEFAULT_RULEBOOK
 
     def __post_init__(self) -> None:
         if self.name not in RULES or self.name in CONTACT_RULES:
@@ -44,7 +45,7 @@ class AttackedRule:
 
     @property
     def rule(self) -> Rule:
-        return rule_class(self.name)()
+        return self.rulebook.rule(self.name)
 
     def value(self, result: RolloutResult, truth: RolloutResult | None) -> RuleValue:
         """The rule on `result`, against the ground truth's rollout `truth` (None: `result` is that rollout)."""
@@ -58,7 +59,9 @@ class AttackedRule:
         return result
 
 
-def attacked_rule(name: str, scenario: Scenario, config: RolloutConfig) -> AttackedRule | None:
-    """The attacked rule `name` as the search judges it apart from the rollout; None for the contact rules,
-    which the backends judge themselves (`RolloutConfig.at_fault_only` for the at-fault one)."""
-    return None if name in CONTACT_RULES else AttackedRule(name, scenario, config)
+def attacked_rule(name: str, scenario: Scenario, config: RolloutConfig,
+                  rulebook: Rulebook = DEFAULT_RULEBOOK) -> AttackedRule | None:
+    """The attacked rule `name` as the search judges it apart from the rollout, by `rulebook`'s thresholds; None
+    for the contact rules, which the backends judge themselves (`RolloutConfig.at_fault_only` for the at-fault one;
+    their parameters are fixed, as every backend judges them while the rollout runs)."""
+    return None if name in CONTACT_RULES else AttackedRule(name, scenario, config, rulebook)

@@ -83,6 +83,7 @@ class LogRow:
     planner_failures: int | None  # planner solves that failed and fell back (None: not reported)
     accepted: bool  # the search adopted this rollout (both algorithms adopt exactly the failing ones)
     best_metric: float  # best metric of an adversarial rollout so far (nan before the first)
+    rule_value: float | None = None  # the attacked rule's value r when it is not a contact rule (`verdict`), else None
 
 
 def perception_scores(scenario: Scenario, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray,
@@ -198,6 +199,7 @@ class AttackProblem:
             planner_failures=result.planner_failures,
             accepted=evaluation.adversarial and phase != Phase.GROUND_TRUTH,
             best_metric=self.best.metric if self.best is not None else float("nan"),
+            rule_value=result.verdict,
         )
         self.log.append(row)
         if self.on_rollout is not None:

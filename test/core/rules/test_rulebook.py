@@ -76,6 +76,42 @@ def test_the_registry_lists_every_rule_with_its_meaning_unit_parameters_and_sour
         assert rule().parameters == defaults
 
 
+def test_every_threshold_of_a_rule_the_search_judges_is_a_parameter_of_the_params_with_its_default_and_bounds():
+    """One definition: the params schema's `rule.<rule>.<parameter>` is generated from the rule's own
+    parameters; the contact rules, which every backend judges as the rollout runs, have none there."""
+    from advperc_ros.params import SCHEMA, rule_parameter
+
+    for name in RULES:
+        for info in parameter_info(rule_class(name).Parameters):
+            assert info.default is not None and (info.bounds.low, info.bounds.high) != (None, None), (name, info)
+            dotted = rule_parameter(name, info.name)
+            if name in ("collision", "at_fault_collision"):
+                assert dotted not in SCHEMA
+                continue
+            param = SCHEMA[dotted]
+            assert (param.type, param.default, param.low, param.high, param.positive) == \
+                (float, info.default, info.bounds.low, info.bounds.high, info.bounds.positive)
+            assert info.source in param.description
+            if info.bounds.high is not None:  # every default lies within its own bounds
+                assert info.default <= info.bounds.high
+
+
+def test_a_rulebook_builds_each_rule_with_the_params_thresholds_and_the_defaults_elsewhere(repo):
+    from advperc_ros.configs import rulebook
+
+    params = load_params(repo / "config" / "idm_lane_following.yaml")
+    defaults = rulebook(params.flat())
+    assert all(defaults.rule(name).parameters == rule_class(name)().parameters for name in RULES)
+    changed = rulebook(params.with_values(**{"rule.time_to_collision.least_min_ttc": 1.5}).flat())
+    assert changed.rule("time_to_collision").parameters.least_min_ttc == 1.5
+    assert changed.rule("time_to_collision").parameters.time_horizon == 3.0
+    assert changed.rule("phantom_braking").parameters == rule_class("phantom_braking")().parameters
+    # the time-to-collision bound moves the value by as much (r = ttc - bound): 1.3 s to contact head on
+    head_on = drive(np.zeros(1), v=10.0, agents=[car(30.0, yaw=np.pi, speed=10.0)])
+    before, after = (evaluate(book.rule("time_to_collision"), head_on).value for book in (defaults, changed))
+    assert (before, after) == (pytest.approx(1.3 - 0.95), pytest.approx(1.3 - 1.5))
+
+
 def test_an_unknown_rule_is_refused_naming_the_known_ones():
     with pytest.raises(ValueError, match=r"unknown rule 'speeding'.*collision"):
         rule_class("speeding")

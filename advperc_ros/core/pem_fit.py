@@ -17,6 +17,8 @@ from advperc_ros.exceptions import BagError
 MIN_OBJECT_FRAMES = 50  # counted object-frames a fit needs at least,
 MIN_DETECTED = 20  # and detected ones among them,
 MIN_FOLLOWING = 20  # and, with track identity, detections that follow an earlier one of their agent
+COPIED = 1e-6  # m: a detection this near its truth in both position components is the truth copied, not detected
+MAX_COPIED_SHARE = 0.5  # detections of an input that may be copies: a detector's are never exact, an attack's mostly
 
 
 def training_set(pairs: Iterable[tuple[BoxSequence, BoxSequence, np.ndarray]], tracked: bool = True) -> ObjectFrames:
@@ -45,7 +47,20 @@ def fit_pem(pairs: Iterable[tuple[BoxSequence, BoxSequence, np.ndarray]], inputs
     if tracked and following < MIN_FOLLOWING:
         raise BagError(f"{inputs[0]}: too few detections follow an earlier one of their agent to fit how position "
                        f"errors persist ({following}, {MIN_FOLLOWING} needed)")
+    _refuse_copied_truth(", ".join(inputs), frames)
     source = f"fitted by advperc pem fit on {', '.join(inputs)} ({detected.size} object-frames)"
     if not tracked:
         source += "; no track identity, so no latency or persistence fitted"
     return fit_object_frames(frames, source, tracked), source
+
+
+def _refuse_copied_truth(name: str, frames: ObjectFrames) -> None:
+    """One BagError line when most detections of the inputs `name` are their ground truth to the micrometre: an
+    attack bag's (the truth with the attack's errors) or the truth itself on the detections topic. A model fitted
+    to them says a detector makes no errors (scales at their floor), which would score any attack as typical."""
+    position = frames.position[frames.detected]
+    copied = int(np.count_nonzero(np.all(np.abs(position) < COPIED, axis=1)))
+    if position.size and copied > MAX_COPIED_SHARE * len(position):
+        raise BagError(f"{name}: {copied} of {len(position)} detections are their ground truth to the micrometre: "
+                       "no detector's output (an attack bag's, or the truth on the detections topic); fit a log of "
+                       "your detector")

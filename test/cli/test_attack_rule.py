@@ -118,3 +118,13 @@ def test_the_rule_choices_are_the_registry_s(repo):
     from advperc_ros.params import SCHEMA
 
     assert SCHEMA["rule.name"].choices == tuple(RULES) and SCHEMA["rule.name"].default == "collision"
+
+
+def test_pem_fit_refuses_an_attack_bag_whose_detections_copy_the_truth(phantom, tmp_path, capsys):
+    """An attack bag's detections are the ground truth with the attack's errors: fitted, they would make a model
+    of a detector without errors (scales at their floor, 20 numpy warnings); refused in one line instead."""
+    capsys.readouterr()
+    code = main(["pem", "fit", str(phantom / "attack"), "--output", str(tmp_path / "m.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "to the micrometre" in err, err
+    assert not (tmp_path / "m.json").exists()

@@ -354,6 +354,9 @@ def _cases() -> list[Case]:
         Case("advperc score GT PERCEIVED --errors", "`--errors ghosts`, no such kind", lambda f: ["score", str(GOOD_BAG), str(GOOD_BAG), "--errors", "ghosts"], "--errors", None),
         Case("advperc score GT PERCEIVED --model", "model file missing", lambda f: ["score", str(GOOD_BAG), str(GOOD_BAG), "--model", str(f / "none.json")], "none.json", "none.json"),
         Case("advperc pem fit BAG --output", "input bag missing", lambda f: ["pem", "fit", str(f / "none"), "--output", str(f / "m.json")], "none", "none"),
+        Case("advperc pem fit BAG --output", "detections that copy the ground truth (an attack bag's)",
+             lambda f: ["pem", "fit", _copied_detections_bag(f), "--output", str(f / "m.json")],
+             "detections are their ground truth to the micrometre", "copied"),
         Case("advperc pem fit BAG --output", "output is a folder", lambda f: (f / "m").mkdir() or ["pem", "fit", str(GOOD_BAG), "--output", str(f / "m")], "m", "m"),
         Case("advperc pem fit BAG --output", "output under a file", lambda f: (f / "file").write_text("x") and ["pem", "fit", str(GOOD_BAG), "--output", str(f / "file" / "m.json")], "file", "file"),
         Case("advperc pem fit BAG --output", "output where nothing can be made (`/proc`)", lambda f: ["pem", "fit", str(GOOD_BAG), "--output", "/proc/m.json"], "cannot create the model file", "/proc/m.json"),
@@ -385,6 +388,22 @@ def _cases() -> list[Case]:
         Case("advperc make-bags SCENARIO", "scenario not YAML", lambda f: (f / "s.yaml").write_text("a: [") and ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "s.yaml", "s.yaml"),
     ]
     return cases
+
+
+def _copied_detections_bag(folder: Path) -> str:
+    """A bag whose /perception/objects are its ground truth's boxes, confidences and all, as an attack bag's are
+    but for the attack's errors."""
+    from advperc_ros.ros import bag as bags
+    from advperc_ros.ros import cdr
+    from advperc_ros.ros.topics import PERCEPTION
+
+    scenario = bags.read_scenario(GOOD_BAG)
+    with bags.open_bag_for_writing(folder / "copied") as bag:
+        bags.write_scenario(bag, scenario)
+        for k, ns in enumerate(scenario.stamps_ns):
+            detected = {**scenario.agents.frame(k), "score": np.ones(len(scenario.agents.frame(k)["ids"]))}
+            bag.write(PERCEPTION, int(ns), cdr.encode_objects(detected, int(ns), "perception"))
+    return str(folder / "copied")
 
 
 def _lanes_only_log(folder: Path) -> list[str]:

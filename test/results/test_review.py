@@ -112,7 +112,7 @@ def test_the_rulebook_judges_an_outcome_once_for_the_report_the_bag_and_the_plot
     fresh = dataclasses.replace(outcome)  # nothing judged yet
     judged = []
     monkeypatch.setattr(outcome_module, "evaluate_rulebook",
-                        lambda inputs, reference: judged.append(inputs) or evaluate_rulebook(inputs, reference))
+                        lambda *given: judged.append(given) or evaluate_rulebook(*given))
     assert rulebook(fresh)["rules"] == {name: rule_entry(value) for name, value in outcome.attack_rules.items()}
     write_attack_bag(tmp_path / "attack", fresh, "{}")
     assert plots.violation_mark(fresh) == plots.violation_mark(outcome) and fresh.violation_frame == outcome.violation_frame

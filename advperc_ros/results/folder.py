@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros.core.perception_errors import PerceptionErrors, inject
+from advperc_ros.core.rules.registry import rule_class
+from advperc_ros.core.rules.verdict import DEFAULT_RULE
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.search.problem import LogRow
 from advperc_ros.core.search.registry import method_class
@@ -62,11 +64,16 @@ def stack_layers(profile: Profile) -> dict[str, ObjectsLayer | PlanLayer]:
 
 
 def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
-    """Per frame: ground truth, perceived objects, tracks, ego odometry, plan and rule value; under an
-    interface profile of its own (`graph.interface`), the perceived objects, tracks, plan and ego also
-    in the profile's types on its topics, so the team's own viewers and tools read the attack."""
+    """Per frame: ground truth, perceived objects, tracks, ego odometry, plan, and every rule's value on a topic
+    of its own (`topics.RULE_TOPICS`: the outcome's `attack_rules`, as report.json's `rules`; +inf where
+    nothing can bring a rule near a violation), the collision rule's also in the diagnostics; under an
+    interface profile of its own (`graph.interface`), the perceived objects, tracks, plan and ego also in the
+    profile's types on its topics, so the team's own viewers and tools read the attack."""
     scenario = outcome.scenario
     rollout = outcome.attack_rollout
+    rules = outcome.attack_rules
+    if rules is None:
+        raise ValueError(f"{scenario.name}: no ground-truth rollout to judge the attack's rules against")
     tracks, plans = rollout.tracks or [], rollout.plans or []
     perceived = inject(scenario.agents, outcome.attack.errors)
     profile = load_profile(outcome.params.graph.interface)
@@ -89,8 +96,9 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
             bag.write(topics.ODOMETRY, ns, odometry)
             if ego_too:
                 bag.write(profile.ego_topic, ns, odometry, topics.TOPIC_TYPES[topics.ODOMETRY])
-            distance = float(rollout.rule[k])
-            bag.write(topics.RULE, ns, cdr.encode_float64(distance))
+            for name, topic in topics.RULE_TOPICS.items():
+                bag.write(topic, ns, cdr.encode_float64(float(rules[name].per_frame[k])))
+            distance = float(rules["collision"].per_frame[k])
             bag.write(topics.RULE_DIAGNOSTICS, ns, msgs.diagnostics_cdr(
                 ns, "collision", "violated" if distance < 0 else "ok", {"min_signed_distance": repr(distance)},
                 level=2 if distance < 0 else 0,
@@ -118,13 +126,21 @@ def _column(panels: list) -> str | dict:
             "splitPercentage": round(100 / len(panels), 1)}
 
 
-def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile | None = None) -> dict:
+def _rule_path(name: str, **style) -> dict:
+    """A Plot panel's series of one rule's value over time, from its topic (`topics.RULE_TOPICS`), labelled with
+    its name unless `style` says otherwise."""
+    return {"value": f"{topics.RULE_TOPICS[name]}.data", "enabled": True, "timestampMethod": "receiveTime",
+            "label": name, **style}
+
+
+def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile | None = None,
+                    rule: str = DEFAULT_RULE) -> dict:
     """A Foxglove layout for an attack bag: a top-down 3D panel over `target` (map frame) with each
-    layer on its own topic in its own colour (the bag's marker colours), the collision rule over time
-    and the JSON summary; under a stack's interface `profile`, a raw-messages panel for each layer the
-    bag also holds in the stack's own types (Foxglove draws no Autoware or vision_msgs objects in 3D,
-    but reads their schemas from the MCAP file). config/foxglove_layout.json is this layout over the
-    origin, for our own types."""
+    layer on its own topic in its own colour (the bag's marker colours), the attacked `rule` over time, every
+    rule of the rulebook over time (in Foxglove's palette) and the JSON summary; under a stack's interface
+    `profile`, a raw-messages panel for each layer the bag also holds in the stack's own types (Foxglove draws
+    no Autoware or vision_msgs objects in 3D, but reads their schemas from the MCAP file).
+    config/foxglove_layout.json is this layout over the origin, for our own types and the collision rule."""
     markers = {topics.GROUND_TRUTH: "ground_truth", topics.PERCEPTION: "perception", topics.TRACKING: "tracking",
                topics.LANES: "lanes"}
     layers = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
@@ -134,7 +150,8 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile |
     layers[topics.PLAN] = {"visible": True, "type": "line", "lineWidth": 0.4,
                            "gradient": [_hex(PLAN_COLOR), _hex((*PLAN_COLOR[:3], 0.3))]}
     layers[topics.ROUTE] = {"visible": True, "type": "line", "lineWidth": 0.15, "gradient": ["#80808080", "#80808080"]}
-    three_d, plot, summary = "3D!attack", "Plot!collision_rule", "RawMessages!summary"
+    three_d, plot, rulebook, summary = "3D!attack", "Plot!attacked_rule", "Plot!rulebook", "RawMessages!summary"
+    attacked = rule_class(rule)
     own = {f"RawMessages!{name}": (name, layer) for name, layer in
            (stack_layers(profile).items() if profile is not None else ())}
     return {
@@ -152,9 +169,14 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile |
                 "foxglovePanelTitle": "attack: truth white, perceived green, tracks blue, ego red, plan orange",
             },
             plot: {
-                "foxglovePanelTitle": f"{topics.RULE}: min signed distance (m), < 0 is a collision",
-                "paths": [{"value": f"{topics.RULE}.data", "enabled": True, "timestampMethod": "receiveTime",
-                           "label": "signed distance (m)", "color": _hex(EGO_COLOR)}],
+                "foxglovePanelTitle": f"{rule} ({attacked.unit}), the attacked rule: {attacked.meaning}; < 0 a violation",
+                "paths": [_rule_path(rule, label=f"{rule} ({attacked.unit})", color=_hex(EGO_COLOR))],
+                "showLegend": True,
+                "isSynced": True,
+            },
+            rulebook: {
+                "foxglovePanelTitle": "every rule of the rulebook (each in its own unit), < 0 a violation",
+                "paths": [_rule_path(name) for name in topics.RULE_TOPICS],
                 "showLegend": True,
                 "isSynced": True,
             },
@@ -166,7 +188,7 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile |
         "userNodes": {},
         "playbackConfig": {"speed": 1.0},
         "layout": {"direction": "row", "first": three_d, "splitPercentage": 65,
-                   "second": _column([plot, summary, *own])},
+                   "second": _column([plot, rulebook, summary, *own])},
     }
 
 
@@ -236,9 +258,9 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
         if outcome.best is not None:
             write_errors(staging / ERRORS, outcome)
             write_attack_bag(staging / BAG_DIR, outcome, text)
-            frame, _ = outcome.attack_rollout.closest_approach()
-            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(tuple(outcome.attack_rollout.ego[frame, :2]),
-                                                                                 load_profile(outcome.params.graph.interface)))
+            watched = tuple(outcome.attack_rollout.ego[outcome.violation_frame, :2])
+            write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(
+                watched, load_profile(outcome.params.graph.interface), outcome.attacked_rule))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
             plots.attack_animation(staging / ANIMATION, outcome)
     return report

@@ -2,6 +2,7 @@
 last seconds and an animation of the whole attack rollout. Headless (Agg)."""
 
 from collections.abc import Mapping
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -22,6 +23,8 @@ from PIL import Image
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.perception_errors import inject
 from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.rules.registry import rule_class
+from advperc_ros.core.rules.verdict import CONTACT_RULES
 from advperc_ros.core.search.books import SHARED_PHASES
 from advperc_ros.core.search.heuristic import LABEL as HEURISTIC
 from advperc_ros.core.search.problem import LogRow, Phase, PhaseLabel
@@ -37,6 +40,9 @@ BOX_STYLES: dict[str, dict[str, Any]] = {  # matplotlib keyword arguments
     "ego": dict(facecolor="tab:red", edgecolor="none", alpha=0.7, label="ego"),
 }
 PLAN_STYLE: dict[str, Any] = dict(color="tab:orange", linewidth=1.5, label="plan")
+# the ego's box at the attacked rule's first violation, when the collision's own look does not mark it
+VIOLATION_STYLE: dict[str, Any] = dict(facecolor="none", edgecolor="tab:purple", linewidth=2.0,
+                                       label="ego at the violation")
 LANE_STYLE: dict[str, Any] = dict(color="0.8", linewidth=1.0, zorder=0)
 NEAR = 10.0  # m: agents closer than this to the ego are kept inside the bird's-eye view
 LOOK_AHEAD = 2.0  # s: the view reaches where the ego will be this much later, so it follows its heading
@@ -133,6 +139,40 @@ def _recorded(outcome: AttackOutcome) -> RolloutResult:
     return outcome.attack_rollout
 
 
+@dataclass(frozen=True)
+class ViolationMark:
+    """The attacked rule's first violation on the attack's rollout, where the bird's-eye view and the animation
+    mark it, so a reviewer sees when a rule other than the collision broke, not only where the drive ended."""
+
+    rule: str
+    frame: int
+    time: float  # s
+    unit: str
+    per_frame: np.ndarray = field(repr=False, compare=False)  # (K,) r at every frame of the attack's rollout
+    # a contact rule broken at the closest approach: the collision, which the plots' own look marks already
+    shown_as_collision: bool = False
+
+    @property
+    def value(self) -> float:
+        """r at the violating frame."""
+        return float(self.per_frame[self.frame])
+
+    @property
+    def label(self) -> str:
+        return f"{self.rule} violated at t = {self.time:.1f} s (r = {self.value:.2f} {self.unit})"
+
+
+def violation_mark(outcome: AttackOutcome) -> ViolationMark | None:
+    """Where the attacked rule first breaks on the attack's rollout; None where the rulebook did not judge it (an
+    outcome without a ground-truth rollout, as a replay's) or it is not broken."""
+    judged = outcome.attacked_rule_value
+    if judged is None or judged.first_violation is None:
+        return None
+    rule, frame = outcome.attacked_rule, judged.first_violation
+    return ViolationMark(rule, frame, float(outcome.scenario.times[frame]), rule_class(rule).unit, judged.per_frame,
+                         rule in CONTACT_RULES and frame == outcome.attack_rollout.closest_approach()[0])
+
+
 def _corners(boxes: dict[str, np.ndarray]) -> np.ndarray:
     return box_corners(boxes["x"], boxes["y"], boxes["yaw"], boxes["length"], boxes["width"]).reshape(-1, 4, 2)
 
@@ -149,6 +189,12 @@ class _Scene:
         self.tracks, self.plans = rollout.tracks, rollout.plans
         self.perceived = inject(outcome.scenario.agents, outcome.best.errors)
         self.ego_size = (outcome.params.ego.length, outcome.params.ego.width)
+        mark = violation_mark(outcome)
+        # the attacked rule's violation, where the collision's look (the drive ending at a contact) does not show it
+        self.mark = None if mark is None or mark.shown_as_collision else mark
+        self.ended_in_contact = bool(rollout.rule[-1] < 0.0)
+        # the agent every view keeps in sight: the closest approach's, unless another rule's violation is marked
+        self.watched = -1 if self.mark is not None else rollout.closest_approach()[1]
 
     def boxes(self, k: int) -> dict[str, np.ndarray]:
         """Corners (n, 4, 2) per layer of BOX_STYLES; no tracks at the collision frame (nothing was planned)."""
@@ -165,11 +211,11 @@ class _Scene:
         plans = self.plans
         return np.column_stack([plans[k].x, plans[k].y]) if k < len(plans) else np.zeros((0, 2))
 
-    def involved(self, k: int, slot: int) -> np.ndarray:
+    def involved(self, k: int) -> np.ndarray:
         """Points a view of frame k must contain: the ego, where it heads, the collision agent (true and
-        perceived), every agent within NEAR of the ego and every ghost detection centred within NEAR."""
+        perceived; `watched`), every agent within NEAR of the ego and every ghost detection centred within NEAR."""
         agents, perceived, ego = self.outcome.scenario.agents, self.perceived, self.rollout.ego[k]
-        slots = (self.rollout.distances[k] < NEAR) | (np.arange(agents.shape[1]) == slot)
+        slots = (self.rollout.distances[k] < NEAR) | (np.arange(agents.shape[1]) == self.watched)
         ghosts = np.hypot(perceived.x[k, len(slots):] - ego[0], perceived.y[k, len(slots):] - ego[1]) < NEAR
         x, y, yaw = ego[:3]
         points = [box_corners(x, y, yaw, *self.ego_size),
@@ -181,9 +227,11 @@ class _Scene:
         return np.concatenate(points)
 
 
-def _legend(fig: Figure, **kwargs) -> None:
+def _legend(fig: Figure, marked: bool = False, **kwargs) -> None:
     handles: list[Artist] = [Patch(**style) for style in BOX_STYLES.values()]
     handles += [Line2D([], [], **PLAN_STYLE)]
+    if marked:
+        handles.append(Patch(**VIOLATION_STYLE))
     fig.legend(handles=handles, ncol=len(handles), frameon=False, **kwargs)
 
 
@@ -192,14 +240,17 @@ def _lanes(outcome: AttackOutcome) -> list[np.ndarray]:
 
 
 def bev_figure(outcome: AttackOutcome, seconds_before: float = 3.0, panels: int = 4) -> Figure:
-    """The last seconds before the collision, one panel per instant. Each panel is centred on the ego,
-    where it heads and the agents involved; all share one scale (square, equal aspect) so motion compares."""
+    """The last seconds before the collision, one panel per instant; where the attacked rule breaks before the
+    drive ends (any rule but a collision at its closest approach: `violation_mark`), the seconds up to its
+    first violation instead, the ego's box there outlined and the suptitle saying what broke. Each panel is
+    centred on the ego, where it heads and the agents involved; all share one scale (square, equal aspect)
+    so motion compares."""
     scenario, scene = outcome.scenario, _Scene(outcome)
-    last = scene.rollout.num_frames - 1
+    mark = scene.mark
+    last = scene.rollout.num_frames - 1 if mark is None else mark.frame
     first = max(0, last - int(round(seconds_before / scenario.dt)))
     frames = np.unique(np.linspace(first, last, panels).round().astype(int))
-    _, slot = scene.rollout.closest_approach()
-    boxes = [scene.involved(k, slot) for k in frames]
+    boxes = [scene.involved(k) for k in frames]
     lows, highs = np.array([b.min(axis=0) for b in boxes]), np.array([b.max(axis=0) for b in boxes])
     half = max(MIN_HALF_WIDTH, ((highs - lows).max() / 2.0) + MARGIN)
     centres = (lows + highs) / 2.0
@@ -215,12 +266,19 @@ def bev_figure(outcome: AttackOutcome, seconds_before: float = 3.0, panels: int 
         ax.set_xlim(centre[0] - half, centre[0] + half)
         ax.set_ylim(centre[1] - half, centre[1] + half)
         ax.set_aspect("equal")
-        collided = k == last and scene.rollout.collided
-        ax.set_title(f"t = {scenario.times[k]:.1f} s" + (" (collision)" if collided else ""), fontsize=10)
+        if mark is not None and k == mark.frame:
+            ego = scene.boxes(k)["ego"]
+            ax.add_collection(PolyCollection(ego, **_unlabelled(VIOLATION_STYLE)))  # type: ignore[arg-type]  # as above
+            what = f" ({mark.rule} violated)"
+        else:
+            what = " (collision)" if k == last and scene.ended_in_contact else ""
+        ax.set_title(f"t = {scenario.times[k]:.1f} s{what}", fontsize=10)
         ax.tick_params(labelsize=8)
         ax.grid(alpha=0.2)
-    fig.suptitle(f"{scenario.name}: the last {seconds_before:g} s of the attack (map frame, m)", fontsize=11)
-    _legend(fig, loc="lower center", fontsize=9)
+    span = (f"the last {seconds_before:g} s of the attack" if mark is None
+            else f"the {seconds_before:g} s up to the violation: {mark.label}")
+    fig.suptitle(f"{scenario.name}: {span} (map frame, m)", fontsize=11)
+    _legend(fig, mark is not None, loc="lower center", fontsize=9)
     fig.tight_layout(rect=(0, 0.07, 1, 1))
     return fig
 
@@ -271,7 +329,10 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
     ax.set_ylabel("m to its left", fontsize=8)
     ax.tick_params(labelsize=7)
     ax.grid(alpha=0.2)
-    ax.set_title(f"{scenario.name}: attack on the {outcome.params.planner} planner", fontsize=9)
+    title = ax.set_title(f"{scenario.name}: attack on the {outcome.params.planner} planner", fontsize=9)
+    mark = scene.mark
+    if mark is not None:  # from the violation on, the title says so: drawn per frame
+        title.set_animated(True)
     _legend(fig, loc="lower center", fontsize=7, handlelength=1.2, columnspacing=1.0)
     fig.tight_layout(rect=(0, 0.06, 1, 1))
     canvas = fig.canvas
@@ -281,6 +342,8 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
     _, slot = scene.rollout.closest_approach()
     agent = int(scenario.agents.ids[:, slot][scenario.agents.valid[:, slot]][0])
     last = scene.rollout.num_frames - 1
+    moving: list[Artist] = [lanes, *layers.values(), plan, label, *([title] if mark is not None else [])]
+    planner_title = title.get_text()
     images = []
     for k in animation_frames(outcome):
         pose = scene.rollout.ego[k, :3]
@@ -289,11 +352,15 @@ def attack_animation(path: Path, outcome: AttackOutcome, dpi: int = 72) -> None:
             layers[name].set_verts(_to_ego(corners, pose))  # type: ignore[arg-type]  # an (N, 4, 2) array, as above
         plan.set_data(*_to_ego(scene.plan(k), pose).T)
         text = f"t = {scenario.times[k]:4.1f} s   nearest agent {scene.rollout.rule[k]:5.2f} m"
-        if k == last and scene.rollout.collided:
+        if mark is not None:
+            text += f"\n{mark.rule} r = {mark.per_frame[k]:5.2f} {mark.unit}"
+            title.set_text(mark.label if k >= mark.frame else planner_title)
+            title.set_color("tab:purple" if k >= mark.frame else "black")
+        if k == last and scene.ended_in_contact:
             text += f"\ncollision with agent {agent}"
         label.set_text(text)
         canvas.restore_region(background)
-        for artist in (lanes, *layers.values(), plan, label):
+        for artist in moving:
             ax.draw_artist(artist)
         images.append(Image.frombuffer("RGBA", canvas.get_width_height(), canvas.buffer_rgba(), "raw", "RGBA", 0, 1)
                       .convert("RGB"))

@@ -13,8 +13,6 @@ from pathlib import Path
 from advperc_ros import __version__
 from advperc_ros.configs import error_kinds
 from advperc_ros.core.rules.base import RuleValue
-from advperc_ros.core.rules.inputs import rule_inputs
-from advperc_ros.core.rules.registry import evaluate_rulebook
 from advperc_ros.core.rules.verdict import DEFAULT_RULE
 from advperc_ros.core.search.diagnosis import listed_ids, why_no_collision
 from advperc_ros.core.search.problem import Evaluation, kind_costs
@@ -59,16 +57,9 @@ def rule_entry(value: RuleValue) -> dict:
 def rulebook(outcome: AttackOutcome) -> dict:
     """report.json's `rules` (every registered rule on the attack's rollout, null without an attack) and
     `ground_truth_rules` (on perfect perception's rollout, null if the search ended before it)."""
-    if outcome.ground_truth is None:
-        return {"rules": None, "ground_truth_rules": None}
-    scenario, config = outcome.scenario, outcome.rollout_config
-    truth = rule_inputs(outcome.ground_truth, scenario, config)
-    judged = {"ground_truth_rules": {name: rule_entry(value)
-                                     for name, value in evaluate_rulebook(truth, truth, outcome.rulebook).items()}}
-    if outcome.recorded is None:
-        return {"rules": None, **judged}
-    attacked = evaluate_rulebook(rule_inputs(outcome.recorded, scenario, config), truth, outcome.rulebook)
-    return {"rules": {name: rule_entry(value) for name, value in attacked.items()}, **judged}
+    judged = {"rules": outcome.attack_rules, "ground_truth_rules": outcome.ground_truth_rules}
+    return {key: None if values is None else {name: rule_entry(value) for name, value in values.items()}
+            for key, values in judged.items()}
 
 
 def versions() -> dict[str, str]:

@@ -62,6 +62,20 @@ def test_every_bev_panel_holds_the_ego_and_the_collision_agent(outcome):
     plt.close(fig)
 
 
+def test_a_collision_is_marked_as_the_collision_it_is(outcome):
+    """The collision rule's first violation is the closest approach, the frame the drive ends at: the plots'
+    collision look marks it (the last panel's "(collision)"), nothing is drawn over it."""
+    mark = plots.violation_mark(outcome)
+    last = outcome.recorded.num_frames - 1
+    assert mark is not None and mark.rule == "collision" and mark.shown_as_collision
+    assert mark.frame == outcome.recorded.closest_approach()[0] == last == outcome.violation_frame
+    assert mark.label == (f"collision violated at t = {outcome.scenario.times[last]:.1f} s "
+                          f"(r = {outcome.recorded.min_signed_distance:.2f} m)")
+    fig = plots.bev_figure(outcome)
+    assert "violat" not in fig.get_suptitle() and not any("violated" in ax.get_title() for ax in fig.axes)
+    plt.close(fig)
+
+
 def test_a_ghost_detection_beside_the_ego_is_drawn_inside_every_panel(outcome, tmp_path):
     """A ghost (a perceived car no agent explains, one more slot than the agents) 6 m ahead of the ego in
     every frame: each bird's-eye panel frames it, and the animation draws it."""

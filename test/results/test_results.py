@@ -6,6 +6,7 @@ import json
 import pytest
 from rosbags.rosbag2 import Reader
 from test_cli import write_params
+from test_review import assert_bag_holds_the_report_s_rules
 from toy_scenarios import CLOSING_LEAD_SPEC, RUNAWAY_LEAD_SPEC
 
 from advperc_ros.cli import main
@@ -50,6 +51,8 @@ def test_every_topic_of_the_foxglove_layout_is_in_the_attack_bag(attack):
     colours = [three_d[topic].get("color") or three_d[topic]["gradient"][0] for topic in layers]
     assert len(set(colours)) == len(layers)  # each layer its own colour
     assert named[topics.RULE].startswith("Plot!") and named[topics.SUMMARY].startswith("RawMessages!")
+    assert all(named.get(topic, "").startswith("Plot!") for topic in topics.RULE_TOPICS.values())  # every rule plotted
+    assert layout["configById"]["Plot!attacked_rule"]["paths"][0]["value"] == f"{topics.RULE}.data"
     assert in_bag[topics.RULE] == "std_msgs/msg/Float64"
     # every layer the bag holds in the stack's own types has a panel of its own, titled with the type
     own = {topic: msgtype for topic, msgtype in in_bag.items() if msgtype.startswith("autoware_")}
@@ -58,6 +61,10 @@ def test_every_topic_of_the_foxglove_layout_is_in_the_attack_bag(attack):
     for topic, msgtype in own.items():
         assert named[topic].startswith("RawMessages!"), topic
         assert layout["configById"][named[topic]]["foxglovePanelTitle"].endswith(msgtype)
+
+
+def test_the_attack_bag_holds_every_rule_per_frame_as_the_report_says(attack):
+    assert_bag_holds_the_report_s_rules(attack)
 
 
 def test_the_layout_looks_at_the_collision(attack):

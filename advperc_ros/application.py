@@ -46,7 +46,10 @@ class RolloutProgress:
     def __call__(self, estimate: Estimate) -> None:
         self.bar.total = estimate.total
         self.bar.set_description(f"{self.name} ({estimate.label})", refresh=False)
-        self.bar.set_postfix(best="none yet" if estimate.best is None else f"{estimate.best:.4f}", refresh=False)
+        postfix = {"best": "none yet" if estimate.best is None else f"{estimate.best:.4f}"}
+        if estimate.inconclusive:  # a stack that fails shows at once, not only in the report
+            postfix["inconclusive"] = str(estimate.inconclusive)
+        self.bar.set_postfix(postfix, refresh=False)
         self.bar.update()
         self.run = estimate.run
         if self.say is not None:
@@ -54,13 +57,15 @@ class RolloutProgress:
 
     def line(self, estimate: Estimate) -> str:
         """The rollout just run, as a person reads it in a log (ros2 launch's): the count against the
-        total the bar shows, its verdict, the best attack so far and the collisions found."""
+        total the bar shows, its verdict, the best attack so far, the collisions found and, once one was,
+        the rollouts left inconclusive."""
         row = estimate.row
         verdict = (f"inconclusive ({row.inconclusive})" if row.inconclusive
                    else "collision" if row.collided else "no collision")
         best = "no attack yet" if estimate.best is None else f"best {self.objective} {estimate.best:.4f}"
+        unsure = f"; {estimate.inconclusive} inconclusive" if estimate.inconclusive else ""
         return (f"rollout {estimate.run} of about {estimate.total}: {verdict}; {best}; "
-                f"{estimate.collisions} collision{'s' * (estimate.collisions != 1)} so far")
+                f"{estimate.collisions} collision{'s' * (estimate.collisions != 1)} so far{unsure}")
 
     def close(self) -> None:
         self.bar.total = self.run
@@ -209,4 +214,5 @@ def summary(report: dict) -> dict:
     """What both ways print of a report when they finish: the scores of an attack found, or how
     close the search came and why nothing was found."""
     found = ("nds", "nds_t", "fn", "tp", "reproduced") if report["collision"] else ("closest_approach", "message")
-    return {key: report[key] for key in ("scenario", "planner", "objective", "rule", "collision", *found, "rollouts")}
+    return {key: report[key] for key in ("scenario", "planner", "objective", "rule", "collision", *found, "rollouts",
+                                         "inconclusive_rollouts")}

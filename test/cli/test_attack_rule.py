@@ -52,8 +52,12 @@ def test_every_rollout_of_the_search_is_judged_by_the_attacked_rule(phantom):
 
 def test_under_the_collision_rule_the_log_has_no_rule_value_column(repo, tmp_path, capsys):
     """The collision rule's value is the log's min_signed_distance already: the paper's log is unchanged."""
-    assert _attack(capsys, str(write_params(tmp_path / "p.yaml", repo)), "--output", str(tmp_path / "out"))[0] == 0
+    capsys.readouterr()
+    assert main(["attack", str(write_params(tmp_path / "p.yaml", repo)), "--output", str(tmp_path / "out"), "--quiet"]) == 0
     assert "rule_value" not in (tmp_path / "out" / "search_log.csv").read_text().splitlines()[0]
+    # the line it prints names the rule and counts the rollouts left inconclusive (none here) beside the report
+    printed = json.loads(capsys.readouterr().out.splitlines()[0])
+    assert (printed["rule"], printed["inconclusive_rollouts"]) == ("collision", 0)
 
 
 def test_a_threshold_in_the_params_is_what_every_rollout_is_judged_by(repo, phantom, tmp_path, capsys):

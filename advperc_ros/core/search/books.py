@@ -43,6 +43,7 @@ class Estimate:
     to_come: int
     label: str
     collisions: int  # conclusive rollouts that collided
+    inconclusive: int = 0  # rollouts so far that a crashed, hung or failing stack left inconclusive
 
     @property
     def run(self) -> int:
@@ -88,13 +89,16 @@ class Books:
         self.logged: list[list[LogRow]] = [[] for _ in range(len(self.stages) + 1)]
         self.current = 0  # the stage of the last row
         self.collisions = 0
+        self.inconclusive = 0
 
     def record(self, row: LogRow) -> None:
         """Book `row` under its stage and send the estimate after it."""
         self.current = self.stage_of[row.phase]
         self.logged[self.current].append(row)
         self.collisions += row.collided and not row.inconclusive
-        self.on_estimate(Estimate(row, self.to_come(row.rollout), self.labels[row.phase].name, self.collisions))
+        self.inconclusive += bool(row.inconclusive)
+        self.on_estimate(Estimate(row, self.to_come(row.rollout), self.labels[row.phase].name, self.collisions,
+                                  self.inconclusive))
 
     def to_come(self, run: int) -> int:
         """Rollouts still to come at most, `run` having run: the stage running, those counted ahead

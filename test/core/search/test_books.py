@@ -146,3 +146,24 @@ def test_the_progress_bar_draws_what_the_search_says(follow, capsys):
     bar.close()
     assert bar.bar.total == len(problem.log) and len(lines) == len(problem.log)
     assert f"{len(problem.log)}/{len(problem.log)}" in capsys.readouterr().err
+
+
+def test_the_books_count_the_inconclusive_rollouts_and_the_bar_and_the_log_line_say_so():
+    """A stack that fails (a crashed planner, a hung node) shows at once on the console, not only in the report."""
+    config = SearchConfig(heuristic_iterations=2, refine_iterations=2)
+    problem = SimpleNamespace(scenario=SimpleNamespace(agents=SimpleNamespace(shape=(50, 3))),
+                              rollouts_allowed=bound(config, 3), best=None)
+    estimates: list = []
+    books = Books(problem, config, search_method(config), estimates.append)
+    rows = [("", False), ("planner node 'p' is gone", False), ("", True), ("a plan timed out", False)]
+    for rollout, (inconclusive, collided) in enumerate(rows, start=1):
+        books.record(LogRow(rollout, Phase.HEURISTIC_DROP, 1, 0.0, 0.0, 0.0, 1.0, collided, inconclusive, 0, collided,
+                            float("nan")))
+    assert [e.inconclusive for e in estimates] == [0, 1, 1, 2] and [e.collisions for e in estimates] == [0, 0, 1, 1]
+    lines: list[str] = []
+    bar = RolloutProgress("follow", enabled=False, say=lines.append)
+    for estimate in estimates:
+        bar(estimate)
+    assert not lines[0].endswith("inconclusive") and lines[1].endswith("; 0 collisions so far; 1 inconclusive")
+    assert lines[-1].startswith("rollout 4 of about ") and lines[-1].endswith("; 1 collision so far; 2 inconclusive")
+    assert bar.bar.postfix == "best=none yet, inconclusive=2"

@@ -18,6 +18,15 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
     side), so a plan received as a nav_msgs/Path, which has no speeds, is followed identically.
     """
     t = np.asarray(plan.t, dtype=float)
+    values = np.array([plan.x, plan.y, plan.yaw], dtype=float)
+    if values.shape[1] != t.size:
+        raise PlanError(f"plan holds {t.size} timestamps but {values.shape[1]} poses")
+    # the poses before the times: a plan timed from its poses' spacing (a distance-sampled Autoware
+    # Trajectory) has NaN times where it has NaN poses, and the poses are the cause
+    if np.count_nonzero(np.isfinite(values)) != values.size:
+        pose = int(np.flatnonzero(~np.isfinite(values).all(axis=0))[0])
+        x, y, yaw = values[:, pose]
+        raise PlanError(f"plan holds non-finite poses (pose {pose} of {t.size}: x {x}, y {y}, yaw {yaw})")
     steps = t[1:] - t[:-1]
     times = t.tolist()
     # strictly increasing (a nan fails the comparison) between finite ends: finite throughout;
@@ -26,11 +35,6 @@ def follow_plan(plan: Trajectory, t_next: float) -> EgoState:
         raise PlanError("plan timestamps must be finite and strictly increasing, at least two poses")
     if not (times[0] - 1e-9 <= t_next <= times[-1] + 1e-9):
         raise PlanError(f"plan covers [{times[0]:.3f}, {times[-1]:.3f}] s, not the next frame at {t_next:.3f} s")
-    values = np.array([plan.x, plan.y, plan.yaw], dtype=float)
-    if values.shape[1] != t.size:
-        raise PlanError(f"plan holds {t.size} timestamps but {values.shape[1]} poses")
-    if np.count_nonzero(np.isfinite(values)) != values.size:
-        raise PlanError("plan holds non-finite poses")
     if np.count_nonzero(np.abs(values[2, 1:] - values[2, :-1]) >= np.pi):  # else np.unwrap changes nothing
         values[2] = np.unwrap(values[2])
     half = 0.5 * float(steps.min())

@@ -217,6 +217,21 @@ def test_an_ego_a_hair_from_a_sample_point_still_gets_a_speed():
     assert follow_plan(timed, timed.t[0] + 0.1).v == pytest.approx(10.0)
 
 
+def test_nan_poses_are_reported_as_nan_poses_not_as_the_times_they_make():
+    """A distance-sampled Autoware Trajectory is timed from its poses' spacing, so a NaN pose made NaN times,
+    and the rollout said "plan timestamps must be finite": the poses are the cause, and are named."""
+    from advperc_ros.exceptions import PlanError
+
+    xs = np.arange(0.0, 30.0)
+    xs[5] = np.nan
+    _, timed = autoware.decode_trajectory(_trajectory(xs, np.full(len(xs), 10.0)), STAMP, (0.0, 0.0), "t")
+    with pytest.raises(PlanError, match=r"plan holds non-finite poses \(pose \d+ of \d+: x nan"):
+        follow_plan(timed, timed.t[0] + 0.1)
+    # timed by its stamps: the same cause, the same words, the pose named
+    with pytest.raises(PlanError, match=r"non-finite poses \(pose 1 of 3: x inf, y 0.0, yaw 0.0\)"):
+        follow_plan(Trajectory(t=np.arange(3.0), x=np.array([0.0, np.inf, 2.0]), y=np.zeros(3), yaw=np.zeros(3)), 0.5)
+
+
 def test_a_plan_whose_poses_are_a_rounding_error_apart_is_refused_not_followed_at_nan():
     from advperc_ros.exceptions import PlanError
 

@@ -78,17 +78,18 @@ class RolloutSoFar:
         self._allocate(16, 8)
 
     def _allocate(self, frames: int, slots: int) -> None:
-        """Room for `frames` x `slots`, what is held copied in; free slots as BoxSequence.empty leaves them."""
-        held, width = len(self.stamps), len(self._slots)
+        """Room for `frames` x `slots` (no less than there is), what is held copied in; free slots as
+        BoxSequence.empty leaves them."""
         room = BoxSequence.empty(frames, slots)
         boxes = {name: getattr(room, name) for name in ("ids", *BOX_FIELDS)}
-        for name, values in self._boxes.items():
-            boxes[name][:held, :width] = values[:held, :width]
         valid, distances, ego = room.valid, np.full((frames, slots), np.inf), np.zeros((frames, 4))
-        if held:
-            valid[:held, :width] = self._valid[:held, :width]
-            distances[:held, :width] = self._distances[:held, :width]
-            ego[:held] = self._ego[:held]
+        held, width = self._valid.shape
+        if self.stamps:
+            for name, values in self._boxes.items():
+                boxes[name][:held, :width] = values
+            valid[:held, :width] = self._valid
+            distances[:held, :width] = self._distances
+            ego[:held] = self._ego
         self._boxes, self._valid, self._distances, self._ego = boxes, valid, distances, ego
 
     def add(self, stamp: int, truth: dict[str, np.ndarray], ego: np.ndarray, distances: np.ndarray) -> None:

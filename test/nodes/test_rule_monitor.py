@@ -12,6 +12,8 @@ from advperc_ros.backends.embedded import Stack
 from advperc_ros.backends.graph.rollouts import GraphRollouts
 from advperc_ros.backends.resumed import Checkpoint, ResumedRollouts
 from advperc_ros.configs import core_configs
+from advperc_ros.core.boxes import BOX_FIELDS
+from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult
 from advperc_ros.core.rules.base import evaluate
@@ -19,7 +21,7 @@ from advperc_ros.core.rules.inputs import rule_inputs
 from advperc_ros.core.rules.registry import RULES, evaluate_rulebook, rule_class
 from advperc_ros.core.scenario import EgoState
 from advperc_ros.exceptions import MessageError
-from advperc_ros.nodes.rule_monitor import RuleMonitor, monitored_rules
+from advperc_ros.nodes.rule_monitor import RolloutSoFar, RuleMonitor, monitored_rules
 from advperc_ros.params import load_params
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
@@ -257,3 +259,27 @@ def test_a_resumed_attack_shows_the_graph_the_ground_truth_it_answers_from_its_c
     assert len(backend.seen) == 2
     assert all(errors is asked and result is answered
                for (errors, result), asked, answered in zip(backend.seen, batch, stored))
+
+
+def test_the_drive_so_far_keeps_one_slot_per_agent_as_agents_come_and_go():
+    """More frames and agents than its first room: every agent in a slot of its own over the frames, absent
+    frames as a scenario leaves them (not valid, distance +inf), what was held kept through each growth."""
+    so_far = RolloutSoFar()
+    rng = np.random.default_rng(1)
+    present = [np.sort(rng.choice(40, size=int(rng.integers(0, 30)), replace=False)) for _ in range(50)]
+    for k, ids in enumerate(present):
+        truth = {"ids": ids, **dict.fromkeys(BOX_FIELDS, ids + 0.5 * k)}
+        so_far.add(k, truth, np.full(4, float(k)), -(ids + 0.25 * k))
+    agents = so_far.agents()
+    assert so_far.num_frames == 50 and agents.shape[1] == len(set(np.concatenate(present).tolist()))
+    inputs = so_far.inputs(0.1, (), Polyline(np.array([[0.0, 0.0], [1.0, 0.0]])), (4.6, 1.9))
+    for k, ids in enumerate(present):
+        shown = agents.valid[k]
+        assert sorted(agents.ids[k][shown].tolist()) == ids.tolist()
+        order = np.argsort(agents.ids[k][shown])
+        assert np.array_equal(agents.x[k][shown][order], ids + 0.5 * k)
+        assert np.array_equal(inputs.distances[k][shown][order], -(ids + 0.25 * k))
+        assert np.all(np.isinf(inputs.distances[k][~shown])) and np.array_equal(inputs.ego[k], np.full(4, float(k)))
+    slot_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]  # each slot's id where first shown
+    first = {int(agent): slot for slot, agent in enumerate(slot_ids)}
+    assert all(agents.ids[k, first[int(agent)]] == agent for k, ids in enumerate(present) for agent in ids)

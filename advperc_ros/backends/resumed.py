@@ -263,12 +263,15 @@ class ResumedRollouts:
         """A batch's rollouts in order: those checkpointed from the checkpoint, the rest on the
         backend (at once where it can), each appended as the batch completes."""
         stored: list[RolloutResult] = []
+        observe = getattr(self._backend, "observe", None)
         while len(stored) < len(batch) and self._next < len(self._checkpoint.done):
             record, errors = self._checkpoint.done[self._next], batch[len(stored)]
             if record.errors != _digest(errors):
                 raise ParamsError(f"{self._checkpoint.folder}: rollout {self._next + 1} differs from the one recorded: "
                                   "the checkpoint is of another attack (or another version of this tool)")
             stored.append(judge(record.result, self._agents, self._config))
+            if observe is not None:  # the graph publishes the ground truth's rollout for its rule monitor
+                observe(errors, stored[-1])
             self._next += 1
         rest = batch[len(stored):]
         many = getattr(self._backend, "rollout_many", None)

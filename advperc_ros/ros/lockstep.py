@@ -9,6 +9,7 @@ written with `repr` by the json module and so round-trip exactly):
 | /attack/ready | volatile | injector -> player | {"rollout", "ahead"}: the injector holds that rollout's errors |
 | /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout"} |
 | /attack/nodes | latched | every graph node -> orchestrator | {"node", "pid"}: the node is up, its topics created |
+| /attack/reference | latched | orchestrator -> rule monitor | {"ego", "dt"}: the ground truth's rollout (ego rows x, y, yaw, v; frame period s) |
 
 `ahead` (optional, false when absent) lets the player publish each frame's ground truth one frame
 ahead of the ego, so that the injector and the tracker work on frame k+1 while the planner plans
@@ -39,7 +40,7 @@ from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.topics import DONE, ERRORS, PRESENCE, READY, RULE_DIAGNOSTICS
+from advperc_ros.ros.topics import DONE, ERRORS, PRESENCE, READY, REFERENCE, RULE_DIAGNOSTICS
 
 RULE_STATUS = "collision"
 MIN_KEY = "min_signed_distance"
@@ -175,6 +176,31 @@ def ready_message(ready: RolloutReady):
 def parse_ready(msg) -> RolloutReady:
     data = _json_object(msg, READY)
     return RolloutReady(_field(data, READY, "rollout", int), _ahead(data, READY))
+
+
+@dataclass(frozen=True)
+class ReferenceDrive:
+    """The ground truth's rollout of the scenario (the stack on perfect perception) as the rule monitor
+    needs it: the rules that judge a drive against it read its ego states and frame period only."""
+
+    ego: np.ndarray  # (K, 4) x, y, yaw, v of the ego's box centre at frames 0..K-1
+    dt: float  # s between frames
+
+
+def reference_message(reference: ReferenceDrive):
+    return msgs.string(json.dumps({"ego": reference.ego.tolist(), "dt": reference.dt}))
+
+
+def parse_reference(msg) -> ReferenceDrive:
+    data = _json_object(msg, REFERENCE)
+    rows = data.get("ego")
+    if not (isinstance(rows, list) and rows):
+        raise MessageError(f"{REFERENCE}: field 'ego' must be a non-empty Kx4 array of finite numbers")
+    ego = _array(data, REFERENCE, "ego", (len(rows), 4), "f")
+    dt = _field(data, REFERENCE, "dt", float)
+    if not (math.isfinite(dt) and dt > 0.0):
+        raise MessageError(f"{REFERENCE}: field 'dt' must be a positive number of seconds, not {dt!r}")
+    return ReferenceDrive(ego.astype(float), dt)
 
 
 def presence_message(node: str, pid: int):

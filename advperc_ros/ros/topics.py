@@ -27,6 +27,7 @@ ERRORS = "/attack/errors"
 READY = "/attack/ready"
 DONE = "/attack/done"
 PRESENCE = "/attack/nodes"
+REFERENCE = "/attack/reference"  # the ground truth's rollout, for the rule monitor's rules that compare with it
 CONTROL_TYPE = "std_msgs/msg/String"
 
 TOPIC_TYPES = {
@@ -44,8 +45,8 @@ TOPIC_TYPES = {
     SUMMARY: "std_msgs/msg/String",
 }
 """The data topics: what bags hold and the graph's nodes exchange per frame."""
-CONTROL_TOPICS = (ERRORS, READY, DONE, PRESENCE)
-LATCHED = frozenset({LANES, ROUTE, FOOTPRINT, SUMMARY, ERRORS, PRESENCE})
+CONTROL_TOPICS = (ERRORS, READY, DONE, PRESENCE, REFERENCE)
+LATCHED = frozenset({LANES, ROUTE, FOOTPRINT, SUMMARY, ERRORS, PRESENCE, REFERENCE})
 
 DEPTH = 1000
 LATCHED_DEPTH = 1

@@ -289,8 +289,40 @@ def test_graph_rollouts_equal_embedded_ones(tmp_path, scenario):
         embedded = stack.rollout(every_kind, record=True)
         assert_same_rollout(result, embedded)  # the injector node keeps the history latency reads, ghosts travel
         assert any(len(got["ids"]) != len(want["ids"]) for got, want in zip(result.tracks, stack.rollout(attack, record=True).tracks))
+        _check_live_rule_values(graph, stack, scenario, attack)
         processes = list(graph.processes.running.values())
     assert all(p.poll() is not None for p in processes)  # shut down on exit
+
+
+def _check_live_rule_values(graph, stack, scenario, attack) -> None:
+    """Watched, the rule monitor publishes every rule at every frame: the rulebook's value on the drive so far,
+    judged against the ground truth's rollout, which the backend has latched on /attack/reference since the
+    first rollout on perfect perception (docs/graph.md, "Rule values per frame")."""
+    from advperc_ros.core.rollout import RolloutResult
+    from advperc_ros.core.rules.base import evaluate
+    from advperc_ros.core.rules.inputs import rule_inputs
+    from advperc_ros.core.rules.registry import RULES, rule_class
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros.topics import RULE_TOPICS
+
+    got: dict[str, list[float]] = {name: [] for name in RULES}
+    transport = graph.client.transport
+    readers = [transport.subscriber(RULE_TOPICS[name], "std_msgs/msg/Float64", raw=True, callback=lambda data, name=name:
+                                    got[name].append(msgs.TYPESTORE.deserialize_cdr(data, "std_msgs/msg/Float64").data))
+               for name in RULES]
+    deadline = time.monotonic() + 30
+    while not all(reader.matched_count() for reader in readers) and time.monotonic() < deadline:
+        transport.spin_once(0.05)
+    result = graph.rollout(attack)
+    while any(len(values) < result.num_frames for values in got.values()) and time.monotonic() < deadline + 30:
+        transport.spin_once(0.05)
+    config = stack.config
+    truth = rule_inputs(stack.rollout(PerceptionErrors.none(*scenario.agents.shape)), scenario, config)
+    for name in RULES:
+        rule = rule_class(name)()
+        so_far = [evaluate(rule, rule_inputs(RolloutResult(ego=result.ego[: k + 1], distances=result.distances[: k + 1]),
+                                              scenario, config), truth).per_frame[-1] for k in range(result.num_frames)]
+        assert got[name] == so_far, name
 
 
 def _every_kind(errors: PerceptionErrors, scenario) -> PerceptionErrors:

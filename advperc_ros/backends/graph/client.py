@@ -30,6 +30,7 @@ from advperc_ros.ros.topics import (
     ODOMETRY,
     PLAN,
     PRESENCE,
+    REFERENCE,
     RULE_DIAGNOSTICS,
     TOPIC_TYPES,
     TRACKING,
@@ -41,7 +42,7 @@ SETTLE = 0.001  # s per spin once /attack/done is in but per-frame messages are 
 
 
 class LockstepClient:
-    """Over one transport: the /attack/errors writer, readers of /attack/done, /attack/nodes and the
+    """Over one transport: the /attack/errors and /attack/reference writers, readers of /attack/done, /attack/nodes and the
     per-frame topics a result needs (tracks and plans too once `record_too` was called)."""
 
     def __init__(self, transport: Transport, agent_ids: np.ndarray, stamps_ns: np.ndarray, stop_at_collision: bool,
@@ -60,6 +61,7 @@ class LockstepClient:
         self._done: list[RolloutDone] = []
         self._next_rollout = 1
         self.errors = transport.publisher(ERRORS, CONTROL_TYPE, latched=True)
+        self.reference = transport.publisher(REFERENCE, CONTROL_TYPE, latched=True)  # the ground truth's rollout
         for topic in PER_FRAME:
             self._subscribe(topic)
         transport.subscriber(DONE, CONTROL_TYPE, callback=lambda msg: self._done.append(parse_done(msg)))

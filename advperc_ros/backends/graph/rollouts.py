@@ -10,7 +10,10 @@ same RolloutResult the embedded `Stack.rollout` returns, so `run_attack` uses it
   acknowledges it to the player, which runs it in lockstep and reports /attack/done;
 - the ego trajectory is read from /ego/odometry, the per-agent signed distances from
   /rules/diagnostics, the verdict (ok or inconclusive, and why) from /attack/done; recorded
-  rollouts also keep /tracking/objects and /planning/trajectory.
+  rollouts also keep /tracking/objects and /planning/trajectory;
+- the first conclusive rollout on perfect perception (the ground truth's, which every search runs
+  first, or which a resumed attack answers from its checkpoint: `observe`) is published on the
+  latched /attack/reference, for the rule monitor's rules that compare the drive with it.
 
 Readiness: every node we started must have announced itself on the latched /attack/nodes, and
 the /attack/errors writer must match a reader (writer-side discovery; builtin-topic readers are
@@ -48,7 +51,7 @@ from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import GraphError, RolloutFault
 from advperc_ros.nodes.graph_nodes import SPECS, node_parameters
 from advperc_ros.ros.interfaces.base import Profile
-from advperc_ros.ros.lockstep import Status
+from advperc_ros.ros.lockstep import ReferenceDrive, Status, reference_message
 from advperc_ros.ros.topics import ERRORS, PRESENCE
 from advperc_ros.ros.transport import Transport
 
@@ -92,6 +95,7 @@ class GraphRollouts:
         self._client: LockstepClient | None = None
         self._own_transport: Any = None  # a DdsTransport we made (not the given one), closed with the graph
         self._recording = False
+        self._reference: ReferenceDrive | None = None  # the ground truth's rollout, once seen
         try:
             self._start()
         except BaseException:
@@ -125,6 +129,8 @@ class GraphRollouts:
                                           self.stop_at_collision, self.profile)
             if self._recording:
                 self.client.record_too()
+            if self._reference is not None:  # a fresh participant: latched again for fresh nodes
+                self.client.reference.publish(reference_message(self._reference))
         while self._missing():
             dead = self.processes.dead()
             if dead is not None:
@@ -287,7 +293,19 @@ class GraphRollouts:
         if done.reason:
             log.warning(f"rollout {rollout} {done.status}: {done.reason}")
         recorded = kept_frames(client.received, self._stamps, done, self.stop_at_collision) if record else None
-        return self._judged(client.received, done.frames, done.reason or None, recorded)
+        result = self._judged(client.received, done.frames, done.reason or None, recorded)
+        self.observe(errors, result)
+        return result
+
+    def observe(self, errors: PerceptionErrors, result: RolloutResult) -> None:
+        """A rollout of the scenario, run here or answered elsewhere (`ResumedRollouts`, from a checkpoint):
+        the first conclusive one on perfect perception is the ground truth's rollout, which the rule
+        monitor judges rollouts against (phantom braking, progress), published once on /attack/reference."""
+        perfect = errors.equals(PerceptionErrors.none(*errors.shape, errors.kinds, errors.ghost_slots))
+        if self._reference is not None or result.inconclusive is not None or not perfect:
+            return
+        self._reference = ReferenceDrive(np.array(result.ego, dtype=float), self.scenario.dt)
+        self.client.reference.publish(reference_message(self._reference))
 
     def _judged(self, received: dict, frames: int, inconclusive: str | None,
                 recorded: tuple[int, int] | None) -> RolloutResult:

@@ -18,18 +18,21 @@ judges the ground truth. Inputs left unpaired when a new rollout starts (`StampP
 
 import math
 import sys
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from advperc_ros.configs import rulebook
 from advperc_ros.core.boxes import BOX_FIELDS, BoxSequence
 from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.rules.base import Rule, evaluate
 from advperc_ros.core.rules.contact import CollisionRule
 from advperc_ros.core.rules.inputs import RuleInputs
-from advperc_ros.core.rules.registry import RULES, rule_class
+from advperc_ros.core.rules.registry import RULES
 from advperc_ros.core.scenario import Lane
 from advperc_ros.nodes.runtime import Logger, NodeSpec, ground_truth_objects, run_node
+from advperc_ros.params import RULE_THRESHOLDS
 from advperc_ros.ros import bag as bags
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
@@ -51,9 +54,11 @@ UNKNOWN_PERIOD = math.inf
 """The frame period before any rollout has shown two frames: no rule reads it on a one-frame drive."""
 
 
-def monitored_rules() -> dict[str, Rule]:
-    """The rules the monitor publishes, every registered one at its defaults: built here only."""
-    return {name: rule_class(name)() for name in RULES}
+def monitored_rules(values: Mapping[str, Any]) -> dict[str, Rule]:
+    """The rules the monitor publishes, every registered one with the params' thresholds (`rule.<rule>.<parameter>`,
+    the same `Rulebook` the search and the report judge by): built here only."""
+    book = rulebook(values)
+    return {name: book.rule(name) for name in RULES}
 
 
 class RolloutSoFar:
@@ -222,10 +227,10 @@ class RuleMonitor:
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> RuleMonitor:
-    return RuleMonitor(transport, values["ego.length"], values["ego.width"], logger, monitored_rules())
+    return RuleMonitor(transport, values["ego.length"], values["ego.width"], logger, monitored_rules(values))
 
 
-SPEC = NodeSpec("rule_monitor", ("ego.length", "ego.width"), _build)
+SPEC = NodeSpec("rule_monitor", ("ego.length", "ego.width", *RULE_THRESHOLDS), _build)
 
 
 def main(args: list[str] | None = None) -> int:

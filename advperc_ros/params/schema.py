@@ -127,6 +127,9 @@ RuleParams: type[RuleChoice] = dataclasses.make_dataclass(
     namespace={"__doc__": "The attacked rule (`RuleChoice`) and, under `rule.<rule>.<parameter>`, every rule's "
                           "thresholds: what the search, the report and the rule monitor judge rollouts by."})
 RULE_DEFAULTS = RuleParams()
+RULE_THRESHOLDS = tuple(rule_parameter(name, f.name) for name, section in RULE_SECTIONS.items()
+                        for f in dataclasses.fields(section))
+"""Every rule threshold's dotted name (`rule.<rule>.<parameter>`): what a node that judges rules declares."""
 
 
 @dataclass(frozen=True)

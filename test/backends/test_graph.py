@@ -210,7 +210,10 @@ def test_each_node_gets_exactly_its_parameters(tmp_path):
                                           "graph.interface": "advperc", "graph.drive": "messages", "ego.length": 4.6,
                                           "ego.width": 1.9}
     assert by_node["planner"]["planner_params.target_speed"] == 14.0
-    assert by_node["planner"]["planner"] == "idm" and by_node["rule_monitor"] == {"ego.length": 4.6, "ego.width": 1.9}
+    from advperc_ros.params import RULE_THRESHOLDS
+
+    assert by_node["planner"]["planner"] == "idm" and by_node["rule_monitor"] == {
+        "ego.length": 4.6, "ego.width": 1.9, **{name: params.get(name) for name in RULE_THRESHOLDS}}
     for spec in SPECS:  # what the launch file hands a node is what the node accepts, unchanged
         values, planner_params = node_values(by_node[spec.name], spec.params, spec.name, spec.planner_params)
         assert values == {name: by_node[spec.name][name] for name in spec.params}

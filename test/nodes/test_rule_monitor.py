@@ -91,11 +91,25 @@ def drives():
     return scenario, configs.rollout, truth, attack
 
 
+DEFAULTS = load_params(REPO / "config" / "idm_lane_following.yaml").flat()
+
+
+def test_the_monitor_judges_by_the_params_thresholds_as_the_search_and_the_report_do():
+    """The node declares every `rule.<rule>.<parameter>` and builds its rules from the same Rulebook."""
+    from advperc_ros.nodes.rule_monitor import SPEC
+    from advperc_ros.params import RULE_THRESHOLDS
+
+    assert set(RULE_THRESHOLDS) <= set(SPEC.params)
+    rules = monitored_rules({**DEFAULTS, "rule.time_to_collision.least_min_ttc": 1.5})
+    assert rules["time_to_collision"].parameters.least_min_ttc == 1.5
+    assert monitored_rules(DEFAULTS)["time_to_collision"].parameters.least_min_ttc == 0.95
+
+
 def monitor(drives, transport=None, road=True):
     config = drives[1]
     transport = transport or Recorder()
     said = Said()
-    node = RuleMonitor(transport, config.ego_length, config.ego_width, said, monitored_rules())
+    node = RuleMonitor(transport, config.ego_length, config.ego_width, said, monitored_rules(DEFAULTS))
     topics, _ = read_topics(BAG, [LANES, ROUTE], raw=True)
     for topic in (LANES, ROUTE) if road else ():
         transport.callbacks[topic](topics[topic][0][1])

@@ -75,10 +75,13 @@ def verdict(status: CellStatus, thresholds: dict[str, float]) -> Verdict:
     if replayed and report["inconclusive"]:
         return Verdict(ERROR, report["verdict"], threshold=threshold)
     rule = status.cell.rule
+    if not report["collision"] and not replayed and rule != DEFAULT_RULE:
+        # no closest approach in metres: this rule's search may well have collided, which it does not count
+        return Verdict(PASS, f"passes: no {rule} violation found", threshold=threshold)
     if not report["collision"]:
         distance = report["min_signed_distance"] if replayed else report["closest_approach"]["min_signed_distance"]
-        missing = "no longer collides" if replayed else "no collision" if rule == DEFAULT_RULE else f"no {rule} violation"
-        return Verdict(PASS, f"passes: {missing}, closest approach {distance:.2f} m", threshold=threshold)
+        return Verdict(PASS, f"passes: {'no longer collides' if replayed else 'no collision'}, closest approach "
+                             f"{distance:.2f} m", threshold=threshold)
     metric = report["metric"] if replayed else report[objective]
     found = f"{'still collides' if replayed else f'{rule} attack'} with {NAMES[objective]} {metric:.4f}"
     if threshold is None:

@@ -408,7 +408,7 @@ def build_parser() -> argparse.ArgumentParser:
     robust.add_argument("--seed", type=int, default=0)
     robust.set_defaults(func=cmd_robustness)
 
-    campaign = sub.add_parser("campaign", help="attack scenarios x objectives x seeds x planners (or replay found "
+    campaign = sub.add_parser("campaign", help="attack scenarios x objectives x seeds x rules x planners (or replay found "
                               "attacks) into one table, JUnit XML included; resumable")
     campaign.add_argument("campaign", help="campaign YAML (see the README's Campaigns)")
     campaign.add_argument("--output", type=_path, help="override the campaign's output folder")

@@ -3,8 +3,9 @@
 A campaign file is one YAML mapping (its fields: `FIELDS`, documented in the README's "Campaigns").
 It is checked whole before any work: every field, every cell's params, every bag and planner; an
 error is one ParamsError naming the file and the field. Cells are named from what they vary,
-`<scenario>-<objective>-<seed>-<planner>` (a replay: `<attack folder>-on-<planner>`), and a cell is
-finished when its folder holds its report (results are renamed into place when complete).
+`<scenario>-<objective>-<seed>-<planner>`, then `-<rule>` when the rule attacked is not the default
+collision (a replay: `<attack folder>-on-<planner>`), and a cell is finished when its folder holds its
+report (results are renamed into place when complete).
 """
 
 import json
@@ -20,6 +21,8 @@ from typing import Any
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
+from advperc_ros.core.rules.registry import RULES
+from advperc_ros.core.rules.verdict import DEFAULT_RULE
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.exceptions import OutputError, ParamsError, PluginError
 from advperc_ros.exits import INPUT_ERRORS
@@ -53,6 +56,7 @@ FIELDS = {
     "scenarios": "params files or ground-truth bag folders to attack (required unless replay)",
     "objectives": "objectives to search for (default: each params file's own)",
     "seeds": "seeds of the search's random draws (default: each params file's own)",
+    "rules": "driving rules to attack (default: each params file's own rule.name)",
     "planners": "planners to attack, each {name, planner, planner_params} (default: each scenario's own)",
     "overrides": "parameters set in every cell, by dotted name (search.random.steps: 4)",
     "executor": "process (a pool of workers), ray, or serial (in this process)",
@@ -62,7 +66,9 @@ FIELDS = {
     "replay": "a folder of attack results folders (another campaign's output): replay each on the planners",
 }
 ENTRY_FIELDS = ("name", "planner", "planner_params")
-AXES = ("bag", "objective", "seed", "planner", PLANNER_PARAMS)  # what cells vary: not for `overrides`
+RULE = "rule.name"  # the parameter the `rules` axis sets
+AXES = ("bag", "objective", "seed", RULE, "planner", PLANNER_PARAMS)  # what cells vary: not for `overrides`
+STACK_AXES = ("objective", "seed", RULE)  # what cells vary that neither reads the bag nor builds the planner
 LABEL = re.compile(r"[A-Za-z0-9_+][A-Za-z0-9_.+-]*")  # a cell name's parts: a folder name, never hidden
 
 
@@ -84,7 +90,7 @@ class PlannerEntry:
 @dataclass(frozen=True)
 class Campaign:
     """A campaign file, checked whole before any cell runs: its cells are the product of scenarios,
-    objectives, seeds and planners (replaying, of a folder's attacks and planners), with the
+    objectives, seeds, rules and planners (replaying, of a folder's attacks and planners), with the
     overrides every cell's params take."""
 
     source: Path
@@ -93,6 +99,7 @@ class Campaign:
     scenarios: tuple[Path, ...]
     objectives: tuple[str, ...] | None
     seeds: tuple[int, ...] | None
+    rules: tuple[str, ...] | None
     planners: tuple[PlannerEntry, ...] | None
     overrides: Mapping[str, Any]
     executor: str
@@ -118,6 +125,12 @@ class Cell:
     values: Mapping[str, Any]  # AttackParams.canonical(): every value that decides the result
     source: Path | None  # the params file, where a relative bag is looked up
     attack: Path | None = None  # a replay cell: the results folder of the attack replayed
+
+    @property
+    def rule(self) -> str:
+        """The driving rule the cell attacks (a replay: that its attack was found under)."""
+        rule: str = self.values[RULE]
+        return rule
 
     @property
     def params(self) -> AttackParams:
@@ -154,6 +167,7 @@ FIELD_RULES = {
     "scenarios": "each a params file or a bag folder, by path",
     "objectives": f"each one of {', '.join(OBJECTIVES)}",
     "seeds": "each an integer >= 0",
+    "rules": f"each one of {', '.join(RULES)}",
 }
 
 
@@ -249,12 +263,13 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
         raise _fail(path, "overrides", f"must be a mapping of dotted parameter names to values, got {overrides!r}")
     for key in overrides:
         if key in AXES:
-            raise _fail(path, "overrides", f"sets '{key}', which the cells vary: use scenarios, objectives, seeds, planners")
+            raise _fail(path, "overrides",
+                        f"sets '{key}', which the cells vary: use scenarios, objectives, seeds, rules, planners")
         if key in EXECUTION:
             raise _fail(path, "overrides",
                         f"sets '{key}': campaign cells roll out embedded, the workers being the parallelism")
     replay = document.get("replay")
-    axes = ("scenarios", "objectives", "seeds")
+    axes = ("scenarios", "objectives", "seeds", "rules")
     if replay is not None:
         given = [field for field in axes if field in document]
         if given:
@@ -269,6 +284,7 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
         scenarios=tuple(_found(path, f"scenarios[{i}]", entry) for i, entry in enumerate(scenarios)),
         objectives=_list(path, document, "objectives", str, lambda value: value in OBJECTIVES),
         seeds=_list(path, document, "seeds", int, lambda value: value >= 0),
+        rules=_list(path, document, "rules", str, lambda value: value in RULES),
         planners=_planner_entries(path, document["planners"]) if "planners" in document else None,
         overrides=dict(overrides),
         executor=executor,
@@ -340,16 +356,26 @@ def _cell(name: str, scenario: str, params: AttackParams, planner: str, attack: 
     return Cell(name, scenario, params.objective, params.seed, planner, params.canonical(), params.source, attack)
 
 
+def _rule_label(rule: str) -> str:
+    """A rule's part of a cell name: none for the default, so that the cells of a campaign from before
+    rules were an axis keep their names (and folders), and adding a rule to it runs only the new rule's."""
+    return "" if rule == DEFAULT_RULE else f"-{rule}"
+
+
 def _attack_cells(campaign: Campaign) -> list[Cell]:
     cells = []
     for index in range(len(campaign.scenarios)):
         label, scenario = _scenario_params(campaign, index)
         scenario = _checked(campaign, "overrides", scenario.with_values, **campaign.overrides)
+        # each rule set before the other axes: a refusal (rule.at_fault_only of another rule) names `rules`
+        ruled = [_checked(campaign, "rules", scenario.with_values, **{RULE: rule}) for rule in campaign.rules or ()]
         for objective in campaign.objectives or (scenario.objective,):
             for seed in campaign.seeds or (scenario.seed,):
-                base = _checked(campaign, "seeds", scenario.with_values, objective=objective, seed=seed)
-                for params, planner in _planned(campaign, base):
-                    cells.append(_cell(f"{label}-{objective}-{seed}-{planner}", label, params, planner))
+                for rule_params in ruled or [scenario]:
+                    base = _checked(campaign, "seeds", rule_params.with_values, objective=objective, seed=seed)
+                    rule = _rule_label(base.rule.name)
+                    for params, planner in _planned(campaign, base):
+                        cells.append(_cell(f"{label}-{objective}-{seed}-{planner}{rule}", label, params, planner))
     return cells
 
 
@@ -387,7 +413,7 @@ def plan(campaign: Campaign) -> list[Cell]:
     checked = set()
     for cell in cells:  # a stack per bag and planner configuration: bags readable, planners buildable
         params = cell.params
-        system = json.dumps({k: v for k, v in cell.values.items() if k not in ("objective", "seed")}, sort_keys=True)
+        system = json.dumps({k: v for k, v in cell.values.items() if k not in STACK_AXES}, sort_keys=True)
         if system not in checked:
             try:
                 Stack(read_scenario(resolve_bag(params)), core_configs(params))

@@ -2,6 +2,10 @@
 figure), summary.md and summary.html (Table 1's layout; the page shows each cell's pictures) and
 junit.xml (a test case per cell, failing when an attack reaches its objective's threshold).
 
+A cell's finding is an attack that breaks its rule, which report.json's `collision` says whatever the
+rule (a collision for the default rule); the rows keep that name, and say the rule in a column of its
+own, and the JUnit test cases in a property and in their failure message.
+
 The tables hold nothing that depends on how or when the cells ran (wall times and the workers' peak
 memory are in the CSV, JSON and JUnit only), so every executor writes the same summary.md for the same campaign and seeds.
 """
@@ -17,6 +21,7 @@ from pathlib import Path
 from urllib.parse import quote
 
 from advperc_ros.campaign.spec import Campaign, Cell
+from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.replay import BEV_PLOT as REPLAY_BEV
 from advperc_ros.replay import REPLAY_MD
 from advperc_ros.results.folder import ANIMATION, BEV_PLOT, METRIC_PLOT, REPORT_MD
@@ -29,7 +34,7 @@ ATTACK_FIELDS = ("heuristic_fn", "heuristic_tp", "heuristic_nds", "heuristic_nds
 REPLAY_FIELDS = ("attack", "attack_planner", "attack_metric", "attack_min_signed_distance", "min_signed_distance",
                  "ground_truth_min_signed_distance", "fn", "tp", "nds", "nds_t", "pem_ll")
 NAMES = {"nds": "NDS", "nds_t": "NDS-t", "pem_ll": "PEM LL"}
-TEXT_COLUMNS = ("scenario", "planner", "objective", "attack", "attacked", "replayed on")  # left-aligned in the page
+TEXT_COLUMNS = ("scenario", "planner", "objective", "rule", "attack", "attacked", "replayed on")  # left-aligned in the page
 
 
 @dataclass(frozen=True)
@@ -56,8 +61,9 @@ class Verdict:
 
 
 def verdict(status: CellStatus, thresholds: dict[str, float]) -> Verdict:
-    """A found attack fails when its metric reaches the objective's threshold (any attack found fails
-    an objective without one); a replay fails the same way when the attack still collides."""
+    """A found attack (one that breaks the cell's rule) fails when its metric reaches the objective's
+    threshold (any attack found fails an objective without one); a replay fails the same way when the
+    attack still collides."""
     if status.error is not None:
         return Verdict(ERROR, status.error.strip().splitlines()[-1])
     report = status.report
@@ -68,12 +74,16 @@ def verdict(status: CellStatus, thresholds: dict[str, float]) -> Verdict:
     threshold = thresholds.get(objective)
     if replayed and report["inconclusive"]:
         return Verdict(ERROR, report["verdict"], threshold=threshold)
+    rule = status.cell.rule
+    if not report["collision"] and not replayed and rule != DEFAULT_RULE:
+        # no closest approach in metres: this rule's search may well have collided, which it does not count
+        return Verdict(PASS, f"passes: no {rule} violation found", threshold=threshold)
     if not report["collision"]:
         distance = report["min_signed_distance"] if replayed else report["closest_approach"]["min_signed_distance"]
         return Verdict(PASS, f"passes: {'no longer collides' if replayed else 'no collision'}, closest approach "
                              f"{distance:.2f} m", threshold=threshold)
     metric = report["metric"] if replayed else report[objective]
-    found = f"{'still collides' if replayed else 'attack'} with {NAMES[objective]} {metric:.4f}"
+    found = f"{'still collides' if replayed else f'{rule} attack'} with {NAMES[objective]} {metric:.4f}"
     if threshold is None:
         return Verdict(FAILURE, f"fails: {found}", metric)
     if metric >= threshold:
@@ -85,8 +95,8 @@ def record(status: CellStatus, thresholds: dict[str, float]) -> dict:
     """A cell's row of summary.csv and summary.json."""
     cell, report, judged = status.cell, status.report or {}, verdict(status, thresholds)
     row = {"cell": cell.name, "scenario": cell.scenario, "planner": cell.planner, "objective": cell.objective,
-           "seed": cell.seed, "outcome": judged.outcome, "verdict": judged.text, "collision": report.get("collision"),
-           "metric": judged.metric, "threshold": judged.threshold}
+           "seed": cell.seed, "rule": cell.rule, "outcome": judged.outcome, "verdict": judged.text,
+           "collision": report.get("collision"), "metric": judged.metric, "threshold": judged.threshold}
     if cell.attack is None:
         heuristic = report.get("heuristic") or {}
         row.update({f"heuristic_{key}": heuristic.get(key) for key in ("fn", "tp", "nds", "nds_t")})
@@ -115,7 +125,7 @@ def _columns(campaign: Campaign, records: list[dict]) -> tuple[list[str], tuple[
     if campaign.replay is not None:
         return ["attack", "scenario", "objective", "attacked", "replayed on", "min signed distance (m): attack / replay",
                 *names, "verdict"], metrics
-    return ["scenario", "planner", "objective", "seed", "heuristic FN/TP, NDS / NDS-t", "attack FN/TP", "MPE (m)",
+    return ["scenario", "planner", "objective", "rule", "seed", "heuristic FN/TP, NDS / NDS-t", "attack FN/TP", "MPE (m)",
             "MAOE (rad)", *names, "rollouts", "verdict"], metrics
 
 
@@ -129,7 +139,7 @@ def _cells(campaign: Campaign, row: dict, metrics: tuple[str, ...]) -> list[str]
     heuristic = (f"{row['heuristic_fn']}/{row['heuristic_tp']}, {_f(row['heuristic_nds'])} / {_f(row['heuristic_nds_t'])}"
                  if row["heuristic_fn"] is not None else "")
     found = row["collision"]
-    return [row["scenario"], row["planner"], row["objective"], str(row["seed"]), heuristic,
+    return [row["scenario"], row["planner"], row["objective"], row["rule"], str(row["seed"]), heuristic,
             f"{row['fn']}/{row['tp']}" if found else "", _f(row["mpe"], 2) if found else "",
             _f(row["maoe"], 2) if found else "", *scores, str(row["rollouts"] or ""), row["verdict"]]
 
@@ -137,7 +147,8 @@ def _cells(campaign: Campaign, row: dict, metrics: tuple[str, ...]) -> list[str]
 def _counts(records: list[dict]) -> str:
     outcomes = [r["outcome"] for r in records]
     found = sum(1 for r in records if r["collision"])
-    return (f"{len(records)} cells: {found} collide, {outcomes.count(FAILURE)} failing their threshold (JUnit failures), "
+    broken = "collide" if all(r["rule"] in CONTACT_RULES for r in records) else "break their rule"
+    return (f"{len(records)} cells: {found} {broken}, {outcomes.count(FAILURE)} failing their threshold (JUnit failures), "
             f"{outcomes.count(ERROR)} errors, {outcomes.count(PENDING)} not finished")
 
 
@@ -205,7 +216,8 @@ def html_page(campaign: Campaign, records: list[dict], output: Path) -> str:
 
 
 def junit(campaign: Campaign, statuses: list[CellStatus], records: list[dict]) -> str:
-    """One test suite, one test case per cell (classname <campaign>.<scenario>)."""
+    """One test suite, one test case per cell (classname <campaign>.<scenario>), its rule a property and,
+    when not the default, the end of its name (the cell's): a dashboard shows which rule failed."""
     outcomes = [r["outcome"] for r in records]
     total = sum(r["wall_time_s"] or 0.0 for r in records)
     counts = {"tests": str(len(records)), "failures": str(outcomes.count(FAILURE)), "errors": str(outcomes.count(ERROR)),
@@ -215,9 +227,12 @@ def junit(campaign: Campaign, statuses: list[CellStatus], records: list[dict]) -
     for status, record in zip(statuses, records):
         case = ET.SubElement(suite, "testcase", classname=f"{campaign.name}.{record['scenario']}", name=record["cell"],
                              time=f"{record['wall_time_s'] or 0.0:.3f}")
+        ET.SubElement(ET.SubElement(case, "properties"), "property", name="rule", value=record["rule"])
         if record["outcome"] == FAILURE:
+            collides = campaign.replay is not None or record["rule"] == DEFAULT_RULE
+            broken = "collides" if collides else f"breaks rule {record['rule']}"
             ET.SubElement(case, "failure", message=record["verdict"], type="AdversarialPerceptionAttack").text = (
-                f"{campaign.output / record['cell']}: an attack on the {record['planner']} planner that collides with "
+                f"{campaign.output / record['cell']}: an attack on the {record['planner']} planner that {broken} with "
                 f"{NAMES[record['objective']]} {record['metric']:.4f}; open the folder's report and bag")
         elif record["outcome"] == ERROR:
             ET.SubElement(case, "error", message=record["verdict"]).text = status.error or record["verdict"]

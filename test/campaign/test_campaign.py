@@ -77,7 +77,7 @@ def test_every_cell_has_its_folder_and_its_row(serial):
         assert (row["collision"], row["nds"], row["nds_t"], row["rollouts"]) == (
             report["collision"], report["nds"], report["nds_t"], report["rollouts"])
     table = (serial / "summary.md").read_text()
-    assert "| scenario | planner | objective | seed | heuristic FN/TP, NDS / NDS-t | attack FN/TP |" in table
+    assert "| scenario | planner | objective | rule | seed | heuristic FN/TP, NDS / NDS-t | attack FN/TP |" in table
     assert not list(serial.glob(".*partial"))
 
 

@@ -209,8 +209,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
         check_output(Path(args.output))
     replayed = replay(attack, params)
     report = write_replay(Path(args.output), replayed) if args.output else replay_report(replayed)
-    keys = ("attack", "scenario", "objective", "attack_planner", "planner", "collision", "verdict", "min_signed_distance",
-            "attack_min_signed_distance", "metric", "nds", "nds_t")
+    keys = ("attack", "scenario", "objective", "rule", "attack_planner", "planner", "collision", "verdict",
+            "min_signed_distance", "rule_value", "attack_min_signed_distance", "metric", "nds", "nds_t")
     print(json.dumps({key: report[key] for key in keys}))
     if args.output:
         print(f"replay written to {args.output}", file=sys.stderr)

@@ -1,5 +1,6 @@
 """Replay a found attack against another planner or configuration: does its error tensor still make
-the ego collide? A regression check after a fix, or a transfer test from one planner to another.
+the ego collide (or break the rule the attack broke)? A regression check after a fix, or a transfer
+test from one planner to another.
 
 The errors are the attack's own (`attack_errors.npz` of its results folder), replayed unchanged on
 the same scenario: the bag the replay's params name must hash as the attack's did (`bag_sha256`).
@@ -16,6 +17,7 @@ from pathlib import Path
 from advperc_ros.backends.registry import open_rollouts
 from advperc_ros.configs import core_configs
 from advperc_ros.core.perception_errors import PerceptionErrors
+from advperc_ros.core.rules.verdict import attacked_rule
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import (
     AttackProblem,
@@ -62,9 +64,13 @@ class Replay:
 
     @property
     def verdict(self) -> str:
-        rollout = self.evaluation.rollout
+        """`still collides` or `no longer collides` under the collision rule; under another rule the attack
+        broke, `still violates <rule>` or `no longer violates <rule>`."""
+        rollout, rule = self.evaluation.rollout, self.params.rule.name
         if rollout.inconclusive:
             return f"inconclusive ({rollout.inconclusive})"
+        if rollout.verdict is not None:
+            return f"{'still' if rollout.collided else 'no longer'} violates {rule}"
         return "still collides" if rollout.collided else "no longer collides"
 
 
@@ -90,8 +96,12 @@ def load_attack(folder: Path) -> FoundAttack:
 
 def replay_params(attack: FoundAttack, other: AttackParams | None) -> AttackParams:
     """The params to replay with: `other`'s (its planner, tracker, ego, backend) judged on the attack's
-    objective, or the attack's own when there is no other."""
-    return attack.params if other is None else other.with_values(objective=attack.params.objective)
+    objective and by the rule it broke, with its thresholds (`rule.*`), or the attack's own when there is
+    no other."""
+    if other is None:
+        return attack.params
+    judged = {name: value for name, value in attack.params.flat().items() if name.startswith("rule.")}
+    return other.with_values(objective=attack.params.objective, **judged)
 
 
 def replay(attack: FoundAttack, params: AttackParams, bag_path: Path | None = None) -> Replay:
@@ -109,14 +119,19 @@ def replay(attack: FoundAttack, params: AttackParams, bag_path: Path | None = No
         raise BagError(f"{attack.folder / ERRORS}: field 'fn' has shape {attack.errors.shape}, the bag {bag_path} has "
                        f"{scenario.agents.shape}")
     configs = core_configs(params)
+    rule = attacked_rule(params.rule.name, scenario, configs.rollout, configs.rulebook)
     with open_rollouts(scenario, configs, bag_path) as rollouts:
-        problem = AttackProblem(scenario, rollouts.rollout, params.objective, kinds=configs.search.errors.kinds)
+        problem = AttackProblem(scenario, rollouts.rollout, params.objective, kinds=configs.search.errors.kinds,
+                                attacked_rule=rule)
         truth = problem.evaluate(PerceptionErrors.none(*scenario.agents.shape), Phase.GROUND_TRUTH).rollout
         if truth.inconclusive or truth.collided:
-            why = truth.inconclusive or f"min signed distance {truth.min_signed_distance:.3f} m"
+            why = truth.inconclusive or (f"min signed distance {truth.min_signed_distance:.3f} m" if rule is None
+                                         else f"rule {rule.name} at {truth.verdict:.4g} {rule.rule.unit}")
             raise GroundTruthFails(f"{params.planner}: the ground truth does not pass with perfect perception ({why}); "
                                    f"replaying the attack in {attack.folder} cannot tell anything")
         result = rollouts.rollout(attack.errors, record=True)
+        if rule is not None:  # judged as the search judged it, against this configuration's ground truth
+            result = rule.judge(result, truth)
     scores = problem.scores(attack.errors, result.num_frames, result.ego_xy)
     evaluation = Evaluation(attack.errors, result, scores, getattr(scores, params.objective))
     return Replay(attack, params, scenario, truth.min_signed_distance, evaluation, time.perf_counter() - started)
@@ -138,8 +153,10 @@ def replay_report(replayed: Replay) -> dict:
         "attack_min_signed_distance": attack["min_signed_distance"],
         "attack_metric": attack[params.objective],
         "planner": params.planner,
+        "rule": params.rule.name,
         "collision": rollout.collided,
         "verdict": replayed.verdict,
+        "rule_value": None if rollout.verdict is None else rounded("min_signed_distance", rollout.verdict),
         "inconclusive": rollout.inconclusive,
         "min_signed_distance": rounded("min_signed_distance", rollout.min_signed_distance),
         "closest_frame": frame,

@@ -63,7 +63,7 @@ class Verdict:
 def verdict(status: CellStatus, thresholds: dict[str, float]) -> Verdict:
     """A found attack (one that breaks the cell's rule) fails when its metric reaches the objective's
     threshold (any attack found fails an objective without one); a replay fails the same way when the
-    attack still collides."""
+    attack still breaks its rule (its verdict: still collides, still violates phantom_braking)."""
     if status.error is not None:
         return Verdict(ERROR, status.error.strip().splitlines()[-1])
     report = status.report
@@ -80,10 +80,10 @@ def verdict(status: CellStatus, thresholds: dict[str, float]) -> Verdict:
         return Verdict(PASS, f"passes: no {rule} violation found", threshold=threshold)
     if not report["collision"]:
         distance = report["min_signed_distance"] if replayed else report["closest_approach"]["min_signed_distance"]
-        return Verdict(PASS, f"passes: {'no longer collides' if replayed else 'no collision'}, closest approach "
+        return Verdict(PASS, f"passes: {report['verdict'] if replayed else 'no collision'}, closest approach "
                              f"{distance:.2f} m", threshold=threshold)
     metric = report["metric"] if replayed else report[objective]
-    found = f"{'still collides' if replayed else f'{rule} attack'} with {NAMES[objective]} {metric:.4f}"
+    found = f"{report['verdict'] if replayed else f'{rule} attack'} with {NAMES[objective]} {metric:.4f}"
     if threshold is None:
         return Verdict(FAILURE, f"fails: {found}", metric)
     if metric >= threshold:

@@ -132,3 +132,19 @@ def test_pem_fit_refuses_an_attack_bag_whose_detections_copy_the_truth(phantom, 
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "to the micrometre" in err, err
     assert not (tmp_path / "m.json").exists()
+
+
+def test_a_replay_judges_the_rule_the_attack_broke_with_its_thresholds(repo, phantom, tmp_path, capsys):
+    """Replayed on its own params the ghost still makes the ego brake for nothing, at the attack's own value;
+    on an IDM that never brakes beyond 1 m/s^2 it no longer does, whatever rule that params file names."""
+    report = json.loads((phantom / "report.json").read_text())
+    gentle = write_params(tmp_path / "gentle.yaml", repo, **{"planner_params.max_decel": 1.0})
+    for argv, verdict in (([], "still violates phantom_braking"), (["--params", str(gentle)],
+                                                                   "no longer violates phantom_braking")):
+        capsys.readouterr()
+        assert main(["replay", str(phantom), *argv]) == 0
+        replayed = json.loads(capsys.readouterr().out.splitlines()[0])
+        assert (replayed["rule"], replayed["verdict"]) == ("phantom_braking", verdict)
+        assert (replayed["rule_value"] < 0) == (verdict.startswith("still"))
+        if not argv:
+            assert replayed["rule_value"] == report["rules"]["phantom_braking"]["value"]

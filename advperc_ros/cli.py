@@ -23,7 +23,7 @@ from advperc_ros.core.rules.registry import RULES
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
-from advperc_ros.exceptions import BagError, ParamsError, ScenarioError, ScenarioRejected
+from advperc_ros.exceptions import BagError, OutputError, ParamsError, ResultsError, ScenarioError, ScenarioRejected
 from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import load_params
@@ -60,11 +60,11 @@ def cmd_make_bags(args: argparse.Namespace) -> int:
         target = out_dir / scenario.name
         if target.is_dir() and not target.is_symlink() and args.force:
             if not (target / "metadata.yaml").is_file():  # --force rewrites bags, never a folder of the user's
-                raise BagError(f"{target}: exists and is not a rosbag2 bag (no metadata.yaml): --force rewrites "
+                raise OutputError(f"{target}: exists and is not a rosbag2 bag (no metadata.yaml): --force rewrites "
                                "bags only")
             check_output(target / "metadata.yaml", "bag")  # writable: the check a new bag folder gets
         elif target.exists() or target.is_symlink():
-            raise BagError(f"{target}: exists already" + (" (use --force to rewrite)" if target.is_dir() else ""))
+            raise OutputError(f"{target}: exists already" + (" (use --force to rewrite)" if target.is_dir() else ""))
         else:
             check_output(target, "bag folder")
     for scenario in scenarios:
@@ -101,7 +101,7 @@ def _write_imported(command: str, source: str, scenario: Scenario, params_of: Ca
     for target in (bag, *files.values()):
         check_output(target, "bag folder" if target == bag else "params file")  # first: a name too long to look up
         if target.exists():
-            raise BagError(f"{target}: exists already, not overwriting")
+            raise OutputError(f"{target}: exists already, not overwriting")
     write_ground_truth_bag(bag, scenario)
     for planner, path in files.items():
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -179,7 +179,8 @@ def cmd_robustness(args: argparse.Namespace) -> int:
     check_output(table, "robustness table")  # a read-only results folder failed after all the rollouts
     scenario = read_scenario(bag)
     if errors.shape != scenario.agents.shape:
-        raise BagError(f"{results / ERRORS}: field 'fn' has shape {errors.shape}, the bag {bag} has {scenario.agents.shape}")
+        raise ResultsError(f"{results / ERRORS}: field 'fn' has shape {errors.shape}, the bag {bag} has "
+                           f"{scenario.agents.shape}")
     configs = core_configs(params)
     problem = AttackProblem(scenario, Stack(scenario, configs).rollout, params.objective,
                             kinds=configs.search.errors.kinds)

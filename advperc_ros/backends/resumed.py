@@ -43,7 +43,7 @@ from advperc_ros.core.perception_errors import PAPER_ARRAYS, PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.staging import staging_path
-from advperc_ros.exceptions import ParamsError
+from advperc_ros.exceptions import OutputError, ParamsError, ResultsError
 
 PARAMS = "params.json"
 ROLLOUTS = "rollouts.jsonl"
@@ -146,13 +146,13 @@ class Checkpoint:
         rollouts = self.folder / ROLLOUTS
         if resume and os.path.lexists(rollouts):
             if self._read(self.folder / PARAMS) != self._identity.encode():
-                raise ParamsError(f"{self.folder / PARAMS}: the checkpoint is of an attack with other params (or "
-                                  "damaged): resume with the params it began with, or delete "
-                                  f"{self.folder} to start the attack over")
+                raise ResultsError(f"{self.folder / PARAMS}: the checkpoint is of an attack with other params (or "
+                                   "damaged): resume with the params it began with, or delete "
+                                   f"{self.folder} to start the attack over")
             self.done, self._last = self._load(rollouts, scenario.agents.shape)
         else:  # a fresh attack, or one killed before its first checkpoint
             if os.path.lexists(self.folder) and not resume:
-                raise ParamsError(f"{output}: an interrupted attack left {self.folder}: finish it with --resume "
+                raise OutputError(f"{output}: an interrupted attack left {self.folder}: finish it with --resume "
                                   f"{output}, or delete that folder")
             shutil.rmtree(self.folder, ignore_errors=True)
             self.folder.mkdir(parents=True)
@@ -267,8 +267,8 @@ class ResumedRollouts:
         while len(stored) < len(batch) and self._next < len(self._checkpoint.done):
             record, errors = self._checkpoint.done[self._next], batch[len(stored)]
             if record.errors != _digest(errors):
-                raise ParamsError(f"{self._checkpoint.folder}: rollout {self._next + 1} differs from the one recorded: "
-                                  "the checkpoint is of another attack (or another version of this tool)")
+                raise ResultsError(f"{self._checkpoint.folder}: rollout {self._next + 1} differs from the one recorded: "
+                                   "the checkpoint is of another attack (or another version of this tool)")
             stored.append(judge(record.result, self._agents, self._config))
             if observe is not None:  # the graph publishes the ground truth's rollout for its rule monitor
                 observe(errors, stored[-1])

@@ -78,3 +78,20 @@ def test_without_an_attack_the_ground_truth_is_still_judged(repo):
     assert judged["rules"] is None and list(judged["ground_truth_rules"]) == list(RULES)
     assert judged["ground_truth_rules"]["collision"]["value"] == pytest.approx(truth.min_signed_distance, rel=1e-6)
     assert rulebook(replace(outcome, ground_truth=None)) == {"rules": None, "ground_truth_rules": None}
+
+
+def test_a_null_result_under_another_rule_says_how_near_its_violation_each_drop_came():
+    """Under the attacked rule the diagnosis reads the log's rule_value: a drop that collided (a contact this
+    rule does not count) is no "closest approach", the drop nearest a violation in r is."""
+    from advperc_ros.core.search.diagnosis import why_no_collision
+    from advperc_ros.core.search.problem import LogRow, Phase
+
+    def row(rollout, phase, agent, distance, value):
+        return LogRow(rollout, phase, agent, 1.0, 1.0, 1.0, distance, False, "", None, False, float("nan"), value)
+
+    log = [row(1, Phase.GROUND_TRUTH, -1, 1.4, 4.01), row(2, Phase.HEURISTIC_DROP, 1, -0.04, 3.5),
+           row(3, Phase.HEURISTIC_DROP, 2, 1.4, 2.25)]
+    text = why_no_collision(log, rule="hard_braking")["message"]
+    assert "nearest a violation r = 2.25, with agent 2 dropped (rollout 3; perfect perception r = 4.01)" in text
+    assert "closest approach" not in text
+    assert "closest approach -0.04 m, with agent 1 dropped" in why_no_collision(log)["message"]

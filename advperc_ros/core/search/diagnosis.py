@@ -45,14 +45,24 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, appr
     if inconclusive:
         text += (f"; the drops of agents {listed_ids([r.agent for r in inconclusive])} were inconclusive "
                  f"({inconclusive[0].inconclusive})")
-    nearest = min(conclusive, key=lambda row: row.min_signed_distance, default=truth)
-    if nearest.min_signed_distance < truth.min_signed_distance:
-        text += (f"; closest approach {nearest.min_signed_distance:.2f} m, with agent {nearest.agent} dropped "
-                 f"(rollout {nearest.rollout}; perfect perception {truth.min_signed_distance:.2f} m)")
-    else:
-        nearest = truth
-        text += (f"; {'no single drop brought the ego closer than perfect perception does: ' if conclusive else ''}"
-                 f"closest approach {truth.min_signed_distance:.2f} m")
+    if rule is None:
+        nearest = min(conclusive, key=lambda row: row.min_signed_distance, default=truth)
+        if nearest.min_signed_distance < truth.min_signed_distance:
+            text += (f"; closest approach {nearest.min_signed_distance:.2f} m, with agent {nearest.agent} dropped "
+                     f"(rollout {nearest.rollout}; perfect perception {truth.min_signed_distance:.2f} m)")
+        else:
+            nearest = truth
+            text += (f"; {'no single drop brought the ego closer than perfect perception does: ' if conclusive else ''}"
+                     f"closest approach {truth.min_signed_distance:.2f} m")
+    else:  # the attacked rule's r, which every rollout's log row holds: how near a violation each drop came
+        nearest = min(conclusive, key=_rule_value, default=truth)
+        if _rule_value(nearest) < _rule_value(truth):
+            text += (f"; nearest a violation r = {_rule_value(nearest):.2f}, with agent {nearest.agent} dropped "
+                     f"(rollout {nearest.rollout}; perfect perception r = {_rule_value(truth):.2f})")
+        else:
+            nearest = truth
+            nothing_nearer = "no single drop brought the ego nearer a violation than perfect perception does: "
+            text += f"; {nothing_nearer if conclusive else ''}r = {_rule_value(truth):.2f}"
     blind_report = None
     if blind is not None:
         text += "; " + _blind_clause(blind, rule)
@@ -80,6 +90,11 @@ def why_no_collision(log: list[LogRow], blind: RolloutResult | None = None, appr
         },
         "ground_truth_min_signed_distance": distance(truth.min_signed_distance),
     }
+
+
+def _rule_value(row: LogRow) -> float:
+    """The attacked rule's r of a logged rollout (a search attacking a rule beyond the collision rule logs it)."""
+    return math.inf if row.rule_value is None else row.rule_value
 
 
 def _blind_clause(blind: RolloutResult, rule: str | None) -> str:

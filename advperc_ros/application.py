@@ -23,7 +23,7 @@ from advperc_ros.core.search.config import SearchConfig, largest_budget, smalles
 from advperc_ros.core.search.diagnosis import inconclusive_search
 from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem
-from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch, Interrupted, ParamsError
+from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch, Interrupted, NodeGone, ParamsError
 from advperc_ros.params import AttackParams, resolve_bag
 from advperc_ros.results.destination import MIB, check_free_space, check_output, exclusive, full_disk_said
 from advperc_ros.results.folder import write_results
@@ -203,6 +203,9 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
         except (InconclusiveSearch, GroundTruthFails):
             finished = True  # rollouts that found nothing out, or nothing to attack: not worth resuming
             raise
+        except NodeGone as gone:
+            raise NodeGone(f"{gone}; the checkpoint keeps every rollout done before it: once the node runs again, "
+                           f"resume the attack (advperc attack {source} --resume {output}, or resume:=true)") from None
         except KeyboardInterrupt:
             raise Interrupted(f"finish it with: advperc attack {source} --resume {output}", output) from None
         finally:

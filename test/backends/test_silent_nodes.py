@@ -2,7 +2,7 @@
 it attacked in its config hash: the failures of issue 32 that named no node, and the three external
 planners whose reports could not be told apart."""
 
-from advperc_ros.backends.graph.rollouts import silence_suspects
+from advperc_ros.backends.graph.rollouts import left_the_graph, silence_suspects, watch
 from advperc_ros.params import load_params
 from advperc_ros.ros.interfaces.registry import load_profile
 from conftest import REPO
@@ -44,6 +44,32 @@ def test_a_node_that_announced_itself_and_died_is_named_gone():
 def test_bare_dds_names_no_one_rather_than_blaming_nobody():
     """Bare DDS has no node names: no "no node publishes" (it cannot know), the processes say who died."""
     assert silence_suspects(SeenGraph(None, {}), {"planner": 3}, load_profile("advperc")) == ""
+
+
+def test_a_running_node_that_left_the_graph_is_named_gone_and_only_what_was_seen_is_missed():
+    """Issue 51: a team's planner gone mid-search had the search run on for 50 rollouts of a timeout each;
+    leaving the ROS graph is how a node we did not start is seen gone (`graph.spawn_nodes: false`)."""
+    profile = load_profile("autoware")
+    up = SeenGraph(("/scenario_player", "/error_injector", "/my_planner", "/orchestrator"),
+                   {profile.plan.topic: ("/my_planner",), profile.tracks.topic: ("/error_injector",)})
+    # "planner_v2" is announced under a name no ROS node bears: never taken for gone
+    present = {"scenario_player": 1, "error_injector": 2, "planner_v2": 3}
+    watched = watch(up, present, profile)
+    assert left_the_graph(up, watched, profile) is None
+    without_planner = SeenGraph(("/scenario_player", "/error_injector", "/orchestrator"),
+                                {profile.tracks.topic: ("/error_injector",)})
+    assert left_the_graph(without_planner, watched, profile) == (
+        f"/my_planner left the ROS graph: no node publishes plans on {profile.plan.topic} any more")
+    without_player = SeenGraph(("/error_injector", "/my_planner"), {profile.plan.topic: ("/my_planner",),
+                                                                     profile.tracks.topic: ("/error_injector",)})
+    assert left_the_graph(without_player, watched, profile) == (
+        "the node scenario_player left the ROS graph (announced on /attack/nodes, no longer in it)")
+
+
+def test_bare_dds_never_sees_a_node_leave():
+    """Bare DDS names no nodes: a team's node gone is seen as the timeouts of the frames it owed."""
+    watched = watch(SeenGraph(None, {}), {"planner": 3}, load_profile("advperc"))
+    assert left_the_graph(SeenGraph(None, {}), watched, load_profile("advperc")) is None
 
 
 def test_three_external_planners_have_three_config_hashes_and_ours_keeps_its_own():

@@ -2,9 +2,11 @@
 orchestrator node both call, so both choose the same output folder, check it before any work,
 run the same search and write the same report."""
 
+import logging
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -211,6 +213,22 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
         finally:
             checkpoint.close(finished)
     return report
+
+
+@contextmanager
+def backend_log(handler: logging.Handler) -> Iterator[None]:
+    """The backends' log lines through `handler` while an attack runs, from INFO up: the graph's
+    line naming the planner it attacks (and the version it announced), a rollout it found
+    inconclusive. Python's logging has no handler of its own for them, and drops INFO lines."""
+    logger = logging.getLogger("advperc_ros.backends")
+    level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 def summary(report: dict) -> dict:

@@ -139,7 +139,8 @@ class GraphRollouts:
 
     # -- lifecycle -------------------------------------------------------------------------------
 
-    def _start(self) -> None:
+    def _start(self, warm_up: str = "a warm-up rollout") -> None:
+        """Start (or restart) the graph and prove it with `warm_up`, the ground-truth rollout a failure names."""
         deadline = time.monotonic() + STARTUP_TIMEOUT
         if self.execution.spawn_nodes:
             self.processes.start()
@@ -158,7 +159,7 @@ class GraphRollouts:
             if time.monotonic() > deadline:
                 raise GraphError(f"not up within {STARTUP_TIMEOUT:g} s: {', '.join(self._missing())}")
             self.client.transport.spin_once(SPIN)
-        self._warm_up(deadline, "a warm-up rollout")
+        self._warm_up(deadline, warm_up)
         self._refuse_others()  # also a graph that came up beside ours while it started
         if not self.execution.spawn_nodes:
             self._watched = watch(self.client.transport, self.client.present, self.profile)
@@ -303,7 +304,7 @@ class GraphRollouts:
                 self._client = None
             else:  # the dead nodes' announcements are gone with them
                 self.client.announced.clear()
-            self._start()
+            self._start("the warm-up rollout of the restarted nodes")
 
     def close(self) -> None:
         """Stop the children (SIGTERM, then SIGKILL) and the transport; idempotent."""

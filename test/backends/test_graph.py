@@ -476,7 +476,8 @@ def test_a_planner_that_exits_mid_search_stops_it_at_once_and_a_resume_finishes_
     checkpoint kept, and `--resume` with a healthy planner reruns from there to the whole report."""
     said = tmp_path / "rollouts_seen"
     frames = read_scenario(BAG).num_frames
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent), str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent), str(REPO / "test"),
+                                                      os.environ.get("PYTHONPATH", "")]))
     monkeypatch.setenv(EXIT_AFTER, f"{3 * frames}:{said}")  # the warm-up, the ground truth's and some of the search's
     params = params_for(tmp_path, planner="test_graph:ExitingPlanner")
     output = tmp_path / "out"
@@ -526,6 +527,34 @@ def test_rclpy_transport_passes_rosbags_messages_through(ros_domain):
         assert [m.data for m in got] == ["ünïcode"]
         sender.destroy_node()  # its participant leaves the domain now, not whenever the worker collects garbage
         receiver.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
+def test_rclpy_transport_sees_a_best_effort_publisher_by_its_qos(ros_domain):
+    """The QoS check of issue 51 where rclpy shows it: a best-effort publisher is named, a reliable one not."""
+    rclpy = need_ros("rclpy")
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from advperc_ros.ros.transport import RclpyTransport
+
+    rclpy.init()
+    try:
+        team, ours = Node("advperc_test_best_effort"), Node("advperc_test_watcher")
+        team.create_publisher(String, "/advperc_test/plans", QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        team.create_publisher(String, "/advperc_test/tracks", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        transport = RclpyTransport(ours)
+        deadline = time.monotonic() + 10.0
+        while not transport.publishers_of("/advperc_test/tracks") and time.monotonic() < deadline:
+            transport.spin_once(0.05)
+        while not transport.best_effort_publishers("/advperc_test/plans") and time.monotonic() < deadline:
+            transport.spin_once(0.05)
+        assert transport.best_effort_publishers("/advperc_test/plans") == ("/advperc_test_best_effort",)
+        assert transport.best_effort_publishers("/advperc_test/tracks") == ()
+        team.destroy_node()
+        ours.destroy_node()
     finally:
         rclpy.try_shutdown()
 

@@ -11,15 +11,20 @@ from conftest import REPO
 class SeenGraph:
     """A transport as the ROS graph API answers (rclpy's), made up: who publishes what, who is there."""
 
-    def __init__(self, nodes: tuple[str, ...] | None, publishers: dict[str, tuple[str, ...]]) -> None:
+    def __init__(self, nodes: tuple[str, ...] | None, publishers: dict[str, tuple[str, ...]],
+                 best_effort: dict[str, tuple[str, ...]] | None = None) -> None:
         self._nodes = nodes
         self._publishers = publishers
+        self._best_effort = best_effort or {}
 
     def node_names(self):
         return self._nodes
 
     def publishers_of(self, topic):
         return None if self._nodes is None else self._publishers.get(topic, ())
+
+    def best_effort_publishers(self, topic):
+        return None if self._nodes is None else self._best_effort.get(topic, ())
 
 
 def test_a_planner_that_never_started_is_named_by_the_topic_nobody_publishes():
@@ -70,6 +75,18 @@ def test_bare_dds_never_sees_a_node_leave():
     """Bare DDS names no nodes: a team's node gone is seen as the timeouts of the frames it owed."""
     watched = watch(SeenGraph(None, {}), {"planner": 3}, load_profile("advperc"))
     assert left_the_graph(SeenGraph(None, {}), watched, load_profile("advperc")) is None
+
+
+def test_a_best_effort_publisher_of_the_plans_is_named_by_its_qos():
+    """Issue 51: a team's planner publishing best effort (our subscribers are reliable) ended "no plan stamped 0
+    ... (a node is dead or silent)", rclpy's one warning lost mid-log."""
+    profile = load_profile("autoware")
+    graph = SeenGraph(("/my_planner", "/tracker"), {profile.plan.topic: ("/my_planner",),
+                                                    profile.tracks.topic: ("/tracker",)},
+                      {profile.plan.topic: ("/my_planner",)})
+    said = silence_suspects(graph, {"tracker": 1}, profile)
+    assert said.startswith(f"/my_planner publishes plans on {profile.plan.topic} best effort, which our reliable "
+                           "subscribers never match: publish them reliable"), said
 
 
 def test_three_external_planners_have_three_config_hashes_and_ours_keeps_its_own():

@@ -257,6 +257,9 @@ class GraphRollouts:
                     return
                 log.info(f"warm-up rollout {rollout} inconclusive ({done.reason}); sending another")
             except RolloutFault as fault:
+                mismatch = qos_mismatch(self.client.transport, self.profile)
+                if mismatch is not None:  # no re-sending makes such a publisher match
+                    raise GraphError(f"the graph did not complete {purpose}: {mismatch}") from None
                 if self._gone() is not None or time.monotonic() > deadline:
                     raise GraphError(f"the graph did not complete {purpose}: {self._named(fault)}") from None
             stall *= 2
@@ -400,6 +403,17 @@ def _gone_from(nodes: tuple[str, ...], announced: Iterable[str]) -> list[str]:
     return sorted(name for name in announced if not any(node.rsplit("/", 1)[-1] == name for node in nodes))
 
 
+def qos_mismatch(transport: Transport, profile: Profile) -> str | None:
+    """A team's node publishing the plans or the tracked objects best effort, which our reliable
+    subscribers never match, where the transport sees publishers' QoS (rclpy; not bare DDS)."""
+    for what, topic in (("plans", profile.plan.topic), ("tracked objects", profile.tracks.topic)):
+        nodes = transport.best_effort_publishers(topic)
+        if nodes:
+            return (f"{', '.join(nodes)} publish{'es' * (len(nodes) == 1)} {what} on {topic} best effort, which our "
+                    "reliable subscribers never match: publish them reliable (docs/graph.md, the QoS of the topics)")
+    return None
+
+
 def silence_suspects(transport: Transport, present: dict[str, int], profile: Profile) -> str:
     """Who should have answered a frame that timed out, as the ROS graph shows them: the nodes
     publishing the plans and the tracked objects (or that none does: a planner that died at start,
@@ -409,7 +423,8 @@ def silence_suspects(transport: Transport, present: dict[str, int], profile: Pro
     nodes = transport.node_names()
     if nodes is None:
         return ""
-    said = []
+    mismatch = qos_mismatch(transport, profile)
+    said = [mismatch] if mismatch is not None else []
     for what, topic in (("plans", profile.plan.topic), ("tracked objects", profile.tracks.topic)):
         publishers = transport.publishers_of(topic) or ()
         said.append(f"{what} on {topic} come from {', '.join(publishers)}" if publishers

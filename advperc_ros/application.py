@@ -2,9 +2,11 @@
 orchestrator node both call, so both choose the same output folder, check it before any work,
 run the same search and write the same report."""
 
+import logging
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -23,7 +25,7 @@ from advperc_ros.core.search.config import SearchConfig, largest_budget, smalles
 from advperc_ros.core.search.diagnosis import inconclusive_search
 from advperc_ros.core.search.pipeline import run_search
 from advperc_ros.core.search.problem import AttackProblem
-from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch, Interrupted, ParamsError
+from advperc_ros.exceptions import GroundTruthFails, InconclusiveSearch, Interrupted, NodeGone, ParamsError
 from advperc_ros.params import AttackParams, resolve_bag
 from advperc_ros.results.destination import MIB, check_free_space, check_output, exclusive, full_disk_said
 from advperc_ros.results.folder import write_results
@@ -203,11 +205,30 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
         except (InconclusiveSearch, GroundTruthFails):
             finished = True  # rollouts that found nothing out, or nothing to attack: not worth resuming
             raise
+        except NodeGone as gone:
+            raise NodeGone(f"{gone}; the checkpoint keeps every rollout done before it: once the node runs again, "
+                           f"resume the attack (advperc attack {source} --resume {output}, or resume:=true)") from None
         except KeyboardInterrupt:
             raise Interrupted(f"finish it with: advperc attack {source} --resume {output}", output) from None
         finally:
             checkpoint.close(finished)
     return report
+
+
+@contextmanager
+def backend_log(handler: logging.Handler) -> Iterator[None]:
+    """The backends' log lines through `handler` while an attack runs, from INFO up: the graph's
+    line naming the planner it attacks (and the version it announced), a rollout it found
+    inconclusive. Python's logging has no handler of its own for them, and drops INFO lines."""
+    logger = logging.getLogger("advperc_ros.backends")
+    level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 def summary(report: dict) -> dict:

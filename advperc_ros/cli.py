@@ -7,6 +7,7 @@ backend that cannot start (`--backend graph`) ends the same way with exit code 4
 
 import argparse
 import json
+import logging
 import math
 import shutil
 import sys
@@ -30,7 +31,7 @@ from advperc_ros.params import load_params
 
 
 def cmd_attack(args: argparse.Namespace) -> int:
-    from advperc_ros.application import attack_to_folder, summary
+    from advperc_ros.application import attack_to_folder, backend_log, summary
 
     params = load_params(args.params)
     overrides = {"seed": args.seed, "rollout_backend": args.backend, "objective": args.objective,
@@ -39,8 +40,11 @@ def cmd_attack(args: argparse.Namespace) -> int:
     if args.resume is not None and args.output is not None and Path(args.resume) != Path(args.output):
         raise ParamsError(f"--resume {args.resume} and --output {args.output}: give the folder once")
     output = args.resume or args.output
-    output, report = attack_to_folder(params, Path(output) if output else None, progress=not args.quiet,
-                                      resume=args.resume is not None)
+    said = logging.StreamHandler(sys.stderr)
+    said.setFormatter(logging.Formatter("advperc: %(message)s"))
+    with backend_log(said):
+        output, report = attack_to_folder(params, Path(output) if output else None, progress=not args.quiet,
+                                          resume=args.resume is not None)
     print(json.dumps(summary(report)))
     print(f"results written to {output}", file=sys.stderr)
     return EXIT_OK

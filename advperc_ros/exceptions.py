@@ -76,6 +76,12 @@ class GraphError(AdvpercError, RuntimeError):
     """The graph could not be started or made ready; the text says which node and why."""
 
 
+class NodeGone(GraphError):
+    """A node the graph needs went for good mid-search (its process exited, or it left the ROS graph):
+    every rollout after it would wait out its timeout and find nothing, so the search stops at once,
+    its checkpoint kept for a resume once the node runs again."""
+
+
 class InconclusiveSearch(AdvpercError, RuntimeError):
     """Most rollouts of a search found nothing out (a node dead or silent, another graph on the
     domain, a planner raising): no collision found would be a claim the search cannot make."""

@@ -15,6 +15,7 @@ drives the nodes already running, through this rclpy node either way.
 """
 
 import json
+import logging
 import sys
 from pathlib import Path
 from typing import Any
@@ -42,13 +43,31 @@ def params_source(args: list[str], bag: Any) -> Path | None:
     return None
 
 
+class NodeLog(logging.Handler):
+    """Python log records in a ROS node's log (rclpy's logger), each at its own severity."""
+
+    def __init__(self, logger: Any) -> None:
+        super().__init__(logging.INFO)
+        self._logger = logger
+
+    def emit(self, record: logging.LogRecord) -> None:
+        # one call site per severity: rclpy's logger raises when a call site changes its severity
+        text = record.getMessage()
+        if record.levelno >= logging.ERROR:
+            self._logger.error(text)
+        elif record.levelno >= logging.WARNING:
+            self._logger.warning(text)
+        else:
+            self._logger.info(text)
+
+
 def main(args: list[str] | None = None) -> int:
     try:
         import rclpy  # noqa: F401
     except ImportError:
         print("orchestrator: rclpy not found; source ROS 2 Jazzy, or run `advperc attack PARAMS` instead", file=sys.stderr)
         return 2  # exits.EXIT_INPUT; importing the whole stack first would hide this message behind its imports
-    from advperc_ros.application import attack_to_folder, summary
+    from advperc_ros.application import attack_to_folder, backend_log, summary
     from advperc_ros.exceptions import Interrupted
     from advperc_ros.heap import keep_freed_heap
     from advperc_ros.nodes.runtime import given_parameters, run_rclpy
@@ -71,8 +90,9 @@ def main(args: list[str] | None = None) -> int:
                                   "; the graph says which planner once it is up)"))
         transport = RclpyTransport(node)  # the graph's nodes are reached, or started as rclpy nodes, through it
         try:
-            folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport,
-                                              resume=resume, say=node.get_logger().info)
+            with backend_log(NodeLog(node.get_logger())):
+                folder, report = attack_to_folder(params, Path(output) if output else None, transport=transport,
+                                                  resume=resume, say=node.get_logger().info)
         except Interrupted as exc:  # the checkpoint is kept; say how to finish it the ROS way
             raise Interrupted(f"{exc.output}: the attack stopped with its checkpoint kept; finish it with the same "
                               f"command and -p {OUTPUT}:={exc.output} -p {RESUME}:=true (launch: output:={exc.output} "

@@ -261,7 +261,8 @@ class ResumedRollouts:
 
     def rollout_many(self, batch: list[PerceptionErrors]) -> list[RolloutResult]:
         """A batch's rollouts in order: those checkpointed from the checkpoint, the rest on the
-        backend (at once where it can), each appended as the batch completes."""
+        backend: at once where it can, appended as the batch completes; else one by one, each appended
+        as it completes (a graph whose node died mid-batch keeps the batch's rollouts done before)."""
         stored: list[RolloutResult] = []
         observe = getattr(self._backend, "observe", None)
         while len(stored) < len(batch) and self._next < len(self._checkpoint.done):
@@ -275,8 +276,14 @@ class ResumedRollouts:
             self._next += 1
         rest = batch[len(stored):]
         many = getattr(self._backend, "rollout_many", None)
-        fresh = many(rest) if many is not None and len(rest) > 1 else [self._backend.rollout(e) for e in rest]
-        for errors, result in zip(rest, fresh):
-            self._checkpoint.append(errors, result)
+        if many is not None and len(rest) > 1:
+            fresh = many(rest)
+            for errors, result in zip(rest, fresh):
+                self._checkpoint.append(errors, result)
+        else:
+            fresh = []
+            for errors in rest:
+                fresh.append(self._backend.rollout(errors))
+                self._checkpoint.append(errors, fresh[-1])
         self._next += len(rest)
         return stored + fresh

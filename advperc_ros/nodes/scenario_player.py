@@ -73,6 +73,7 @@ class _Run:
     clocked: bool = True  # /clock shows this frame's time (drive: clock sets it once the frame's tracks are out)
     rule: float | None = None
     plan: Trajectory | None = None
+    stray: int | None = None  # the last plan stamp this frame that no frame of the scenario bears (wall time?)
 
 
 class ScenarioPlayer:
@@ -82,6 +83,7 @@ class ScenarioPlayer:
     def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, profile: Profile,
                  by_clock: bool, logger: Logger, ego_size: tuple[float, float]) -> None:
         self.scenario = read_scenario(bag)
+        self._frame_stamps = frozenset(int(stamp) for stamp in self.scenario.stamps_ns)
         self._plan_layer = profile.plan
         self._tracks_layer = profile.tracks
         self._by_clock = by_clock
@@ -155,7 +157,7 @@ class ScenarioPlayer:
         run.frame = frame
         run.clocked = not self._by_clock
         run.ego_xy = (ego.x, ego.y)
-        run.rule = run.plan = None
+        run.rule = run.plan = run.stray = None
         run.deadline = time.monotonic() + self._timeout
         if run.ahead and frame + 1 < self.scenario.num_frames:
             self._pub[GROUND_TRUTH].publish(self._ground_truth[frame + 1])
@@ -189,6 +191,8 @@ class ScenarioPlayer:
         if stamp == frame_stamp or (self._by_clock and frame_stamp < stamp and (following is None or stamp < following)):
             run.plan = plan
             self._step()
+        elif stamp not in self._frame_stamps and not (self._by_clock and self._stamp(0) <= stamp <= self._stamp(-1)):
+            run.stray = stamp  # between frames is a timer's plan under drive: clock
 
     def on_rule(self, data: bytes) -> None:
         if self._run is None:
@@ -221,8 +225,10 @@ class ScenarioPlayer:
             return
         missing = " and ".join(what for what, got in (("rule value", run.rule), ("tracked objects", run.clocked or None),
                                                       ("plan", run.plan)) if got is None)
+        why = "(a node is dead or silent)" if run.plan is not None or run.stray is None else \
+            stray_stamps(run.stray, self._stamp(run.frame), self.scenario.stamps_ns)
         self._finish(Status.INCONCLUSIVE, f"frame {run.frame}: no {missing} stamped {self._stamp(run.frame)} within "
-                                   f"{self._timeout:g} s (a node is dead or silent)", timeout=True)
+                                   f"{self._timeout:g} s {why}", timeout=True)
 
     def _finish(self, status: Status, reason: str = "", timeout: bool = False, collided: bool = False) -> None:
         run = self._running()
@@ -236,6 +242,19 @@ class ScenarioPlayer:
             self._log.warning(line)
         self._run = None
         self._done.publish(done_message(done))
+
+
+WALL_CLOCK_NEAR = 86400e9  # ns: a stamp within a day of the wall clock's time is taken for wall time
+
+
+def stray_stamps(stray: int, expected: int, stamps_ns: Any) -> str:
+    """Why a frame's plan never came though plans did: they came under stamps of another clock
+    (a node without use_sim_time stamps wall time, whatever /clock says), named by one of them."""
+    said = (f"(plans arrive stamped {stray} ({stray * 1e-9:.1f} s), none of the scenario's frames, "
+            f"while the clock is at {expected * 1e-9:.1f} s")
+    if abs(stray - time.time_ns()) < WALL_CLOCK_NEAR and not int(stamps_ns[0]) <= stray <= int(stamps_ns[-1]):
+        return said + ": the wall clock's time; is use_sim_time set on the node publishing them?)"
+    return said + ": a plan must carry the stamp of the inputs it answers)"
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> ScenarioPlayer:

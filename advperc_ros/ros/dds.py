@@ -311,6 +311,10 @@ class DdsTransport:
         """As `publishers_of`: no node names over bare DDS."""
         return None
 
+    def best_effort_publishers(self, topic: str) -> None:
+        """A remote writer's QoS is in the builtin publication topic, whose readers crash cyclonedds 11.0.1."""
+        return None
+
     def close(self) -> None:
         """Delete the participant and everything in it now (idempotent)."""
         if self._participant is None:

@@ -66,6 +66,11 @@ class Transport(Protocol):
     def node_names(self) -> tuple[str, ...] | None:
         """Full names of the ROS nodes in the graph now; None over bare DDS, as for `publishers_of`."""
 
+    def best_effort_publishers(self, topic: str) -> tuple[str, ...] | None:
+        """Full names of the nodes publishing `topic` best effort, which no reliable reader of ours
+        matches (their messages never arrive); None where the transport cannot see a publisher's QoS
+        (bare DDS: builtin-topic readers, the one way to, crash cyclonedds 11.0.1)."""
+
 
 def _message_class(msgtype: str) -> Any:
     """The rclpy (rosidl) class of `pkg/msg/Type`: module `pkg.msg`, attribute `Type`."""
@@ -86,6 +91,11 @@ class _RclpyPublication:
 
     def matched_count(self) -> int:
         return int(self._publisher.get_subscription_count())
+
+
+def _full_name(endpoint: Any) -> str:
+    """A graph endpoint's node as `ros2 node list` names it."""
+    return f"{endpoint.node_namespace.rstrip('/')}/{endpoint.node_name}"
 
 
 def _rclpy_qos(latched: bool, reader: bool = False) -> Any:
@@ -269,8 +279,13 @@ class RclpyTransport:
         return subscription
 
     def publishers_of(self, topic: str) -> tuple[str, ...]:
-        return tuple(sorted({f"{info.node_namespace.rstrip('/')}/{info.node_name}"
-                             for info in self._node.get_publishers_info_by_topic(topic)}))
+        return tuple(sorted({_full_name(info) for info in self._node.get_publishers_info_by_topic(topic)}))
+
+    def best_effort_publishers(self, topic: str) -> tuple[str, ...]:
+        from rclpy.qos import ReliabilityPolicy
+
+        return tuple(sorted({_full_name(info) for info in self._node.get_publishers_info_by_topic(topic)
+                             if info.qos_profile.reliability == ReliabilityPolicy.BEST_EFFORT}))
 
     def node_names(self) -> tuple[str, ...]:
         return tuple(sorted(f"{namespace.rstrip('/')}/{name}"

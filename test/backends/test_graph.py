@@ -9,6 +9,7 @@ import contextlib
 import csv
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -31,7 +32,8 @@ from advperc_ros.core.perception_errors import ERROR_KINDS, PerceptionErrors  # 
 from advperc_ros.core.planners.idm import IDMPlanner  # noqa: E402
 from advperc_ros.backends.graph.rollouts import GraphRollouts  # noqa: E402
 from advperc_ros.params import load_params, node_values  # noqa: E402
-from advperc_ros.exceptions import MessageError, ParamsError  # noqa: E402
+from advperc_ros.backends.resumed import checkpoint_folder  # noqa: E402
+from advperc_ros.exceptions import MessageError, NodeGone, ParamsError  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
 from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
 from advperc_ros.ros.bag import read_scenario  # noqa: E402
@@ -40,6 +42,7 @@ from advperc_ros.ros.lockstep import RolloutClock  # noqa: E402
 BAG = REPO / "bags" / "idm_lane_following"
 TOLERANCE = 1e-9  # m, m/s, rad: graph against embedded (docs/graph.md)
 ARM = "ADVPERC_TEST_HANG"  # env var naming the file that arms HangingPlanner
+EXIT_AFTER = "ADVPERC_TEST_EXIT_AFTER"  # env var: plans after which ExitingPlanner's process exits, and where it says
 _domain_ids = bare_dds_domains(50)  # test_dds starts 50 ids away
 
 
@@ -57,6 +60,26 @@ class HangingPlanner(IDMPlanner):
             arm.unlink()
             while True:
                 time.sleep(1.0)
+        return super().plan(t, ego, tracks)
+
+
+class ExitingPlanner(IDMPlanner):
+    """The IDM planner, but with $ADVPERC_TEST_EXIT_AFTER set to "N:FILE" its process exits (code 3)
+    at its N+1st plan, first writing into FILE how many rollouts it saw: a planner that crashes for good."""
+
+    plans = 0
+    rollouts_seen = -1  # IDMPlanner's constructor resets too
+
+    def reset(self) -> None:
+        ExitingPlanner.rollouts_seen += 1
+        super().reset()
+
+    def plan(self, t, ego, tracks):
+        armed = os.environ.get(EXIT_AFTER)
+        ExitingPlanner.plans += 1
+        if armed is not None and ExitingPlanner.plans > int(armed.split(":", 1)[0]):
+            Path(armed.split(":", 1)[1]).write_text(str(ExitingPlanner.rollouts_seen))
+            os._exit(3)
         return super().plan(t, ego, tracks)
 
 
@@ -399,9 +422,10 @@ def test_an_inconclusive_warm_up_is_sent_again_before_the_search_starts(tmp_path
         assert_same_rollout(graph.rollout(truth), expected)  # the first rollout after the warm-up
 
 
-# ----- (c) a dead or silent planner: that rollout is inconclusive, the next one proceeds ----------
+# ----- (c) a silent planner: that rollout is inconclusive, the next one proceeds; a dead one stops the search --
 
-def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenario, monkeypatch, caplog):
+def test_a_silent_planner_makes_one_rollout_inconclusive_and_a_killed_one_stops_the_search(tmp_path, scenario,
+                                                                                           monkeypatch, caplog):
     arm = tmp_path / "hang"
     monkeypatch.setenv(ARM, str(arm))
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent), str(REPO / "test"), os.environ.get("PYTHONPATH", "")]))
@@ -410,11 +434,24 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
     expected = Stack(scenario, core_configs(params.with_values(planner="idm"))).rollout(truth)
     caplog.set_level("ERROR", logger="advperc_ros.backends.graph")
     with GraphRollouts(scenario, core_configs(params), BAG) as graph:
-        # killed mid-rollout: once the planner hangs at t >= 2 s, kill its process
+        # silent: the planner stops answering; the player times out after graph.timeout, the nodes restart
+        arm.touch()
+        silent_planner = graph.processes.running["planner"].pid
+        silent = graph.rollout(truth)
+        assert "no plan stamped" in silent.inconclusive and "within 2 s" in silent.inconclusive
+        assert graph.processes.running["planner"].pid != silent_planner  # restarted
+        assert_same_rollout(graph.rollout(truth), expected)
+        # killed mid-rollout: once the planner hangs at t >= 2 s, kill its process: gone for good
         arm.touch()
         planner = graph.processes.running["planner"]
         outcome = {}
-        worker = threading.Thread(target=lambda: outcome.setdefault("result", graph.rollout(truth)))
+
+        def run() -> None:
+            try:
+                outcome["result"] = graph.rollout(truth)
+            except NodeGone as gone:
+                outcome["gone"] = gone
+        worker = threading.Thread(target=run)
         worker.start()
         try:
             deadline = time.monotonic() + 30.0
@@ -423,21 +460,46 @@ def test_dead_or_silent_planner_makes_one_rollout_inconclusive(tmp_path, scenari
             assert not arm.exists(), "the planner never reached t = 2 s"
             os.kill(planner.pid, signal.SIGKILL)
         finally:
-            worker.join(60.0)  # the rollout ends either way: dead planner, or the player's timeout
-        assert not worker.is_alive()
-        killed = outcome["result"]
-        assert "planner process exited with code -9" in killed.inconclusive
-        assert 0 < killed.num_frames < scenario.num_frames and not killed.collided
-        assert graph.processes.running["planner"].pid != planner.pid  # restarted
-        assert_same_rollout(graph.rollout(truth), expected)
-        # silent: the planner stops answering; the player times out after graph.timeout
-        arm.touch()
-        silent = graph.rollout(truth)
-        assert "no plan stamped" in silent.inconclusive and "within 2 s" in silent.inconclusive
-        assert_same_rollout(graph.rollout(truth), expected)
+            worker.join(60.0)
+        assert not worker.is_alive() and "result" not in outcome
+        assert re.search(r"the search stops, as every rollout after would be inconclusive: in rollout \d+, the planner "
+                         r"process was killed by signal SIGKILL", str(outcome["gone"]))
+        with pytest.raises(NodeGone, match="planner process was killed"):  # known gone: not sent, not waited for
+            graph.rollout(truth)
     lines = [r.getMessage() for r in caplog.records if r.levelname == "ERROR"]
-    assert len(lines) == 2 and all("inconclusive" in line and "restarting" in line for line in lines)
-    assert "planner process exited" in lines[0] and "no plan stamped" in lines[1]
+    assert len(lines) == 1 and "inconclusive" in lines[0] and "restarting" in lines[0] and "no plan stamped" in lines[0]
+
+
+def test_a_planner_that_exits_mid_search_stops_it_at_once_and_a_resume_finishes_it(tmp_path, monkeypatch, capsys):
+    """Issue 51: a planner crashed for good had the search run on against it, some 50 rollouts of a timeout
+    each. Now the rollout it dies in is the last: exit 4, one line naming it and its exit code, the
+    checkpoint kept, and `--resume` with a healthy planner reruns from there to the whole report."""
+    said = tmp_path / "rollouts_seen"
+    frames = read_scenario(BAG).num_frames
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(Path(__file__).parent), str(REPO / "test"),
+                                                      os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv(EXIT_AFTER, f"{3 * frames}:{said}")  # the warm-up, the ground truth's and some of the search's
+    params = params_for(tmp_path, planner="test_graph:ExitingPlanner")
+    output = tmp_path / "out"
+    started = time.monotonic()
+    assert advperc(["attack", str(params), "--output", str(output), "--quiet", "--backend", "graph"]) == 4
+    stopped = time.monotonic() - started
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert "advperc: attacking our planner node (test_graph:ExitingPlanner)" in lines  # the graph names it, once up
+    err = [line for line in lines if line.startswith("advperc: error:")]
+    with capsys.disabled():  # seconds, not a timeout per rollout (timings are shown, never asserted)
+        print(f"\nthe attack ended {stopped:.1f} s after it started, planner dead in its rollout {said.read_text()}")
+    assert len(err) == 1 and "stops, as every rollout after would be inconclusive: in rollout" in err[0]
+    assert "the planner process exited with code 3" in err[0], err
+    assert f"--resume {output}" in err[0] and "warm-up" not in err[0]
+    checkpointed = (checkpoint_folder(output) / "rollouts.jsonl").read_text().splitlines()
+    seen = int(said.read_text())  # the rollouts the planner saw: the warm-up's, those checkpointed, the last
+    assert 1 <= len(checkpointed) <= seen - 1  # at most the rollout it died in ran after its death
+    assert not any(json.loads(line)["inconclusive"] for line in checkpointed)
+    monkeypatch.delenv(EXIT_AFTER)
+    assert advperc(["attack", str(params), "--resume", str(output), "--quiet", "--backend", "graph"]) == 0
+    report = json.loads((output / "report.json").read_text())
+    assert report["inconclusive_rollouts"] == 0 and report["rollouts"] > len(checkpointed)
 
 
 # ----- (e) the rclpy path, where ROS 2 Jazzy is sourced -----------------------------------------------
@@ -465,6 +527,34 @@ def test_rclpy_transport_passes_rosbags_messages_through(ros_domain):
         assert [m.data for m in got] == ["ünïcode"]
         sender.destroy_node()  # its participant leaves the domain now, not whenever the worker collects garbage
         receiver.destroy_node()
+    finally:
+        rclpy.try_shutdown()
+
+
+def test_rclpy_transport_sees_a_best_effort_publisher_by_its_qos(ros_domain):
+    """The QoS check of issue 51 where rclpy shows it: a best-effort publisher is named, a reliable one not."""
+    rclpy = need_ros("rclpy")
+    from rclpy.node import Node
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from advperc_ros.ros.transport import RclpyTransport
+
+    rclpy.init()
+    try:
+        team, ours = Node("advperc_test_best_effort"), Node("advperc_test_watcher")
+        team.create_publisher(String, "/advperc_test/plans", QoSProfile(depth=10, reliability=ReliabilityPolicy.BEST_EFFORT))
+        team.create_publisher(String, "/advperc_test/tracks", QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
+        transport = RclpyTransport(ours)
+        deadline = time.monotonic() + 10.0
+        while not transport.publishers_of("/advperc_test/tracks") and time.monotonic() < deadline:
+            transport.spin_once(0.05)
+        while not transport.best_effort_publishers("/advperc_test/plans") and time.monotonic() < deadline:
+            transport.spin_once(0.05)
+        assert transport.best_effort_publishers("/advperc_test/plans") == ("/advperc_test_best_effort",)
+        assert transport.best_effort_publishers("/advperc_test/tracks") == ()
+        team.destroy_node()
+        ours.destroy_node()
     finally:
         rclpy.try_shutdown()
 

@@ -13,6 +13,7 @@ All DDS traffic stays on loopback (activate.sh's CYCLONEDDS_URI for ROS, `dds.lo
 ours), each test on a domain id of its own (conftest.ros_domain).
 """
 
+import contextlib
 import json
 import os
 import re
@@ -218,6 +219,15 @@ def test_readme_ros_section_runs_as_written(workspace, ros_domain):
 
 # ----- a mixed graph: rclpy and bare Cyclone nodes on one domain ----------------------------------------
 
+def _node_params(folder: Path, params_file: Path) -> Path:
+    """The ROS params file of every graph node (the launch file's parameters), from an orchestrator's params file."""
+    params = load_params(params_file)
+    path = folder / "nodes.yaml"
+    path.write_text(yaml.safe_dump({spec.name: {"ros__parameters": ros_parameters(spec, params, params.bag)}
+                                    for spec in SPECS}))
+    return path
+
+
 @pytest.mark.parametrize("over_rclpy", [("scenario_player", "error_injector", "tracker"), ("planner", "rule_monitor"), ()],
                          ids=["player-injector-tracker-rclpy", "planner-rule-rclpy", "all-cyclone-no-ros"])
 def test_a_mixed_graph_gives_the_embedded_report(tmp_path, fresh_domain, over_rclpy):
@@ -229,10 +239,7 @@ def test_a_mixed_graph_gives_the_embedded_report(tmp_path, fresh_domain, over_rc
                                 bag=str(REPO / "bags" / "idm_lane_following"),
                                 dds={"domain_id": fresh_domain, "localhost_only": True},
                                 graph={"spawn_nodes": False, "timeout": 10.0}, rollout_backend="graph")
-    params = load_params(params_file)
-    ros_params = tmp_path / "nodes.yaml"
-    ros_params.write_text(yaml.safe_dump({spec.name: {"ros__parameters": ros_parameters(spec, params, params.bag)}
-                                          for spec in SPECS}))
+    ros_params = _node_params(tmp_path, params_file)
     nodes = []
     try:
         for spec in SPECS:
@@ -254,6 +261,44 @@ def test_a_mixed_graph_gives_the_embedded_report(tmp_path, fresh_domain, over_rc
     assert _report(tmp_path / "graph") == _report(tmp_path / "embedded")
     assert all(node.returncode == 0 for node in nodes), [(spec.name, (tmp_path / f"{spec.name}.log").read_text()[-500:])
                                                          for spec, node in zip(SPECS, nodes) if node.returncode]
+
+
+def test_a_team_s_planner_that_dies_mid_search_stops_it_naming_the_node_gone(tmp_path, ros_domain, monkeypatch):
+    """Issue 51: the team's own rclpy planner crashed, and the search ran on against it some 50 rollouts of a
+    timeout each, though it had reported it gone. Now the orchestrator sees it leave the ROS graph and stops:
+    exit 4, one error line naming it, the checkpoint kept."""
+    need_ros("rclpy")
+    frames = bags.read_scenario(REPO / "bags" / "idm_lane_following").num_frames
+    seen = tmp_path / "rollouts_seen"
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test" / "backends"), str(REPO / "test"),
+                                                      os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("ADVPERC_TEST_EXIT_AFTER", f"{3 * frames}:{seen}")
+    params_file = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
+                                bag=str(REPO / "bags" / "idm_lane_following"), planner="test_graph:ExitingPlanner",
+                                graph={"spawn_nodes": False, "timeout": 5.0}, rollout_backend="graph")
+    ros_params = _node_params(tmp_path, params_file)
+    nodes = []
+    try:
+        for spec in SPECS:
+            with (tmp_path / f"{spec.name}.log").open("w") as log:
+                nodes.append(subprocess.Popen([sys.executable, "-m", f"advperc_ros.nodes.{spec.name}", "--ros-args",
+                                               "--params-file", str(ros_params)], stdout=subprocess.DEVNULL, stderr=log))
+        output = tmp_path / "attack"
+        started = time.monotonic()
+        orchestrator = "from advperc_ros.orchestrator_node import main; raise SystemExit(main())"
+        run = subprocess.run([sys.executable, "-c", orchestrator, "--ros-args", "--params-file", str(params_file),
+                              "-p", f"output:={output}"], capture_output=True, text=True, timeout=TIMEOUT)
+        print(f"the attack ended {time.monotonic() - started:.1f} s after it started")  # never asserted
+    finally:
+        with contextlib.suppress(subprocess.TimeoutExpired):  # the planner exits by itself; the others are stopped
+            nodes[[spec.name for spec in SPECS].index("planner")].wait(timeout=30)
+        _stop(nodes, tmp_path)
+    errors = [line for line in run.stderr.splitlines() if "[ERROR]" in line]
+    assert run.returncode == 4 and len(errors) >= 1, run.stderr[-3000:]
+    assert "the search stops" in errors[-1] and "planner left the ROS graph" in errors[-1], errors
+    assert "resume:=true" in errors[-1] and "attacking our planner node (test_graph:ExitingPlanner)" in run.stderr
+    checkpointed = (output.parent / f".{output.name}.checkpoint" / "rollouts.jsonl").read_text().splitlines()
+    assert 1 <= len(checkpointed) <= int(seen.read_text())  # at most one rollout waited on the planner once it died
 
 
 def _stop(nodes: list[subprocess.Popen], logs: Path) -> None:

@@ -333,6 +333,41 @@ def test_ahead_the_player_publishes_the_next_frame_s_ground_truth_after_the_ego(
         ["/ego/odometry", "/ground_truth/objects"] * 3
 
 
+@pytest.mark.parametrize("clock, says", [
+    ("wall", "the wall clock's time; is use_sim_time set on the node publishing them?"),
+    ("own", "a plan must carry the stamp of the inputs it answers"),
+])
+def test_a_frame_whose_plans_came_under_another_clock_names_the_stamps_they_came_with(clock, says):
+    """Issue 51: a planner that forgot use_sim_time publishes plans stamped at wall time, which the player
+    ignores; the frame's timeout said "no plan stamped ... (a node is dead or silent)", though plans came."""
+    import time
+
+    from advperc_ros.nodes.scenario_player import ScenarioPlayer
+    from advperc_ros.ros.lockstep import RolloutReady, parse_done, ready_message, rule_diagnostics
+    from advperc_ros.ros.topics import DONE, READY, RULE_DIAGNOSTICS
+
+    transport, said = _Recorder(), []
+    profile = load_profile("autoware")
+    logger = type("Log", (), {"info": print, "warning": staticmethod(said.append)})()
+    player = ScenarioPlayer(transport, REPO / "bags" / "idm_lane_following", True, 0.5, profile, False, logger,
+                            (4.6, 1.9))
+    stamps = [int(s) for s in player.scenario.stamps_ns]
+    stray = time.time_ns() if clock == "wall" else stamps[0] + 7  # a stamp of no frame, nor of the wall clock
+    start = player.scenario.ego_start
+    plan = Trajectory(t=np.array([0.0, 0.5, 1.0]) + stray * 1e-9, x=start.x + np.array([0.0, 1.0, 2.0]),
+                      y=np.full(3, start.y), yaw=np.zeros(3))
+    transport.callbacks[READY](ready_message(RolloutReady(1, False)))
+    transport.callbacks[RULE_DIAGNOSTICS](rule_diagnostics(stamps[0], np.array([1]), np.array([9.0])))
+    transport.callbacks[profile.plan.topic](profile.plan.encode(plan, stray))
+    time.sleep(0.6)
+    player.poll()
+    done = parse_done(transport.published[DONE][-1])
+    assert done.timeout and done.reason.startswith(f"frame 0: no plan stamped {stamps[0]} within 0.5 s (plans arrive "
+                                                   f"stamped {stray} ({stray * 1e-9:.1f} s)"), done.reason
+    assert f"the clock is at {stamps[0] * 1e-9:.1f} s" in done.reason and says in done.reason
+    assert "dead or silent" not in done.reason and said[-1].endswith(done.reason)
+
+
 def test_under_autoware_the_player_publishes_the_ego_s_acceleration_as_its_speed_changes():
     """/localization/acceleration, which Autoware's planners read: the change of the ego's speed over
     each frame, 0 at the start, stamped with the frame, in the odometry's child frame."""

@@ -56,6 +56,16 @@ def _die_with_parent() -> None:
     ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
+def how_it_ended(returncode: int) -> str:
+    """A child's end as a person reads it: Popen gives a signal as a negative return code."""
+    if returncode < 0:
+        try:
+            return f"was killed by signal {signal.Signals(-returncode).name}"
+        except ValueError:
+            return f"was killed by signal {-returncode}"
+    return f"exited with code {returncode}"
+
+
 class NodeProcesses:
     """The five graph nodes as child processes (none until `start`), with their logs. `ros_parameters`
     (node name -> its ROS parameters) makes them rclpy nodes, on the starting rclpy node's domain
@@ -93,7 +103,7 @@ class NodeProcesses:
         for name, process in self.running.items():
             code = process.poll()
             if code is not None:
-                return f"the {name} process exited with code {code}{self._log_tail(name)}"
+                return f"the {name} process {how_it_ended(code)}{self._log_tail(name)}"
         return None
 
     def _log_tail(self, name: str) -> str:

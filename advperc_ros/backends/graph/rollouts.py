@@ -22,11 +22,14 @@ exercises every edge of the lockstep, so no first message of a real rollout can 
 discovery between two nodes. A warm-up that stalls is re-sent under a new id (the player drops
 the stalled one) until `STARTUP_TIMEOUT`.
 
-Faults: a child process that exits, a rollout the player reports as timed out, or a graph silent
-for longer than `graph.timeout` + `GRACE` makes that rollout inconclusive with one error log line
-saying which, and the children are restarted (fresh processes hold no state or stale answers)
-before the next rollout. Everything is shut down on exit (SIGTERM, then SIGKILL after
-`STOP_TIMEOUT`), and children exit by themselves if this process dies.
+Faults: a node gone for good (a child process that exited, or, over rclpy, a team's node that left
+the ROS graph: `left_the_graph`) stops the search at once with `NodeGone`, naming it and how it
+went, the checkpoint kept: every rollout after would wait out its timeout and find nothing. A
+rollout the player reports as timed out, or a graph silent for longer than `graph.timeout` +
+`GRACE`, makes that rollout inconclusive with one error log line saying which, and the children are
+restarted (fresh processes hold no state or stale answers) before the next rollout. Everything is
+shut down on exit (SIGTERM, then SIGKILL after `STOP_TIMEOUT`), and children exit by themselves if
+this process dies.
 """
 
 import json
@@ -34,6 +37,8 @@ import logging
 import os
 import secrets
 import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -48,7 +53,7 @@ from advperc_ros.configs import CoreConfigs
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.rollout import RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.exceptions import GraphError, RolloutFault
+from advperc_ros.exceptions import GraphError, NodeGone, RolloutFault
 from advperc_ros.nodes.graph_nodes import SPECS, node_parameters
 from advperc_ros.ros.interfaces.base import Profile
 from advperc_ros.ros.lockstep import ReferenceDrive, Status, reference_message
@@ -60,8 +65,21 @@ TRACKER_NODE = "tracker"
 STARTUP_TIMEOUT = 60.0  # s for the children to start, discover each other and pass the warm-up
 WARMUP_STALL = 0.5  # s without progress after which a warm-up rollout is first re-sent
 GRACE = 5.0  # s beyond graph.timeout before a silent graph is declared dead
+LOOK_EVERY = 0.5  # s between looks at the ROS graph for a node that left it, while a rollout waits
+RECORD_CHECK = "the ground-truth rollout that proves the tracks and plans subscriptions before the best attack is recorded"
 
 log = logging.getLogger("advperc_ros.backends.graph")
+
+
+@dataclass(frozen=True)
+class Watched:
+    """What of a graph of running nodes (`graph.spawn_nodes: false`) was seen once it was up: the
+    nodes announced on /attack/nodes that the ROS graph showed under that name, and the nodes
+    publishing each topic a rollout needs from a team's node. Only what was seen can be missed: a
+    node announced under a name that is not its ROS name is never taken for gone."""
+
+    nodes: frozenset[str] = frozenset()
+    publishers: dict[str, tuple[str, ...]] = field(default_factory=dict)
 
 
 class GraphRollouts:
@@ -96,6 +114,7 @@ class GraphRollouts:
         self._own_transport: Any = None  # a DdsTransport we made (not the given one), closed with the graph
         self._recording = False
         self._reference: ReferenceDrive | None = None  # the ground truth's rollout, once seen
+        self._watched = Watched()  # the running nodes' graph once it was up (`graph.spawn_nodes: false`)
         try:
             self._start()
         except BaseException:
@@ -120,7 +139,8 @@ class GraphRollouts:
 
     # -- lifecycle -------------------------------------------------------------------------------
 
-    def _start(self) -> None:
+    def _start(self, warm_up: str = "a warm-up rollout") -> None:
+        """Start (or restart) the graph and prove it with `warm_up`, the ground-truth rollout a failure names."""
         deadline = time.monotonic() + STARTUP_TIMEOUT
         if self.execution.spawn_nodes:
             self.processes.start()
@@ -139,8 +159,10 @@ class GraphRollouts:
             if time.monotonic() > deadline:
                 raise GraphError(f"not up within {STARTUP_TIMEOUT:g} s: {', '.join(self._missing())}")
             self.client.transport.spin_once(SPIN)
-        self._warm_up(deadline)
+        self._warm_up(deadline, warm_up)
         self._refuse_others()  # also a graph that came up beside ours while it started
+        if not self.execution.spawn_nodes:
+            self._watched = watch(self.client.transport, self.client.present, self.profile)
 
     @property
     def client(self) -> LockstepClient:
@@ -218,12 +240,13 @@ class GraphRollouts:
         it holds instead, which would then be a frame early."""
         return self.execution.drive == "messages" and self._ours(TRACKER_NODE) and self._ours(PLANNER_NODE)
 
-    def _warm_up(self, deadline: float) -> None:
-        """One ground-truth rollout through every edge; re-sent when it stalls, with the stall
-        allowed doubling each time (a lost first message costs little, a slow planner still passes).
-        One that ends inconclusive is re-sent too until the deadline: a node that has not yet got a
-        latched message (an external planner answering before /ego/route reached it) answers so;
-        one that stays inconclusive is left for the search's own ground-truth rollout to report."""
+    def _warm_up(self, deadline: float, purpose: str) -> None:
+        """One ground-truth rollout through every edge (`purpose` names it in a failure); re-sent when
+        it stalls, with the stall allowed doubling each time (a lost first message costs little, a
+        slow planner still passes). One that ends inconclusive is re-sent too until the deadline: a
+        node that has not yet got a latched message (an external planner answering before /ego/route
+        reached it) answers so; one that stays inconclusive is left for the search's own ground-truth
+        rollout to report."""
         none = PerceptionErrors.none(*self.scenario.agents.shape)
         stall = WARMUP_STALL
         while True:
@@ -234,9 +257,40 @@ class GraphRollouts:
                     return
                 log.info(f"warm-up rollout {rollout} inconclusive ({done.reason}); sending another")
             except RolloutFault as fault:
-                if self.processes.dead() is not None or time.monotonic() > deadline:
-                    raise GraphError(f"the graph did not complete a warm-up rollout: {self._named(fault)}") from None
+                mismatch = qos_mismatch(self.client.transport, self.profile)
+                if mismatch is not None:  # no re-sending makes such a publisher match
+                    raise GraphError(f"the graph did not complete {purpose}: {mismatch}") from None
+                if self._gone() is not None or time.monotonic() > deadline:
+                    raise GraphError(f"the graph did not complete {purpose}: {self._named(fault)}") from None
             stall *= 2
+
+    def _gone(self) -> str | None:
+        """How a node the graph needs went for good, if one did: a child process that exited (the
+        nodes we start), or a running node that left the ROS graph (`left_the_graph`)."""
+        if self.execution.spawn_nodes:
+            return self.processes.dead()
+        return left_the_graph(self.client.transport, self._watched, self.profile)
+
+    def _watch(self) -> Callable[[], str | None]:
+        """`_gone` as a rollout's wait calls it at every spin: the processes each time (a poll), the
+        ROS graph once per `LOOK_EVERY` (a query of the middleware)."""
+        if self.execution.spawn_nodes:
+            return self.processes.dead
+        looked = [0.0]
+
+        def look() -> str | None:
+            if time.monotonic() - looked[0] < LOOK_EVERY:
+                return None
+            looked[0] = time.monotonic()
+            return self._gone()
+        return look
+
+    def _stop_if_gone(self, running: int | None) -> None:
+        """`NodeGone` when a node the graph needs is gone (`running`: the rollout it was in)."""
+        gone = self._gone()
+        if gone is not None:
+            during = f"in rollout {running}, " if running is not None else ""
+            raise NodeGone(f"the search stops, as every rollout after would be inconclusive: {during}{gone}")
 
     def _named(self, fault: RolloutFault) -> str:
         """A fault's text with who the graph shows for what the frame waited on (`silence_suspects`)."""
@@ -253,7 +307,7 @@ class GraphRollouts:
                 self._client = None
             else:  # the dead nodes' announcements are gone with them
                 self.client.announced.clear()
-            self._start()
+            self._start("the warm-up rollout of the restarted nodes")
 
     def close(self) -> None:
         """Stop the children (SIGTERM, then SIGKILL) and the transport; idempotent."""
@@ -271,15 +325,17 @@ class GraphRollouts:
     # -- rollouts --------------------------------------------------------------------------------
 
     def rollout(self, errors: PerceptionErrors, record: bool = False) -> RolloutResult:
+        self._stop_if_gone(None)  # a node known gone is not waited for
         if record and not self._recording:
             self._recording = True
             self.client.record_too()
-            self._warm_up(time.monotonic() + STARTUP_TIMEOUT)  # proves the new subscriptions
+            self._warm_up(time.monotonic() + STARTUP_TIMEOUT, RECORD_CHECK)  # proves the new subscriptions
         client = self.client
         rollout = client.send(errors, self.perception_ahead)
         try:
-            done = client.collect(rollout, self.execution.graph_timeout + GRACE, record, self.processes.dead)
+            done = client.collect(rollout, self.execution.graph_timeout + GRACE, record, self._watch())
         except RolloutFault as raised:
+            self._stop_if_gone(rollout)
             fault = self._named(raised)
             log.error(f"rollout {rollout} inconclusive: {fault}; "
                       + ("restarting the graph nodes" if self.execution.spawn_nodes
@@ -314,6 +370,50 @@ class GraphRollouts:
         return judge(result, self.scenario.agents, self._config)
 
 
+def watch(transport: Transport, present: dict[str, int], profile: Profile) -> Watched:
+    """What `left_the_graph` will miss of a graph that is up: nothing over bare DDS (no node names)."""
+    nodes = transport.node_names()
+    if nodes is None:
+        return Watched()
+    publishers = {topic: transport.publishers_of(topic) or () for topic in (profile.plan.topic, profile.tracks.topic)}
+    return Watched(frozenset(present) - frozenset(_gone_from(nodes, present)),
+                   {topic: names for topic, names in publishers.items() if names})
+
+
+def left_the_graph(transport: Transport, watched: Watched, profile: Profile) -> str | None:
+    """How a running node the graph needs left it, if one did: announced on /attack/nodes and no longer
+    in the ROS graph, or publishing the plans or tracks when the graph came up and no node does now.
+    None over bare DDS, which names no nodes (a rollout then times out, its frame naming what it waited on)."""
+    nodes = transport.node_names()
+    if nodes is None:
+        return None
+    gone = _gone_from(nodes, watched.nodes)
+    if gone:
+        return (f"the node{'s' * (len(gone) > 1)} {', '.join(gone)} left the ROS graph (announced on {PRESENCE}, "
+                "no longer in it)")
+    for what, topic in (("plans", profile.plan.topic), ("tracked objects", profile.tracks.topic)):
+        if topic in watched.publishers and not transport.publishers_of(topic):
+            return (f"{', '.join(watched.publishers[topic])} left the ROS graph: no node publishes {what} on {topic} "
+                    "any more")
+    return None
+
+
+def _gone_from(nodes: tuple[str, ...], announced: Iterable[str]) -> list[str]:
+    """The names announced on /attack/nodes that no node of the ROS graph (`nodes`) bears."""
+    return sorted(name for name in announced if not any(node.rsplit("/", 1)[-1] == name for node in nodes))
+
+
+def qos_mismatch(transport: Transport, profile: Profile) -> str | None:
+    """A team's node publishing the plans or the tracked objects best effort, which our reliable
+    subscribers never match, where the transport sees publishers' QoS (rclpy; not bare DDS)."""
+    for what, topic in (("plans", profile.plan.topic), ("tracked objects", profile.tracks.topic)):
+        nodes = transport.best_effort_publishers(topic)
+        if nodes:
+            return (f"{', '.join(nodes)} publish{'es' * (len(nodes) == 1)} {what} on {topic} best effort, which our "
+                    "reliable subscribers never match: publish them reliable (docs/graph.md, the QoS of the topics)")
+    return None
+
+
 def silence_suspects(transport: Transport, present: dict[str, int], profile: Profile) -> str:
     """Who should have answered a frame that timed out, as the ROS graph shows them: the nodes
     publishing the plans and the tracked objects (or that none does: a planner that died at start,
@@ -323,12 +423,13 @@ def silence_suspects(transport: Transport, present: dict[str, int], profile: Pro
     nodes = transport.node_names()
     if nodes is None:
         return ""
-    said = []
+    mismatch = qos_mismatch(transport, profile)
+    said = [mismatch] if mismatch is not None else []
     for what, topic in (("plans", profile.plan.topic), ("tracked objects", profile.tracks.topic)):
         publishers = transport.publishers_of(topic) or ()
         said.append(f"{what} on {topic} come from {', '.join(publishers)}" if publishers
                     else f"no node publishes {what} on {topic}")
-    gone = sorted(name for name in present if not any(node.rsplit("/", 1)[-1] == name for node in nodes))
+    gone = _gone_from(nodes, present)
     if gone:
         said.append(f"gone since they announced themselves on {PRESENCE}: {', '.join(gone)}")
     return "; ".join(said)

@@ -5,13 +5,18 @@
     python benchmarks/recordings_bench.py --markdown            # the README's table
     python benchmarks/recordings_bench.py --method guided       # every attack with that search method
     python benchmarks/recordings_bench.py --errors all          # every attack over the extended error kinds
+    python benchmarks/recordings_bench.py --planners idm --rules collision phantom_braking   # each rule attacked
+    python benchmarks/recordings_bench.py --bundled --rules progress  # the five bundled configs, not the recordings
 
 Per recording: `advperc import-commonroad X.xml --output DIR/bag` once, then `advperc attack
 DIR/bag.yaml` (IDM), `DIR/bag.obp.yaml` (ObP) or `DIR/bag.reactive.yaml` (the third-party
 commonroad-reactive-planner: run this script with the python of the venv holding the `reactive`
-extra). The outcome is the command's: an attack (NDS / NDS-t of the attack found), no attack and
-why (report.json's message), refused (exit 1), rejected (exit 3, import-commonroad's reason). Attacks run on a process pool (default 2 workers:
-the machine is shared); wall time is each attack command's, import excluded.
+extra). With `--rules`, every attack is run once per rule (`advperc attack --rule NAME`), a column per
+rule; with `--bundled`, the bundled configs (config/*.yaml, each with its own planner) are attacked
+instead of the recordings. The outcome is the command's: an attack (NDS / NDS-t of the attack found),
+no attack and why (report.json's message), refused (exit 1: the ground truth already breaks the rule,
+or another refusal), rejected (exit 3, import-commonroad's reason). Attacks run on a process pool
+(default 2 workers: the machine is shared); wall time is each attack command's, import excluded.
 """
 
 import argparse
@@ -27,11 +32,16 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+import yaml
+
+from advperc_ros.core.rules.registry import RULES
+from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.core.search.registry import METHODS
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data" / "commonroad"
 PLANNERS = ("idm", "obp", "reactive")
+BUNDLED = ("idm_lane_following", "idm_overtake_follow", "obp_overtake", "obp_left_turn", "obp_right_turn")
 
 
 @dataclass(frozen=True)
@@ -46,6 +56,9 @@ class Row:
     nds_t: float | None
     rollouts: int | None
     wall_s: float
+    rule: str = DEFAULT_RULE  # the rule attacked (rows written before --rules have none)
+    truth_value: float | None = None  # the attacked rule's value on the ground truth (report.json), null if infinite
+    value: float | None = None  # the attacked rule's value on the attack's rollout
 
 
 def advperc(*args: str) -> subprocess.CompletedProcess:
@@ -70,34 +83,76 @@ def params_file(bag: Path, planner: str) -> Path:
     return bag.with_name({"idm": "bag.yaml", "obp": "bag.obp.yaml", "reactive": "bag.reactive.yaml"}[planner])
 
 
-def attack(recording: str, planner: str, bag: Path | None, rejected: str, method: str | None = None,
-           errors: str | None = None) -> Row:
-    """The row of one attack (`method`: the search method, `errors`: errors.kinds, None: the params file's); with
-    --keep, a row written by an earlier run is read back instead (so a killed benchmark resumes)."""
-    cell = "-".join([planner, *(part for part in (method, errors) if part)]).replace(",", "+")
-    if bag is not None and bag.with_name(f"row-{cell}.json").is_file():
-        return Row(**json.loads(bag.with_name(f"row-{cell}.json").read_text()))
-    row = _attack(recording, planner, bag, rejected, method, errors, cell)
-    if bag is not None and row.outcome != "error":
-        bag.with_name(f"row-{cell}.json").write_text(json.dumps(asdict(row)))
+@dataclass(frozen=True)
+class Job:
+    """One attack to run: what it is called in the table, the bag it reads, the params file it runs and
+    where its results go (None: rejected on import, for `rejected`'s reason)."""
+
+    name: str
+    planner: str
+    bag: Path | None
+    params: Path | None
+    folder: Path
+    rejected: str = ""
+
+
+def recording_job(name: str, planner: str, bag: Path | None, rejected: str, folder: Path) -> Job:
+    """A recording's attack with `planner`, from the params file import-commonroad wrote beside its bag."""
+    return Job(name, planner, bag, None if bag is None else params_file(bag, planner), folder, rejected)
+
+
+def bundled_job(name: str, keep: Path) -> Job:
+    """A bundled config's attack, with the planner it names."""
+    params = REPO / "config" / f"{name}.yaml"
+    planner = yaml.safe_load(params.read_text())["orchestrator"]["ros__parameters"]["planner"]
+    return Job(name, planner, REPO / "bags" / name, params, keep / name)
+
+
+def rule_params(params: Path, rule: str | None) -> Path:
+    """The params file to attack `rule` with: `params`, or for a rule beyond the contact rules a copy beside it
+    without `rule.at_fault_only` (import-commonroad's params set it, for the at-fault collision, and the
+    params refuse it with any other rule)."""
+    document = yaml.safe_load(params.read_text())
+    settings = document["orchestrator"]["ros__parameters"]
+    if rule is None or rule in CONTACT_RULES or not settings.get("rule", {}).get("at_fault_only"):
+        return params
+    settings["rule"]["at_fault_only"] = False
+    copy = params.with_name(f"{params.stem}.{rule}.yaml")
+    copy.write_text(yaml.safe_dump(document))
+    return copy
+
+
+def attack(job: Job, method: str | None = None, errors: str | None = None, rule: str | None = None) -> Row:
+    """The row of one attack (`method`: the search method, `errors`: errors.kinds, `rule`: the rule attacked;
+    None: the params file's); with --keep, a row written by an earlier run is read back instead (so a killed
+    benchmark resumes)."""
+    cell = "-".join([job.planner, *(part for part in (method, errors, rule) if part)]).replace(",", "+")
+    written = job.folder / f"row-{cell}.json"
+    if job.params is not None and written.is_file():
+        return Row(**json.loads(written.read_text()))
+    row = _attack(job, method, errors, rule, cell)
+    if job.params is not None and row.outcome != "error":
+        written.write_text(json.dumps(asdict(row)))
     return row
 
 
-def _attack(recording: str, planner: str, bag: Path | None, rejected: str, method: str | None, errors: str | None,
-            cell: str) -> Row:
-    if bag is None:
-        return Row(recording, planner, None, None, "rejected", rejected, None, None, None, 0.0)
+def _attack(job: Job, method: str | None, errors: str | None, rule: str | None, cell: str) -> Row:
+    recording, planner, attacked = job.name, job.planner, rule or DEFAULT_RULE
+    if job.bag is None or job.params is None:
+        return Row(recording, planner, None, None, "rejected", job.rejected, None, None, None, 0.0, attacked)
     from advperc_ros.ros.bag import read_scenario  # noqa: PLC0415 (the parent process needs no ROS types)
 
-    scenario = read_scenario(bag)
+    scenario = read_scenario(job.bag)
     vehicles, frames = scenario.agents.shape[1], scenario.num_frames
-    out = bag.with_name(f"res-{cell}")
+    job.folder.mkdir(parents=True, exist_ok=True)
+    out = job.folder / f"res-{cell}"
     for left in (out, out.with_name(f".{out.name}.checkpoint")):  # by a killed run: its attack starts again
         if left.exists():
             shutil.rmtree(left)
     started = time.perf_counter()
-    done = advperc("attack", str(params_file(bag, planner)), "--output", str(out), "--quiet",
-                   *(("--method", method) if method else ()), *(("--errors", errors) if errors else ()))
+    done = advperc("attack", str(rule_params(job.params, rule)), "--output", str(out), "--quiet",
+                   *(("--method", method) if method else ()), *(("--errors", errors) if errors else ()),
+                   *(("--rule", rule) if rule else ()))
     wall = time.perf_counter() - started
     said = [line for line in done.stderr.splitlines() if line.startswith("advperc: ")]  # not a library's noise
     last = said[-1] if said else ""
@@ -105,20 +160,25 @@ def _attack(recording: str, planner: str, bag: Path | None, rejected: str, metho
         # exit 1 is a refusal only with our one line; a traceback also exits 1, and is an error to see
         kind = "refused" if done.returncode == 1 and said else "error"
         reason = last or (done.stderr.strip().splitlines() or [f"exit {done.returncode}"])[-1]
-        return Row(recording, planner, vehicles, frames, kind, reason, None, None, None, wall)
+        return Row(recording, planner, vehicles, frames, kind, reason, None, None, None, wall, attacked)
     report = json.loads((out / "report.json").read_text())
+    truth = (report.get("ground_truth_rules") or {}).get(attacked, {}).get("value")
     if report["collision"]:
-        return Row(recording, planner, vehicles, frames, "attack",
-                   f"agent {report['collision_agent']} at frame {report['collision_frame']}",
-                   report["nds"], report["nds_t"], report["rollouts"], wall)
+        broken = report["rules"][attacked]
+        where = (f"agent {report['collision_agent']} at frame {report['collision_frame']}"
+                 if attacked == DEFAULT_RULE else f"{attacked} {broken['value']} from frame {broken['frame']}")
+        return Row(recording, planner, vehicles, frames, "attack", where, report["nds"], report["nds_t"],
+                   report["rollouts"], wall, attacked, truth, broken["value"])
     return Row(recording, planner, vehicles, frames, "no attack", report["message"], None, None, report["rollouts"],
-               wall)
+               wall, attacked, truth)
 
 
 def short(row: Row) -> str:
     """The outcome in a few words, for the table (the whole reason is in --json)."""
     if row.outcome == "attack":
         return f"attack, NDS {row.nds:.3f} / NDS-t {row.nds_t:.3f}"
+    if row.outcome == "no attack" and row.rule not in CONTACT_RULES:
+        return "none" if row.truth_value is None else f"none (ground truth r = {row.truth_value:.3g})"
     if row.outcome == "no attack":
         closest = re.findall(r"closest approach (-?[\d.]+) m", row.reason)
         reached = re.search(r"approach phase\) brought .* from (-?[\d.]+) m to (-?[\d.]+) m", row.reason)
@@ -128,6 +188,8 @@ def short(row: Row) -> str:
             return f"none: clear even blind ({blind.group(1) if blind else closest[-1]} m){approach}"
         return f"none: no influential vehicle ({closest[0]} m)" if closest else "none"
     if row.outcome == "refused":
+        if "already breaks rule" in row.reason:
+            return "refused: the ground truth breaks it"
         found = re.search(r"min signed distance (-?[\d.]+) m", row.reason)
         return (f"refused: at-fault collision unattacked ({found.group(1)} m)" if found
                 else f"refused: {row.reason.removeprefix('advperc: ')}")
@@ -147,34 +209,64 @@ def main() -> None:
     parser.add_argument("--method", choices=METHODS, help="the search method of every attack (default: the params files')")
     parser.add_argument("--errors", metavar="KINDS", help="errors.kinds of every attack: paper, all, or a list "
                         "(default: the params files')")
+    parser.add_argument("--rules", nargs="+", choices=tuple(RULES), metavar="RULE",
+                        help="attack each of these rules (advperc attack --rule), a column each (default: the params "
+                        f"files' rule): {', '.join(RULES)}")
+    parser.add_argument("--bundled", action="store_true", help="attack the five bundled configs (config/*.yaml, each "
+                        "with its own planner; --planners and --data unused) instead of the recordings")
     parser.add_argument("--json", type=Path, help="also write the rows here")
     parser.add_argument("--keep", type=Path, help="write bags and results folders here (default: a temporary folder)")
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
     args = parser.parse_args()
-    names = args.recordings or sorted(p.stem for p in args.data.glob("*.xml"))
+    names = args.recordings or (list(BUNDLED) if args.bundled else sorted(p.stem for p in args.data.glob("*.xml")))
     if not names:
         sys.exit(f"{args.data}: no CommonRoad recordings")
+    rules = args.rules or [None]
     with tempfile.TemporaryDirectory(prefix="recordings-bench-") as scratch, ThreadPoolExecutor(args.workers) as pool:
-        tmp = args.keep or scratch
-        imported = dict(zip(names, pool.map(lambda n: import_recording(args.data / f"{n}.xml", Path(tmp) / n), names)))
-        jobs = [(n, p) for n in names for p in args.planners]
-        rows = list(pool.map(lambda job: attack(job[0], job[1], *imported[job[0]], args.method, args.errors), jobs))
+        tmp = Path(args.keep or scratch)
+        if args.bundled:
+            jobs = [bundled_job(n, tmp) for n in names]
+        else:
+            imported = dict(zip(names, pool.map(lambda n: import_recording(args.data / f"{n}.xml", tmp / n), names)))
+            jobs = [recording_job(n, p, *imported[n], tmp / n) for n in names for p in args.planners]
+        cells = [(job, rule) for job in jobs for rule in rules]
+        rows = list(pool.map(lambda cell: attack(cell[0], args.method, args.errors, cell[1]), cells))
         for row in rows:
             print(json.dumps(asdict(row)), file=sys.stderr, flush=True)
     if args.json:
         args.json.write_text(json.dumps([asdict(r) for r in rows], indent=1))
-    by = {(r.recording, r.planner): r for r in rows}
-    if args.markdown:
-        head = ["recording", "vehicles", "frames", *args.planners]
+    print_table(names, rows, ["planner"] if args.bundled else args.planners, rules, args.markdown)
+
+
+def print_table(names: list[str], rows: list[Row], planners: list[str], rules: list[str | None], markdown: bool) -> None:
+    """A line per recording (or bundled config), a column per planner and rule attacked (a bundled config's
+    planner is its own), and how many were attacked; with a contact rule's column among rules, how many of the
+    recordings it finds nothing on each other rule attacks."""
+    columns = [(p, r or DEFAULT_RULE) for p in planners for r in rules]
+    by = {(row.recording, "planner" if planners == ["planner"] else row.planner, row.rule): row for row in rows}
+    if markdown:
+        labels = [" ".join(part for part in (p if p != "planner" else "", r if rules != [None] else "") if part) or p
+                  for p, r in columns]
+        head = ["recording", "vehicles", "frames", *labels]
         print("| " + " | ".join(head) + " |\n|" + "---|" * len(head))
     for name in names:
-        first = by[name, args.planners[0]]
+        first = by[(name, *columns[0])]
         cells = [name, str(first.vehicles or "-"), str(first.frames or "-")]
-        cells += [short(by[name, p]) + (f"; {by[name, p].rollouts or 0} rollouts, {by[name, p].wall_s:.0f} s"
-                                         if by[name, p].outcome != "rejected" else "") for p in args.planners]
-        print(("| " + " | ".join(cells) + " |") if args.markdown else "\t".join(cells))
-    found = sum(any(by[n, p].outcome == "attack" for p in args.planners) for n in names)
-    print(f"\n{found}/{len(names)} recordings attacked by at least one planner")
+        cells += [short(by[name, p, r]) + (f"; {by[name, p, r].rollouts or 0} rollouts, {by[name, p, r].wall_s:.0f} s"
+                                            if by[name, p, r].outcome != "rejected" else "") for p, r in columns]
+        print(("| " + " | ".join(cells) + " |") if markdown else "\t".join(cells))
+    found = sum(any(by[n, p, r].outcome == "attack" for p, r in columns) for n in names)
+    print(f"\n{found}/{len(names)} attacked by at least one planner and rule")
+    contact = next((r for r in rules if r in CONTACT_RULES), None)
+    others = [r for r in rules if r is not None and r not in CONTACT_RULES]
+    for planner in planners if contact is not None and others else ():
+        unattacked = [n for n in names if by[n, planner, contact].outcome == "no attack"]
+        for rule in others:
+            through = sum(by[n, planner, rule].outcome == "attack" for n in unattacked)
+            print(f"{planner}: {through} of the {len(unattacked)} where {contact} finds nothing are attacked through {rule}")
+        anyone = sum(any(by[n, planner, r].outcome == "attack" for r in others) for n in unattacked)
+        print(f"{planner}: {anyone} of the {len(unattacked)} where {contact} finds nothing are attacked through "
+              f"{', '.join(others)}")
 
 
 if __name__ == "__main__":

@@ -13,6 +13,8 @@ import math
 from dataclasses import dataclass, field
 
 import pytest
+from conftest import REPO
+from test_approach import LANE_Y, SPEED, SWERVE_SPEC
 
 from advperc_ros.application import run_attack
 from advperc_ros.core.rules.registry import RULES
@@ -20,8 +22,6 @@ from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.params import load_params
 from advperc_ros.results.report import rulebook
 from advperc_ros.ros.bag import read_scenario
-from conftest import REPO
-from test_approach import LANE_Y, SPEED, SWERVE_SPEC
 
 BUDGET = 30  # rollouts: the heuristic's 12 and the phantom probes' 8 on the lane following, and a few rounds
 HARD_BRAKER = {"target_speed": 14.0, "max_decel": 6.0}  # m/s²: beyond nuPlan's 4.05 hard-braking bound

@@ -177,16 +177,19 @@ def short(row: Row) -> str:
     """The outcome in a few words, for the table (the whole reason is in --json)."""
     if row.outcome == "attack":
         return f"attack, NDS {row.nds:.3f} / NDS-t {row.nds_t:.3f}"
-    if row.outcome == "no attack" and row.rule not in CONTACT_RULES:
-        return "none" if row.truth_value is None else f"none (ground truth r = {row.truth_value:.3g})"
     if row.outcome == "no attack":
+        # a rule's r has the rule's unit; the contact rules' is a distance (m)
+        value, unit = r"(-?[\d.]+|inf)", " m" if row.rule in CONTACT_RULES else ""
         closest = re.findall(r"closest approach (-?[\d.]+) m", row.reason)
-        reached = re.search(r"approach phase\) brought .* from (-?[\d.]+) m to (-?[\d.]+) m", row.reason)
-        approach = f"; approach phase {reached.group(1)} m to {reached.group(2)} m" if reached else ""
-        if "even with every vehicle hidden" in row.reason:  # its at-fault margin, when it differs
-            blind = re.search(r"(-?[\d.]+) m where a contact would be its fault", row.reason)
-            return f"none: clear even blind ({blind.group(1) if blind else closest[-1]} m){approach}"
-        return f"none: no influential vehicle ({closest[0]} m)" if closest else "none"
+        reached = re.search(rf"approach phase\) brought .* from {value}(?: m)? to {value}", row.reason)
+        approach = f"; approach phase {reached.group(1)}{unit} to {reached.group(2)}{unit}" if reached else ""
+        truth = "" if row.rule in CONTACT_RULES or row.truth_value is None else f"ground truth r = {row.truth_value:.3g}; "
+        if "even with every vehicle hidden" in row.reason:  # its at-fault margin (or the rule's r), when it differs
+            blind = re.search(rf"{value} m where a contact would be its fault|does not break \S+ \(r = {value}\)",
+                              row.reason)
+            margin = next((group for group in blind.groups() if group), None) if blind else closest[-1]
+            return f"none: {truth}clear even blind ({margin}{unit}){approach}"
+        return f"none: {truth}no influential vehicle{f' ({closest[0]} m)' if closest else ''}"
     if row.outcome == "refused":
         if "already breaks rule" in row.reason:
             return "refused: the ground truth breaks it"

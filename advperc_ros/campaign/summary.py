@@ -21,7 +21,7 @@ from pathlib import Path
 from urllib.parse import quote
 
 from advperc_ros.campaign.spec import Campaign, Cell
-from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
+from advperc_ros.core.rules.verdict import CONTACT_RULES
 from advperc_ros.replay import BEV_PLOT as REPLAY_BEV
 from advperc_ros.replay import REPLAY_MD
 from advperc_ros.results.folder import ANIMATION, BEV_PLOT, METRIC_PLOT, REPORT_MD
@@ -75,7 +75,7 @@ def verdict(status: CellStatus, thresholds: dict[str, float]) -> Verdict:
     if replayed and report["inconclusive"]:
         return Verdict(ERROR, report["verdict"], threshold=threshold)
     rule = status.cell.rule
-    if not report["collision"] and not replayed and rule != DEFAULT_RULE:
+    if not report["collision"] and not replayed and rule not in CONTACT_RULES:
         # no closest approach in metres: this rule's search may well have collided, which it does not count
         return Verdict(PASS, f"passes: no {rule} violation found", threshold=threshold)
     if not report["collision"]:
@@ -229,7 +229,7 @@ def junit(campaign: Campaign, statuses: list[CellStatus], records: list[dict]) -
                              time=f"{record['wall_time_s'] or 0.0:.3f}")
         ET.SubElement(ET.SubElement(case, "properties"), "property", name="rule", value=record["rule"])
         if record["outcome"] == FAILURE:
-            collides = campaign.replay is not None or record["rule"] == DEFAULT_RULE
+            collides = campaign.replay is not None or record["rule"] in CONTACT_RULES
             broken = "collides" if collides else f"breaks rule {record['rule']}"
             ET.SubElement(case, "failure", message=record["verdict"], type="AdversarialPerceptionAttack").text = (
                 f"{campaign.output / record['cell']}: an attack on the {record['planner']} planner that {broken} with "

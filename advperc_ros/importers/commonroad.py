@@ -37,6 +37,7 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline, round_corners
+from advperc_ros.core.rules.verdict import AT_FAULT_RULE
 from advperc_ros.core.scenario import EgoState, Lane, Scenario
 from advperc_ros.exceptions import ScenarioError
 
@@ -63,7 +64,7 @@ class ImportedScenario:
             "planner_params": {"target_speed": round(self.target_speed, 3)},
             "objective": "nds_t",
             "seed": 0,
-            "rule": {"at_fault_only": True},
+            "rule": {"name": AT_FAULT_RULE},
         }}}
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 from advperc_ros import __version__
 from advperc_ros.configs import error_kinds
 from advperc_ros.core.rules.base import RuleValue
-from advperc_ros.core.rules.verdict import DEFAULT_RULE
+from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.core.search.diagnosis import listed_ids, why_no_collision
 from advperc_ros.core.search.problem import Evaluation, kind_costs
 from advperc_ros.results.outcome import AttackOutcome
@@ -113,7 +113,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     else:
         report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,
                                        outcome.approach, partial(rounded, "min_signed_distance"),
-                                       None if params.rule.name == DEFAULT_RULE else params.rule.name))
+                                       None if params.rule.name in CONTACT_RULES else params.rule.name))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric),
                                **report_scores(outcome.heuristic_best)}
@@ -205,8 +205,9 @@ def _rules_table(report: dict) -> list[str]:
 
 
 def _verdict_line(report: dict) -> str:
-    """What the attack broke: the collision (the paper's rule), or the attacked rule from its first violating frame."""
-    if report["rule"] == DEFAULT_RULE:
+    """What the attack broke: the collision (the paper's rule, or its at-fault variant), or the attacked rule from its
+    first violating frame."""
+    if report["rule"] in CONTACT_RULES:
         return (f"- collision with agent {report['collision_agent']} at frame {report['collision_frame']}, "
                 f"min signed distance {report['min_signed_distance']:.3f} m")
     broken = report["rules"][report["rule"]]

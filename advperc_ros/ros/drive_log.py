@@ -31,6 +31,7 @@ import numpy as np
 
 from advperc_ros.core.boxes import BOX_FIELDS, MAGNITUDE_BOUND
 from advperc_ros.core.geometry import Polyline
+from advperc_ros.core.rules.verdict import AT_FAULT_RULE
 from advperc_ros.core.scenario import MAX_PERIOD_NS, MIN_PERIOD_NS, EgoState, Lane, Scenario
 from advperc_ros.exceptions import BagError, MessageError
 from advperc_ros.ros import bag as bags
@@ -98,7 +99,7 @@ class ImportedDrive:
         only at-fault collisions counted (recorded traffic does not react to the ego)."""
         return {"orchestrator": {"ros__parameters": {
             "bag": bag, "planner": planner, "planner_params": {"target_speed": round(self.target_speed, 3)},
-            "objective": "nds_t", "seed": 0, "rule": {"at_fault_only": True}}}}
+            "objective": "nds_t", "seed": 0, "rule": {"name": AT_FAULT_RULE}}}}
 
 
 def _choose(path: Path, listing: dict[str, tuple[str | None, int]], given: str | None, kinds: tuple[str, ...],

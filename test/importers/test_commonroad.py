@@ -75,7 +75,7 @@ def test_sample_imports_and_attacks_or_is_refused_with_a_reason(name, tmp_path, 
         report = json.loads((tmp_path / "out" / "report.json").read_text())
         assert report["joint_agents"] == [] and report["approach"]["rollouts"] >= report["params"]["search.approach.patience"]
         # ... but counting every collision, the recording is refused as the ego collides unattacked
-        document["orchestrator"]["ros__parameters"]["rule"]["at_fault_only"] = False
+        document["orchestrator"]["ros__parameters"]["rule"]["name"] = "collision"
         params.write_text(yaml.safe_dump(document))
         code = main(["attack", str(params), "--output", str(tmp_path / "every"), "--quiet"])
         assert code == 1 and "perfect perception" in capsys.readouterr().err
@@ -105,7 +105,7 @@ def test_urban_turn_imports_for_both_planners_and_obp_drives_it(tmp_path, common
     assert (idm.planner, obp.planner, reactive.planner) == ("idm", "obp", "advperc_ros.contrib.reactive:ReactivePlanner")
     assert idm.planner_params == obp.planner_params == reactive.planner_params
     assert obp.planner_params["target_speed"] > 1.0
-    assert idm.rule.at_fault_only and obp.rule.at_fault_only and reactive.rule.at_fault_only
+    assert idm.rule.name == obp.rule.name == reactive.rule.name == "at_fault_collision"
     assert idm.bag == obp.bag == reactive.bag == str(bag.resolve())
 
     scenario = read_scenario(bag)

@@ -71,7 +71,7 @@ def test_a_recording_is_attacked_or_says_why_not(name, planner, shift, tmp_path,
     assert code == 0, err
     params_path = tmp_path / ("bag.yaml" if planner == "idm" else f"bag.{planner}.yaml")
     document = yaml.safe_load(params_path.read_text())
-    assert document["orchestrator"]["ros__parameters"]["rule"]["at_fault_only"] is True
+    assert document["orchestrator"]["ros__parameters"]["rule"] == {"name": "at_fault_collision"}
 
     code = main(["attack", str(params_path), "--output", str(tmp_path / "out"), "--quiet"])
     err = capsys.readouterr().err

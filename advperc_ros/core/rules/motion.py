@@ -7,6 +7,13 @@ rate and yaw acceleration derivatives of the unwrapped heading over 5. nuPlan re
 acceleration the simulator integrated; a rollout here records speeds only, so the longitudinal
 acceleration is the speed's first derivative over the acceleration's 8 samples, and the lateral
 one the centripetal v * yaw rate, smoothed as nuPlan smooths its acceleration.
+
+One departure: at a drive's first and last frames, where no window centres on the frame, nuPlan's
+filter evaluates the derivative of the polynomial fitted to the edge window at the window's end,
+which overstates a braking that ends a drive (a speed falling at exactly 3.0 m/s^2 over the last 5
+frames read -4.53 m/s^2: a phantom or hard braking the ego never did). Here those frames hold the
+value of the nearest frame a window centres on (`savgol`), so a violation is read only from samples
+on both sides of it.
 """
 
 from dataclasses import dataclass
@@ -24,11 +31,15 @@ DECIMALS = 8  # nuPlan's rounding of every extracted quantity
 
 def savgol(values: np.ndarray, window: int, order: int, deriv: int, dt: float) -> np.ndarray:
     """nuPlan's filter: the window cut to the samples there are; too few samples to fit the
-    polynomial give zeros (nothing to differentiate)."""
+    polynomial give zeros (nothing to differentiate). The frames within half a window of either end hold
+    the value of the nearest frame a window centres on (the module's docstring says why)."""
     window = min(window, values.size)
     if window <= order:
         return np.zeros_like(values)
-    return np.round(savgol_filter(values, window_length=window, polyorder=order, deriv=deriv, delta=dt), DECIMALS)
+    smoothed = savgol_filter(values, window_length=window, polyorder=order, deriv=deriv, delta=dt)
+    edge = window // 2
+    centred = np.clip(np.arange(values.size), edge, max(edge, values.size - 1 - edge))
+    return np.round(smoothed[centred], DECIMALS)
 
 
 def longitudinal_acceleration(inputs: RuleInputs) -> np.ndarray:

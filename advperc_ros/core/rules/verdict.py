@@ -21,11 +21,12 @@ from advperc_ros.core.scenario import Scenario
 CONTACT_RULES = ("collision", "at_fault_collision")
 """The rules every backend judges itself, as the rollout runs: a contact ends the drive either way."""
 DEFAULT_RULE = "collision"
+AT_FAULT_RULE = "at_fault_collision"  # what imported recorded traffic is attacked under: it does not react to the ego
 
 
 def contact_rule(at_fault_only: bool) -> str:
     """The contact rule a rollout config judges by (`rule.at_fault_only`)."""
-    return "at_fault_collision" if at_fault_only else "collision"
+    return AT_FAULT_RULE if at_fault_only else DEFAULT_RULE
 
 
 @dataclass(frozen=True)

@@ -297,3 +297,16 @@ def test_the_bundled_ground_truth_violates_no_rule(idm_bundled):
     inputs = rule_inputs(result, scenario, stack.config)
     values = {rule: evaluate(rule_class(rule)(), inputs, inputs) for rule in RULES}
     assert not [(rule, v.value, v.first_violation) for rule, v in values.items() if v.violated], name
+
+
+def test_a_braking_that_ends_the_drive_is_read_at_its_rate_not_overstated_by_the_filter_s_edge():
+    """A speed falling at exactly 3.0 m/s^2 over the last 5 frames: nuPlan's filter, evaluated at the end of its
+    edge window, read -4.53 m/s^2 there (a hard and a phantom braking the ego never did); held from the last
+    centred window, no frame reads beyond the braking's own rate."""
+    from advperc_ros.core.rules.motion import longitudinal_acceleration
+
+    v = np.concatenate([np.full(20, 10.0), 10.0 - 0.3 * np.arange(1, 6)])
+    inputs = drive(np.cumsum(v) * DT, v=v)
+    acceleration = longitudinal_acceleration(inputs)
+    assert acceleration.min() >= -3.0 - 1e-6 and acceleration[-1] == acceleration[-1 - 4]
+    assert not value("hard_braking", inputs).violated

@@ -108,20 +108,6 @@ def bundled_job(name: str, keep: Path) -> Job:
     return Job(name, planner, REPO / "bags" / name, params, keep / name)
 
 
-def rule_params(params: Path, rule: str | None) -> Path:
-    """The params file to attack `rule` with: `params`, or for a rule beyond the contact rules a copy beside it
-    without `rule.at_fault_only` (import-commonroad's params set it, for the at-fault collision, and the
-    params refuse it with any other rule)."""
-    document = yaml.safe_load(params.read_text())
-    settings = document["orchestrator"]["ros__parameters"]
-    if rule is None or rule in CONTACT_RULES or not settings.get("rule", {}).get("at_fault_only"):
-        return params
-    settings["rule"]["at_fault_only"] = False
-    copy = params.with_name(f"{params.stem}.{rule}.yaml")
-    copy.write_text(yaml.safe_dump(document))
-    return copy
-
-
 def attack(job: Job, method: str | None = None, errors: str | None = None, rule: str | None = None) -> Row:
     """The row of one attack (`method`: the search method, `errors`: errors.kinds, `rule`: the rule attacked;
     None: the params file's); with --keep, a row written by an earlier run is read back instead (so a killed
@@ -150,7 +136,7 @@ def _attack(job: Job, method: str | None, errors: str | None, rule: str | None, 
         if left.exists():
             shutil.rmtree(left)
     started = time.perf_counter()
-    done = advperc("attack", str(rule_params(job.params, rule)), "--output", str(out), "--quiet",
+    done = advperc("attack", str(job.params), "--output", str(out), "--quiet",
                    *(("--method", method) if method else ()), *(("--errors", errors) if errors else ()),
                    *(("--rule", rule) if rule else ()))
     wall = time.perf_counter() - started

@@ -43,7 +43,7 @@ from advperc_ros.core.perception_errors import PAPER_ARRAYS, PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.staging import staging_path
-from advperc_ros.exceptions import OutputError, ParamsError, ResultsError
+from advperc_ros.exceptions import OutputError, ResultsError
 
 PARAMS = "params.json"
 ROLLOUTS = "rollouts.jsonl"
@@ -160,10 +160,10 @@ class Checkpoint:
             self.done, self._last = [], ""
         self._file = rollouts.open("a")
 
-    def _damaged(self, path: Path, what: str) -> ParamsError:
+    def _damaged(self, path: Path, what: str) -> ResultsError:
         """The one line refusing a damaged checkpoint: the file, what is wrong, and the way on."""
-        return ParamsError(f"{path}: {what}; the checkpoint cannot be resumed: delete {self.folder} to start the "
-                           "attack over")
+        return ResultsError(f"{path}: {what}; the checkpoint cannot be resumed: delete {self.folder} to start the "
+                            "attack over")
 
     def _read(self, path: Path) -> bytes:
         """A checkpoint file's bytes; a folder, a FIFO (it would block) or an unreadable file is damage."""

@@ -11,6 +11,7 @@ import time
 from collections import namedtuple
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from advperc_ros.application import output_bytes
@@ -142,11 +143,33 @@ def test_a_real_disk_filled_by_another_program_mid_search(uninterrupted, small_d
     shutil.rmtree(output)
 
 
-def test_pem_fit_makes_the_missing_folders_of_its_output(tmp_path, uninterrupted):
+def _detector_log(path: Path) -> Path:
+    """A bag of a detector's output: a scene of five cars detected with the errors the extended model samples (an
+    attack bag's detections copy the truth, which pem fit refuses)."""
+    from pem_scenes import EXTENDED, moving_scene
+
+    from advperc_ros.core.perception_errors import inject
+    from advperc_ros.core.scenario import EgoState
+    from advperc_ros.ros import messages as msgs
+    from advperc_ros.ros import topics
+    from advperc_ros.ros.bag import open_bag_for_writing
+
+    rng = np.random.default_rng(0)
+    truth, ego = moving_scene(rng)
+    detected = inject(truth, EXTENDED.sample(truth, ego, rng))
+    with open_bag_for_writing(path) as bag:
+        for k in range(truth.shape[0]):
+            ns = 100_000_000 * (k + 1)
+            bag.write(topics.GROUND_TRUTH, ns, msgs.objects_to_markers(truth.frame(k), ns, "ground_truth"))
+            bag.write(topics.PERCEPTION, ns, msgs.objects_to_markers(detected.frame(k), ns, "perception"))
+            bag.write(topics.ODOMETRY, ns, msgs.odometry(EgoState(ego[k, 0], ego[k, 1], 0.0, 8.0), ns))
+    return path
+
+
+def test_pem_fit_makes_the_missing_folders_of_its_output(tmp_path):
     """`check_output` lets an output's folders be missing (they are made); pem fit failed on it after the fit."""
-    _, _, whole = uninterrupted
     model = tmp_path / "models" / "new" / "m.json"
-    assert main(["pem", "fit", str(whole / "attack"), "--output", str(model)]) == 0
+    assert main(["pem", "fit", str(_detector_log(tmp_path / "log")), "--output", str(model)]) == 0
     assert json.loads(model.read_text())["source"]
     assert sorted(p.name for p in model.parent.iterdir()) == ["m.json"]
 

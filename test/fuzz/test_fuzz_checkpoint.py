@@ -1,7 +1,7 @@
 """Fuzzing the checkpoint a resumed attack reads: damaged bytes and random JSON values in a real
 checkpoint's lines and params give either exactly the rollouts it holds (the damage changed no value,
 or hit only a last line left without its newline, as a kill leaves it: that rollout runs again) or one
-ParamsError line naming the checkpoint file, the file left as it was; never a traceback.
+ResultsError line naming the checkpoint file, the file left as it was; never a traceback.
 
 Resuming exactly a prefix of the checkpoint's rollouts is what gives the uninterrupted report (the
 search is deterministic; test_checkpoint.py and test_resume.py resume such checkpoints to the report),
@@ -25,7 +25,7 @@ from test_fuzz_params import one_line_naming
 from advperc_ros.backends.resumed import FIELDS, PARAMS, ROLLOUTS, Checkpoint, Stored, checkpoint_folder
 from advperc_ros.configs import core_configs
 from advperc_ros.core.scenario import Scenario
-from advperc_ros.exceptions import ParamsError
+from advperc_ros.exceptions import ResultsError
 from advperc_ros.params import AttackParams, load_params
 from advperc_ros.ros.bag import read_scenario
 
@@ -70,7 +70,7 @@ def load(kept: Kept, attack: Attack, folder: Path, name: str, data: bytes) -> li
     path.write_bytes(data)
     try:
         checkpoint = Checkpoint(output, core_configs(attack.params).canonical, attack.scenario, resume=True)
-    except ParamsError as exc:
+    except ResultsError as exc:
         one_line_naming(exc, path)
         assert path.read_bytes() == data, "a refused checkpoint was changed"
         return None

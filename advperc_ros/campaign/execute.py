@@ -208,14 +208,15 @@ class ProcessExecutor:
     """A pool of worker processes, started fresh (spawn) rather than forked from a process that has
     loaded everything. A worker that dies under its cell (killed from outside, out of memory, a crash
     in native code) takes the pool with it: a fresh pool runs each cell lost so once more, and a cell
-    lost twice is that cell's error, so the other cells go on."""
+    lost twice is that cell's error, so the other cells go on. A cell whose results folder was in place
+    when its worker died (killed between the folder's rename and its answer) is finished, not lost."""
 
     def __init__(self, output: Path, workers: int) -> None:
         self.output, self.workers = output, workers
         self.pool = self._pool()
         self.futures: dict[Future, Cell] = {}
         self.lost: set[str] = set()  # cells a dead pool took once
-        self.failed: deque[CellResult] = deque()  # cells it took twice
+        self.settled: deque[CellResult] = deque()  # cells it took twice, or took once they had finished
 
     def _pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(self.workers, mp_context=get_context("spawn"), initializer=_die_with_the_campaign)
@@ -224,7 +225,7 @@ class ProcessExecutor:
         self.futures[self.pool.submit(run_cell, cell, self.output)] = cell
 
     def next_done(self) -> CellResult:
-        while not self.failed:
+        while not self.settled:
             done, _ = wait(self.futures, return_when=FIRST_COMPLETED)
             future = done.pop()
             cell = self.futures.pop(future)
@@ -232,15 +233,17 @@ class ProcessExecutor:
                 return future.result()
             except BrokenProcessPool:
                 self._replace_pool([cell, *self.futures.values()])
-        return self.failed.popleft()
+        return self.settled.popleft()
 
     def _replace_pool(self, lost: list[Cell]) -> None:
         self.pool.shutdown(wait=True, cancel_futures=True)
         self.futures.clear()
         self.pool = self._pool()
         for cell in lost:
-            if cell.name in self.lost:
-                self.failed.append(CellResult(cell.name, "its worker process died twice under it (killed from outside, "
+            if cell.report(self.output) is not None:
+                self.settled.append(CellResult(cell.name))
+            elif cell.name in self.lost:
+                self.settled.append(CellResult(cell.name, "its worker process died twice under it (killed from outside, "
                                               "out of memory, or a crash in native code)"))
             else:
                 self.lost.add(cell.name)

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from advperc_ros.backends.resumed import checkpoint_folder
 from advperc_ros.campaign.execute import CellResult, executor
 from advperc_ros.campaign.spec import Campaign, Cell, plan
 from advperc_ros.campaign.summary import (
@@ -93,6 +94,9 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
     with exclusive(output / LOCK, f"{output}: another campaign run is using this folder"):  # it would start the same cells
         _clear_staging(output)
         reports = {cell.name: cell.report(output) for cell in cells}
+        for name in (name for name, report in reports.items() if report is not None):
+            # a cell killed after its results folder was in place, before its checkpoint went
+            shutil.rmtree(checkpoint_folder(output / name), ignore_errors=True)
         todo = deque(cell for cell in cells if reports[cell.name] is None)
         before = tuple(cell.name for cell in cells if reports[cell.name] is not None)
         results: dict[str, CellResult] = {}

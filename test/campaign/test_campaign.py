@@ -19,7 +19,9 @@ import pytest
 import yaml
 from test_cli import write_params
 
+from advperc_ros.backends.resumed import checkpoint_folder
 from advperc_ros.campaign import spec
+from advperc_ros.campaign.execute import CellResult, ProcessExecutor
 from advperc_ros.cli import main
 
 # a short search by the paper's method, whose attacks (the lead dropped, or displaced) these tests pin
@@ -185,9 +187,9 @@ def test_a_worker_killed_from_outside_costs_its_cell_one_more_run(serial, campai
                                 "--workers", "1", "--output", str(output), "--quiet"], cwd=repo, env=env,
                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     deadline = time.monotonic() + 300
-    while not (output / CELLS[0] / "report.json").is_file():
-        assert process.poll() is None and time.monotonic() < deadline, "the first cell never finished"
-        time.sleep(0.2)
+    while not checkpoint_folder(output / CELLS[1]).is_dir():  # the second cell began: the first one has answered
+        assert process.poll() is None and time.monotonic() < deadline, "the second cell never began"
+        time.sleep(0.05)
     (worker,) = [pid for pid in _children(process.pid)  # running the second cell (not the resource tracker)
                  if b"resource_tracker" not in Path(f"/proc/{pid}/cmdline").read_bytes()]
     os.kill(worker, signal.SIGKILL)
@@ -195,6 +197,27 @@ def test_a_worker_killed_from_outside_costs_its_cell_one_more_run(serial, campai
     assert process.returncode == 0
     assert json.loads(out)["errors"] == 0 and (output / CELLS[1] / "report.json").is_file()
     assert (output / "summary.md").read_text() == (serial / "summary.md").read_text()
+
+
+def test_a_cell_whose_worker_died_after_its_folder_was_in_place_is_finished(serial, campaign, repo, tmp_path, capsys):
+    """A worker killed between its cell's results folder going into place and its answer: the cell is
+    finished, not lost; run again, it would meet its own folder and fail on it."""
+    output = tmp_path / "answered"
+    shutil.copytree(serial, output)
+    cell = spec.plan(spec.load_campaign(campaign))[0]
+    checkpoint_folder(output / cell.name).mkdir()  # what the kill left: the checkpoint outlives its folder
+    pool = ProcessExecutor(output, 1)
+    try:
+        pool.lost.add(cell.name)  # even a cell lost before
+        pool._replace_pool([cell])
+        assert pool.next_done() == CellResult(cell.name) and not pool.futures
+    finally:
+        pool.close()
+    again = write_campaign(tmp_path / "again.yaml", repo, output)  # the same campaign, owning the copy
+    summary = json.loads((output / "summary.json").read_text())
+    (output / "summary.json").write_text(json.dumps({**summary, "source": str(again.resolve())}))
+    again = run(again, capsys=capsys)
+    assert again["finished_before"] == len(CELLS) and not checkpoint_folder(output / cell.name).exists()
 
 
 def _junit(output: Path) -> dict[str, ET.Element]:

@@ -15,12 +15,14 @@ ego, `time_from_start` left 0 as Autoware's planners leave it, the speed in
 `longitudinal_velocity_mps`. It announces its build on the latched /attack/nodes (optional), so the
 attack's report says which version of it was attacked.
 
-What makes a timer-driven node work under the graph's clock (docs/stacks.md, "Driving the planner"):
-plan on every tick, stamp the trajectory with the clock's time, and take a jump of the clock back as
-the start of a new rollout: plan at once, since ROS timers do not fire on a jump back. And, for an
-attack that replays (`reproduced: true`): plan a tick with the inputs of that time. The clock may
-reach this node before the objects it waits for (another process publishes them), so a tick whose
-objects are older waits for them, and their arrival plans it.
+What a timer-driven node does under the graph's clock (docs/stacks.md, "Driving the planner") is what
+it does on a car: plan on every tick with the latest inputs it holds, stamp the trajectory with the
+clock's time, and take a jump of the clock back as a restart, as ROS nodes do (tf clears its buffer
+on one). ROS timers do not fire on a jump back, so the restart plans once the executor has run the
+callbacks of the inputs that came with it: the jump callback triggers a guard condition rather than
+planning itself (it runs inside the /clock callback, before the others of its wait). The clock drive
+delivers each frame's inputs before its clock, so every tick plans on its own frame and the attack
+replays (`reproduced: true`).
 
 The planning itself is a placeholder, an adaptive cruise control along the route: cruise at the
 speed limit, follow the nearest predicted object ahead within the lane at a time gap.
@@ -43,7 +45,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from std_msgs.msg import String
 
-VERSION = "acc-0.3"  # this build: the attack's report names it and its config_hash covers it
+VERSION = "acc-0.4"  # this build: the attack's report names it and its config_hash covers it
 PERIOD_S = 0.1
 HORIZON_S = 8.0
 SAMPLE_M = 1.0
@@ -98,7 +100,6 @@ class AutowareStylePlanner(Node):
         self.route: Route | None = None
         self.odometry: Odometry | None = None
         self.objects: PredictedObjects | None = None
-        self.waiting: int | None = None  # a tick's time whose objects have not come yet
         self.trajectory = self.create_publisher(Trajectory, "/planning/scenario_planning/trajectory", RELIABLE)
         self.create_subscription(Path, "/ego/route", self.on_route, LATCHED)
         self.create_subscription(Odometry, "/localization/kinematic_state", self.on_odometry, RELIABLE)
@@ -107,7 +108,9 @@ class AutowareStylePlanner(Node):
         # optional: say which build this is (the latched /attack/nodes, depth 1000 for its readers)
         self.presence = self.create_publisher(String, "/attack/nodes", LATCHED)
         self.presence.publish(String(data=json.dumps({"node": self.get_name(), "pid": os.getpid(), "version": VERSION})))
-        # a jump of the clock back is a new rollout: timers do not fire on it, so plan at once
+        # a jump of the clock back is a restart: timers do not fire on it, so plan once the executor has
+        # delivered the inputs that came with it (a guard condition is taken after this wait's callbacks)
+        self.restart = self.create_guard_condition(self.on_timer)
         self.jump = self.get_clock().create_jump_callback(
             JumpThreshold(min_forward=None, min_backward=Duration(nanoseconds=-1), on_clock_change=False),
             post_callback=self.on_jump_back)
@@ -120,25 +123,15 @@ class AutowareStylePlanner(Node):
 
     def on_objects(self, msg: PredictedObjects) -> None:
         self.objects = msg
-        if self.waiting is not None and self.stamp_of(msg) == self.waiting:
-            self.on_timer()
 
     def on_jump_back(self, jump) -> None:
         # (resetting the timer here would deadlock: the callback runs under the clock's lock)
-        self.on_timer()
-
-    @staticmethod
-    def stamp_of(msg) -> int:
-        return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+        self.restart.trigger()
 
     def on_timer(self) -> None:
         now = self.get_clock().now()
         if self.route is None or self.odometry is None or self.objects is None:
             return
-        if self.stamp_of(self.objects) != now.nanoseconds:  # this tick's objects are still on their way
-            self.waiting = now.nanoseconds
-            return
-        self.waiting = None
         self.trajectory.publish(self.plan(now.to_msg()))
 
     def lead(self, s_ego: float) -> tuple[float, float] | None:

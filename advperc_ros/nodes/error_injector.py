@@ -47,7 +47,7 @@ class ErrorInjector:
         self._frames = {int(stamp): k for k, stamp in enumerate(rollout.stamps_ns)}
         self._history = BoxSequence.empty(*rollout.errors.shape)
         self._history.ids[:] = rollout.agent_ids
-        self._ready.publish(ready_message(RolloutReady(rollout.rollout, rollout.ahead)))
+        self._ready.publish(ready_message(RolloutReady(rollout.rollout, rollout.ahead, rollout.confirmed)))
 
     def on_ground_truth(self, data: bytes) -> None:
         stamp, truth = ground_truth_objects(data)

@@ -36,7 +36,7 @@ from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import SCHEMA, find_bag, load_params, node_values, params_from_values
 from advperc_ros.ros import cdr
 from advperc_ros.ros.lockstep import presence_message
-from advperc_ros.ros.topics import CONTROL_TYPE, GROUND_TRUTH, PRESENCE
+from advperc_ros.ros.topics import CONTROL_TYPE, GROUND_TRUTH, PRESENCE, with_prompt_heartbeats
 from advperc_ros.ros.transport import Transport
 
 POLL_PERIOD = 0.05  # s between `poll()` calls of a node that has one (the player's timeouts)
@@ -234,6 +234,7 @@ def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int], int
     if refused is not None:
         print(f"{name}: error: {refused}", file=sys.stderr)
         return EXIT_INPUT
+    os.environ["CYCLONEDDS_URI"] = with_prompt_heartbeats(os.environ.get("CYCLONEDDS_URI"))  # read by rmw_cyclonedds
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)  # ours: `_interrupt`, `stop_on_signal`
     except rclpy_implementation.RCLError as exc:

@@ -13,8 +13,12 @@ On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lo
    stamped t_k); messages with other stamps are ignored. Waiting for both at every published
    frame, even when the rollout ends there, leaves no answer in flight when it ends.
    With `graph.drive: clock` (planners on timers under use_sim_time) /clock is published last
-   instead: once the tracked objects stamped t_k are out, so that a timer the clock fires finds
-   them; the first plan stamped in [t_k, t_{k+1}) is taken. A rollout starts with the clock at
+   instead, once frame k is delivered: every reader has acknowledged the odometry (and the other
+   inputs of the ego the profile has), and our tracker has confirmed on /attack/delivered that every
+   reader holds the tracks stamped t_k (a team's tracker confirms nothing: there, once its tracks
+   reach the player). A single-threaded executor then runs the node's input callbacks before the
+   timer the clock fires, so a timer that plans with whatever it holds plans on frame k; the first
+   plan stamped in [t_k, t_{k+1}) is taken. A rollout starts with the clock at
    the scenario's last stamp, so that its step to t_0 is a jump back in every rollout, the first
    too: ROS timers do not fire on a jump back, so a timer-driven node must take one as the start of
    a rollout (reset, and plan at once; docs/graph.md);
@@ -44,10 +48,18 @@ from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import read_scenario, read_topics
 from advperc_ros.ros.interfaces.base import Profile
 from advperc_ros.ros.interfaces.registry import load_profile
-from advperc_ros.ros.lockstep import RolloutDone, Status, done_message, parse_ready, parse_rule_diagnostics
+from advperc_ros.ros.lockstep import (
+    RolloutDone,
+    Status,
+    done_message,
+    parse_delivered,
+    parse_ready,
+    parse_rule_diagnostics,
+)
 from advperc_ros.ros.topics import (
     CLOCK,
     CONTROL_TYPE,
+    DELIVERED,
     DONE,
     FOOTPRINT,
     GROUND_TRUTH,
@@ -70,7 +82,8 @@ class _Run:
     ahead: bool = False  # the ground truth runs one frame ahead of the ego (the ready message's word)
     ego_xy: tuple[float, float] = (0.0, 0.0)  # where the ego is at this frame (a plan without times is timed from it)
     speed: float = 0.0  # the ego's speed at this frame (its change is the acceleration a stack may read)
-    clocked: bool = True  # /clock shows this frame's time (drive: clock sets it once the frame's tracks are out)
+    clocked: bool = True  # /clock shows this frame's time (drive: clock sets it once the frame is delivered)
+    confirmed: bool = False  # (drive: clock) our tracker confirms each frame's tracks on /attack/delivered
     rule: float | None = None
     plan: Trajectory | None = None
     stray: int | None = None  # the last plan stamp this frame that no frame of the scenario bears (wall time?)
@@ -106,6 +119,8 @@ class ScenarioPlayer:
                                              if profile.ego_topic != ODOMETRY else [])
         self._acceleration = self._optional(transport, profile.acceleration_topic, msgs.ACCELERATION)
         self._transforms = self._optional(transport, profile.transforms_topic, msgs.TRANSFORMS)
+        self._ego_inputs = [publisher for publisher in (*self._ego, self._acceleration, self._transforms)
+                            if publisher is not None]  # what a stack reads of the ego, delivered before the clock
         self._done = transport.publisher(DONE, CONTROL_TYPE)
         for topic in (LANES, ROUTE):
             if topics[topic]:
@@ -114,6 +129,7 @@ class ScenarioPlayer:
         transport.subscriber(profile.plan.topic, profile.plan.msgtype, callback=self.on_plan, raw=True)
         if by_clock:
             transport.subscriber(profile.tracks.topic, profile.tracks.msgtype, callback=self.on_tracks, raw=True)
+            transport.subscriber(DELIVERED, CONTROL_TYPE, callback=self.on_delivered)
         transport.subscriber(RULE_DIAGNOSTICS, TOPIC_TYPES[RULE_DIAGNOSTICS], callback=self.on_rule, raw=True)
 
     def _optional(self, transport: Transport, topic: str | None, msgtype: str) -> Publisher | None:
@@ -167,19 +183,37 @@ class ScenarioPlayer:
         if self._run is not None:
             self._finish(Status.INCONCLUSIVE, f"frame {self._run.frame}: superseded by rollout {ready.rollout}",
                          timeout=True)
-        self._run = _Run(ready.rollout, 0, 0.0, ahead=ready.ahead)
+        self._run = _Run(ready.rollout, 0, 0.0, ahead=ready.ahead, confirmed=ready.confirmed)
         self._publish_frame(0, self._start)
 
     def on_tracks(self, data: bytes) -> None:
-        """(drive: clock) The frame's tracked objects are out: advance /clock to the frame."""
+        """(drive: clock, a team's tracker) The frame's tracked objects are out: advance /clock."""
         run = self._run
-        if run is None or run.clocked:
+        if run is None or run.clocked or run.confirmed:
             return
-        stamp = self._tracks_layer.decode(data, self._tracks_layer.topic)[0]
-        if stamp == self._stamp(run.frame):
-            run.clocked = True
-            self._pub[CLOCK].publish(cdr.encode_clock(stamp))
-            self._step()  # a message-driven planner's plan may have come first
+        if self._tracks_layer.decode(data, self._tracks_layer.topic)[0] == self._stamp(run.frame):
+            self._advance_clock(run)
+
+    def on_delivered(self, msg: Any) -> None:
+        """(drive: clock, our tracker) Every reader holds the frame's tracks: advance /clock."""
+        run = self._run
+        if run is None or run.clocked or not run.confirmed:
+            return
+        delivered = parse_delivered(msg)
+        if delivered.topic == self._tracks_layer.topic and delivered.stamp_ns == self._stamp(run.frame):
+            self._advance_clock(run)
+
+    def _advance_clock(self, run: _Run) -> None:
+        """(drive: clock) /clock to the frame's time, once every reader holds the ego's inputs too."""
+        stamp = self._stamp(run.frame)
+        unacknowledged = [publisher for publisher in self._ego_inputs if not publisher.wait_for_acks(self._timeout)]
+        if unacknowledged:
+            self._finish(Status.INCONCLUSIVE, f"frame {run.frame}: the ego's inputs stamped {stamp} were not acknowledged "
+                                              f"by every reader within {self._timeout:g} s (a node is hung)", timeout=True)
+            return
+        run.clocked = True
+        self._pub[CLOCK].publish(cdr.encode_clock(stamp))
+        self._step()  # a message-driven planner's plan may have come first
 
     def on_plan(self, data: bytes) -> None:
         run = self._run

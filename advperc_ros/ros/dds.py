@@ -30,6 +30,7 @@ A transport is meant for one thread. Callbacks run on the thread calling `spin_o
 Cyclone's receive thread, so a callback may publish without risking a deadlock on flow control.
 """
 
+import os
 import time
 from collections.abc import Callable
 from types import TracebackType
@@ -46,7 +47,7 @@ from cyclonedds.util import duration
 from advperc_ros.exceptions import DdsError
 from advperc_ros.ros import dds_types
 from advperc_ros.ros.cdr import payload
-from advperc_ros.ros.topics import depth
+from advperc_ros.ros.topics import depth, with_prompt_heartbeats
 
 try:  # the fast path: CDR bytes straight to Cyclone (see the module docstring)
     from cyclonedds._clayer import ddspy_take as _ddspy_take
@@ -98,8 +99,9 @@ def _domain(domain_id: int, localhost_only: bool) -> None:
             raise DdsError(f"domain {domain_id}: already set up with localhost_only={_DOMAINS[domain_id][1]} "
                            "in this process")
         return
-    config = LOCALHOST_CONFIG.format(max_index=MAX_PROCESSES - 1) if localhost_only else None
-    # without a config Cyclone reads CYCLONEDDS_URI or its defaults: the user widened discovery
+    # not loopback only: CYCLONEDDS_URI or Cyclone's defaults, as the user widened discovery
+    config = with_prompt_heartbeats(LOCALHOST_CONFIG.format(max_index=MAX_PROCESSES - 1) if localhost_only
+                                    else os.environ.get("CYCLONEDDS_URI"))
     try:
         domain = Domain(domain_id, config)
     except DDSException as exc:

@@ -5,8 +5,9 @@ written with `repr` by the json module and so round-trip exactly):
 
 | topic | QoS | from -> to | JSON |
 |---|---|---|---|
-| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn", "ahead"}, and the arrays of each extended error kind on (`core.perception_errors.KINDS`) |
-| /attack/ready | volatile | injector -> player | {"rollout", "ahead"}: the injector holds that rollout's errors |
+| /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn", "ahead", "confirmed"}, and the arrays of each extended error kind on (`core.perception_errors.KINDS`) |
+| /attack/ready | volatile | injector -> player | {"rollout", "ahead", "confirmed"}: the injector holds that rollout's errors |
+| /attack/delivered | volatile | tracker -> player | {"topic", "stamp_ns"}: (drive: clock) every reader of the tracks stamped stamp_ns holds them |
 | /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout"} |
 | /attack/nodes | latched | every graph node -> orchestrator | {"node", "pid"}: the node is up, its topics created |
 | /attack/reference | latched | orchestrator -> rule monitor | {"ego", "dt"}: the ground truth's rollout (ego rows x, y, yaw, v; frame period s) |
@@ -15,6 +16,12 @@ written with `repr` by the json module and so round-trip exactly):
 ahead of the ego, so that the injector and the tracker work on frame k+1 while the planner plans
 frame k (docs/graph.md, "Perception one frame ahead"); the orchestrator sets it only when the
 planner and the tracker are ours and the planner is driven by messages.
+
+`confirmed` (optional, false when absent) tells the player, under the clock drive, that the tracks
+come from our tracker, which confirms on /attack/delivered that every reader holds a frame's tracks
+(each reader acknowledged them, `Publisher.wait_for_acks`): the player advances /clock to t_k only
+then, so that a timer the clock fires finds frame k's tracks in its node, however loaded the
+machine. A team's tracker confirms nothing; the player then goes by the tracks' arrival at itself.
 
 `timeout` in /attack/done is true when the rollout is inconclusive because the graph failed to
 answer (a node died or went silent), as opposed to the planner's own failure; the orchestrator
@@ -40,7 +47,7 @@ from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.exceptions import MessageError
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
-from advperc_ros.ros.topics import DONE, ERRORS, PRESENCE, READY, REFERENCE, RULE_DIAGNOSTICS
+from advperc_ros.ros.topics import DELIVERED, DONE, ERRORS, PRESENCE, READY, REFERENCE, RULE_DIAGNOSTICS
 
 RULE_STATUS = "collision"
 MIN_KEY = "min_signed_distance"
@@ -68,14 +75,17 @@ class RolloutErrors:
     agent_ids: np.ndarray  # (N,) int64
     stamps_ns: np.ndarray  # (T,) int64
     ahead: bool = False
+    confirmed: bool = False  # (drive: clock) our tracker confirms each frame's delivery on /attack/delivered
 
 
 @dataclass(frozen=True)
 class RolloutReady:
-    """The injector holds rollout `rollout`'s errors; `ahead` is the orchestrator's word, passed on."""
+    """The injector holds rollout `rollout`'s errors; `ahead` and `confirmed` are the orchestrator's
+    word, passed on."""
 
     rollout: int
     ahead: bool
+    confirmed: bool = False
 
 
 @dataclass(frozen=True)
@@ -99,6 +109,7 @@ def errors_message(item: RolloutErrors):
         "stamps_ns": item.stamps_ns.tolist(),
         **{name: array.tolist() for name, array in e.arrays().items()},
         "ahead": item.ahead,
+        "confirmed": item.confirmed,
     }))
 
 
@@ -161,21 +172,40 @@ def parse_errors(msg) -> RolloutErrors:
         errors = PerceptionErrors.from_arrays(arrays)
     except ValueError as exc:
         raise MessageError(f"{ERRORS}: {exc}") from None
-    return RolloutErrors(_field(data, ERRORS, "rollout", int), errors, agent_ids, stamps, _ahead(data, ERRORS))
+    return RolloutErrors(_field(data, ERRORS, "rollout", int), errors, agent_ids, stamps, _flag(data, ERRORS, "ahead"),
+                         _flag(data, ERRORS, "confirmed"))
 
 
-def _ahead(data: dict, topic: str) -> bool:
-    """The optional `ahead` of a control message: false when absent (a sender that predates it)."""
-    return "ahead" in data and _field(data, topic, "ahead", bool)
+def _flag(data: dict, topic: str, name: str) -> bool:
+    """An optional flag of a control message: false when absent (a sender that predates it)."""
+    return name in data and _field(data, topic, name, bool)
 
 
 def ready_message(ready: RolloutReady):
-    return msgs.string(json.dumps({"rollout": ready.rollout, "ahead": ready.ahead}))
+    return msgs.string(json.dumps({"rollout": ready.rollout, "ahead": ready.ahead, "confirmed": ready.confirmed}))
 
 
 def parse_ready(msg) -> RolloutReady:
     data = _json_object(msg, READY)
-    return RolloutReady(_field(data, READY, "rollout", int), _ahead(data, READY))
+    return RolloutReady(_field(data, READY, "rollout", int), _flag(data, READY, "ahead"), _flag(data, READY, "confirmed"))
+
+
+@dataclass(frozen=True)
+class Delivered:
+    """(drive: clock) Every reader of `topic` holds its message stamped `stamp_ns`: the tracker's word
+    to the player, which may then advance /clock to that stamp."""
+
+    topic: str
+    stamp_ns: int
+
+
+def delivered_message(delivered: Delivered):
+    return msgs.string(json.dumps({"topic": delivered.topic, "stamp_ns": delivered.stamp_ns}))
+
+
+def parse_delivered(msg) -> Delivered:
+    data = _json_object(msg, DELIVERED)
+    return Delivered(_field(data, DELIVERED, "topic", str), _field(data, DELIVERED, "stamp_ns", int))
 
 
 @dataclass(frozen=True)

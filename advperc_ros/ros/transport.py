@@ -41,6 +41,11 @@ class Publisher(Protocol):
     def matched_count(self) -> int:
         """Subscribers currently matched (writer-side discovery)."""
 
+    def wait_for_acks(self, timeout: float) -> bool:
+        """Block until every matched reader has acknowledged everything published (all topics are
+        reliable), so each holds it in its middleware before anything published after is sent; False
+        when `timeout` s pass first. What lets the clock drive deliver a frame before its clock."""
+
 
 class Transport(Protocol):
     """The only interface node logic and the graph backend see, so the same nodes run over rclpy and
@@ -91,6 +96,11 @@ class _RclpyPublication:
 
     def matched_count(self) -> int:
         return int(self._publisher.get_subscription_count())
+
+    def wait_for_acks(self, timeout: float) -> bool:
+        from rclpy.duration import Duration
+
+        return bool(self._publisher.wait_for_all_acked(Duration(nanoseconds=int(timeout * 1e9))))
 
 
 def _full_name(endpoint: Any) -> str:

@@ -228,7 +228,7 @@ def test_each_node_gets_exactly_its_parameters(tmp_path):
     by_node = {spec.name: ros_parameters(spec, params, BAG) for spec in SPECS}
     assert by_node["error_injector"] == {"graph.interface": "advperc"}
     assert by_node["tracker"] == {"tracker.gate": 2.0, "tracker.max_age": 1.0, "attacked_layer": "detections",
-                                  "graph.interface": "advperc"}
+                                  "graph.interface": "advperc", "graph.drive": "messages", "graph.timeout": 10.0}
     assert by_node["scenario_player"] == {"bag": str(BAG), "stop_at_collision": True, "graph.timeout": 10.0,
                                           "graph.interface": "advperc", "graph.drive": "messages", "ego.length": 4.6,
                                           "ego.width": 1.9}
@@ -381,6 +381,7 @@ def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path
     attack = lead_drop(scenario)
     with GraphRollouts(scenario, core_configs(params), BAG) as graph:
         assert graph.perception_ahead is (drive == "messages")  # a clock-driven planner gets each frame in turn
+        assert graph.tracks_confirmed is (drive == "clock")  # our tracker says when every reader holds a frame
         result = graph.rollout(attack, record=True)
     embedded = stack.rollout(attack, record=True)
     assert_same_rollout(result, embedded)

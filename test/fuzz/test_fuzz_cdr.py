@@ -95,7 +95,9 @@ ERRORS = lockstep.RolloutErrors(
     np.array([1, 7]), np.array([0, 100_000_000]))
 CONTROL = {  # topic -> (parser, a valid message as JSON)
     lockstep.ERRORS: (lockstep.parse_errors, json.loads(lockstep.errors_message(ERRORS).data)),
-    lockstep.READY: (lockstep.parse_ready, json.loads(lockstep.ready_message(lockstep.RolloutReady(3, True)).data)),
+    lockstep.READY: (lockstep.parse_ready, json.loads(lockstep.ready_message(lockstep.RolloutReady(3, True, True)).data)),
+    lockstep.DELIVERED: (lockstep.parse_delivered,
+                         json.loads(lockstep.delivered_message(lockstep.Delivered("/tracking/objects", 5)).data)),
     lockstep.PRESENCE: (lockstep.parse_presence, json.loads(lockstep.presence_message("tracker", 42).data)),
     lockstep.DONE: (lockstep.parse_done,
                     json.loads(lockstep.done_message(lockstep.RolloutDone(3, 9, lockstep.Status.OK, "", False)).data)),
@@ -131,8 +133,10 @@ def check_control(parsed, topic: str) -> None:
         assert parsed.status in (lockstep.Status.OK, lockstep.Status.INCONCLUSIVE) and isinstance(parsed.timeout, bool)
     elif topic == lockstep.PRESENCE:
         assert isinstance(parsed[0], str) and type(parsed[1]) is int
+    elif topic == lockstep.DELIVERED:
+        assert isinstance(parsed.topic, str) and type(parsed.stamp_ns) is int
     else:
-        assert type(parsed.rollout) is int and type(parsed.ahead) is bool
+        assert type(parsed.rollout) is int and type(parsed.ahead) is bool and type(parsed.confirmed) is bool
 
 
 @pytest.mark.parametrize("topic", CONTROL)

@@ -698,17 +698,23 @@ def _attack_beside(workspace: Path, domain: int, tmp_path: Path, example: str, a
 def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_through_ros2_launch(
         workspace, ros_domain, tmp_path):
     """examples/autoware_planner.py (PredictedObjects in, a distance-sampled Trajectory out, a 10 Hz
-    timer under use_sim_time; nothing of ours imported) attacked with `interface:=autoware drive:=clock`:
-    every rollout conclusive, a collision found, the report naming the team's node."""
-    output, _ = _attack_beside(workspace, ros_domain, tmp_path, "autoware_planner.py",
-                               "planner:=external interface:=autoware drive:=clock")
+    timer under use_sim_time that plans with whatever it holds; nothing of ours imported) attacked with
+    `interface:=autoware drive:=clock` beside a busy process: every rollout conclusive, a collision found
+    and reproduced (the drive delivered each frame before its clock), the report naming the team's node."""
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])  # a loaded machine delays deliveries
+    try:
+        output, _ = _attack_beside(workspace, ros_domain, tmp_path, "autoware_planner.py",
+                                   "planner:=external interface:=autoware drive:=clock")
+    finally:
+        busy.kill()
+        busy.wait()
     report = _report(output)
     assert report["collision"] is True and report["inconclusive_rollouts"] == 0, report
     assert report["reproduced"] is True  # the timer-driven node, driven by the clock, replays its attack
     assert report["planner"] == "external" and report["planner_node"] == "/autoware_style_planner"
-    assert report["planner_version"] == "acc-0.3"  # announced on /attack/nodes, covered by config_hash
+    assert report["planner_version"] == "acc-0.4"  # announced on /attack/nodes, covered by config_hash
     assert report["params"]["planner"] == "external" and report["params"]["planner_params"] == {}  # not ours: no IDM
-    assert "external (/autoware_style_planner version acc-0.3) planner" in (output / "report.md").read_text()
+    assert "external (/autoware_style_planner version acc-0.4) planner" in (output / "report.md").read_text()
 
 
 def test_a_team_s_own_tracker_on_vision_msgs_detections_is_attacked_with_our_planner(workspace, ros_domain, tmp_path):

@@ -124,15 +124,17 @@ class LockstepClient:
         ego = self.received[ODOMETRY][stamp]
         return layer.decode(self.received[PLAN][stamp], self._stamps[0], (ego.x, ego.y), layer.topic)[1]
 
-    def send(self, errors: PerceptionErrors, ahead: bool) -> int:
+    def send(self, errors: PerceptionErrors, ahead: bool, confirmed: bool) -> int:
         """Publish a rollout's errors under a fresh rollout id, with whether the player may run the
-        ground truth a frame ahead; forget the previous rollout's messages."""
+        ground truth a frame ahead and whether our tracker confirms each frame's delivery (drive:
+        clock); forget the previous rollout's messages."""
         rollout = self._next_rollout
         self._next_rollout += 1
         for received in self.received.values():
             received.clear()
         self._done.clear()
-        self.errors.publish(errors_message(RolloutErrors(rollout, errors, self._agent_ids, self._stamps_ns, ahead)))
+        self.errors.publish(errors_message(RolloutErrors(rollout, errors, self._agent_ids, self._stamps_ns, ahead,
+                                                                 confirmed)))
         return rollout
 
     def collect(self, rollout: int, stall: float, record: bool, dead: Callable[[], str | None]) -> RolloutDone:

@@ -240,6 +240,13 @@ class GraphRollouts:
         it holds instead, which would then be a frame early."""
         return self.execution.drive == "messages" and self._ours(TRACKER_NODE) and self._ours(PLANNER_NODE)
 
+    @property
+    def tracks_confirmed(self) -> bool:
+        """Whether the player, under the clock drive, advances /clock only once our tracker confirms
+        that every reader holds the frame's tracks (ros/lockstep.py): our tracker does; a team's
+        tracker does not, and the report says the delivery was not confirmed."""
+        return self.execution.drive == "clock" and self._ours(TRACKER_NODE)
+
     def _warm_up(self, deadline: float, purpose: str) -> None:
         """One ground-truth rollout through every edge (`purpose` names it in a failure); re-sent when
         it stalls, with the stall allowed doubling each time (a lost first message costs little, a
@@ -250,7 +257,7 @@ class GraphRollouts:
         none = PerceptionErrors.none(*self.scenario.agents.shape)
         stall = WARMUP_STALL
         while True:
-            rollout = self.client.send(none, self.perception_ahead)
+            rollout = self.client.send(none, self.perception_ahead, self.tracks_confirmed)
             try:
                 done = self.client.collect(rollout, stall, self._recording, self.processes.dead)
                 if done.status != Status.INCONCLUSIVE or time.monotonic() > deadline:
@@ -331,7 +338,7 @@ class GraphRollouts:
             self.client.record_too()
             self._warm_up(time.monotonic() + STARTUP_TIMEOUT, RECORD_CHECK)  # proves the new subscriptions
         client = self.client
-        rollout = client.send(errors, self.perception_ahead)
+        rollout = client.send(errors, self.perception_ahead, self.tracks_confirmed)
         try:
             done = client.collect(rollout, self.execution.graph_timeout + GRACE, record, self._watch())
         except RolloutFault as raised:

@@ -11,7 +11,8 @@ stderr and exit code 2, before any node starts, as from `advperc attack`.
     launch_plan params:=config/idm_lane_following.yaml planner:=external output:=results/x
 
 Arguments are the launch file's own, `name:=value`; the JSON is
-`{"nodes": [{"executable", "name", "parameters"}], "orchestrator": {"params_file", "overrides"}}`.
+`{"nodes": [{"executable", "name", "parameters", "env"}], "orchestrator": {"params_file", "overrides"}}`, `env`
+what the node's process adds to its environment (`nodes.runtime.node_environment`).
 """
 
 import json
@@ -23,6 +24,7 @@ from typing import Any
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.exits import EXIT_INPUT, EXIT_OK, INPUT_ERRORS
 from advperc_ros.nodes.graph_nodes import SPECS, ros_parameters
+from advperc_ros.nodes.runtime import node_environment
 from advperc_ros.params import INTERFACES, SCHEMA, load_params, resolve_bag
 
 DEFAULTS = {"params": "", "planner": "ours", "tracker": "ours", "output": "", "resume": "false", "interface": "",
@@ -37,13 +39,13 @@ class LaunchPlan:
     """The nodes one launch starts, each with its ROS parameters, and the orchestrator's overrides of
     the params file it reads itself (so its report is the one `advperc attack` writes for that file)."""
 
-    nodes: tuple[tuple[str, dict[str, Any]], ...]  # (executable, its parameters); named as the executable
+    nodes: tuple[tuple[str, dict[str, Any], dict[str, str]], ...]  # (executable, parameters, environment)
     params_file: str
     overrides: dict[str, Any]
 
     def to_json(self) -> str:
-        return json.dumps({"nodes": [{"executable": name, "name": name, "parameters": parameters}
-                                     for name, parameters in self.nodes],
+        return json.dumps({"nodes": [{"executable": name, "name": name, "parameters": parameters, "env": env}
+                                     for name, parameters, env in self.nodes],
                            "orchestrator": {"params_file": self.params_file, "overrides": self.overrides}})
 
 
@@ -83,7 +85,8 @@ def plan(arguments: Mapping[str, str]) -> LaunchPlan:
         overrides["output"] = given["output"]
     if _choice(given, "resume", ("true", "false")) == "true":
         overrides["resume"] = True
-    nodes = tuple((spec.name, ros_parameters(spec, params, bag)) for spec in SPECS if spec.name not in external)
+    nodes = tuple((spec.name, parameters, node_environment(spec, parameters)) for spec in SPECS
+                  if spec.name not in external for parameters in (ros_parameters(spec, params, bag),))
     return LaunchPlan(nodes, given["params"], overrides)
 
 

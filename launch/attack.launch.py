@@ -85,7 +85,7 @@ def _plan(context) -> dict:
 def _graph(context, *args, **kwargs):
     plan = _plan(context)
     nodes = [Node(package=PACKAGE, executable=node["executable"], name=node["name"], output="screen",
-                  parameters=[node["parameters"]]) for node in plan["nodes"]]
+                  parameters=[node["parameters"]], additional_env=node["env"]) for node in plan["nodes"]]
     orchestrator_plan = plan["orchestrator"]
     # on Ctrl-C the orchestrator keeps its checkpoint and stops the search before it exits with 130; launch's
     # 5 s before SIGTERM was not always enough on a loaded machine, and the launch then ended with 143

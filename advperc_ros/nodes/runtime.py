@@ -23,7 +23,7 @@ import os
 import re
 import signal
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -36,7 +36,7 @@ from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import SCHEMA, find_bag, load_params, node_values, params_from_values
 from advperc_ros.ros import cdr
 from advperc_ros.ros.lockstep import presence_message
-from advperc_ros.ros.topics import CONTROL_TYPE, GROUND_TRUTH, PRESENCE, with_prompt_heartbeats
+from advperc_ros.ros.topics import CONTROL_TYPE, GROUND_TRUTH, PRESENCE, PROMPT_HEARTBEATS, with_prompt_heartbeats
 from advperc_ros.ros.transport import Transport
 
 POLL_PERIOD = 0.05  # s between `poll()` calls of a node that has one (the player's timeouts)
@@ -62,6 +62,22 @@ class NodeSpec:
     params: tuple[str, ...]
     build: Callable[[Transport, dict[str, Any], dict[str, Any], Logger], object]
     planner_params: bool = False  # declares `planner_params` too
+    waits_for_acks: bool = False  # (drive: clock) waits for every reader's acknowledgement of a frame
+
+
+def prompt_heartbeats(spec: NodeSpec, values: Mapping[str, Any]) -> bool:
+    """Whether the node's process needs Cyclone's prompt heartbeats (`topics.PROMPT_HEARTBEATS`): a node
+    that waits for acknowledgements, under the clock drive. Only those: prompt heartbeats in every node
+    cost the message drive a third more CPU (benchmarks/graph_bench.py), for waits it never makes."""
+    return spec.waits_for_acks and values.get("graph.drive") == "clock"
+
+
+def node_environment(spec: NodeSpec, values: Mapping[str, Any]) -> dict[str, str]:
+    """What a process starting the node as an rclpy node adds to its environment: rmw_cyclonedds reads
+    CYCLONEDDS_URI when the node is made, before the node can read its parameters."""
+    if not prompt_heartbeats(spec, values):
+        return {}
+    return {"CYCLONEDDS_URI": with_prompt_heartbeats(os.environ.get("CYCLONEDDS_URI"))}
 
 
 @functools.lru_cache(maxsize=GROUND_TRUTH_CACHE)
@@ -234,7 +250,6 @@ def run_rclpy(name: str, args: list[str] | None, body: Callable[[Any], int], int
     if refused is not None:
         print(f"{name}: error: {refused}", file=sys.stderr)
         return EXIT_INPUT
-    os.environ["CYCLONEDDS_URI"] = with_prompt_heartbeats(os.environ.get("CYCLONEDDS_URI"))  # read by rmw_cyclonedds
     try:
         rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)  # ours: `_interrupt`, `stop_on_signal`
     except rclpy_implementation.RCLError as exc:
@@ -295,6 +310,11 @@ def _run_rclpy(spec: NodeSpec, args: list[str] | None) -> int:
         given = given_parameters(node, args)
         values, planner_params = node_values(given, spec.params, f"node '{spec.name}' parameters", spec.planner_params)
         _declare_defaults(node, spec, given)
+        if prompt_heartbeats(spec, values) and PROMPT_HEARTBEATS not in os.environ.get("CYCLONEDDS_URI", ""):
+            node.get_logger().warning(
+                "graph.drive is clock, and this process's CYCLONEDDS_URI lacks prompt heartbeats: each frame may wait "
+                "0.1-0.2 s for its readers' acknowledgements; start the node as the launch file does, with "
+                f"CYCLONEDDS_URI={with_prompt_heartbeats(os.environ.get('CYCLONEDDS_URI'))}")
         transport = RclpyTransport(node)
         logic = spec.build(transport, _resolve(values, None), planner_params, node.get_logger())
         announce(transport, spec.name)
@@ -339,7 +359,7 @@ def _run_cyclone(spec: NodeSpec, argv: list[str]) -> int:
         values = _resolve({name: params.get(name) for name in spec.params}, params.source)
         domain_id = params.dds.domain_id if options.domain_id is None else options.domain_id
         localhost_only = params.dds.localhost_only if options.localhost_only is None else options.localhost_only
-        transport = DdsTransport(domain_id, localhost_only, options.partition)
+        transport = DdsTransport(domain_id, localhost_only, options.partition, prompt_heartbeats(spec, values))
     except (*INPUT_ERRORS, DdsError) as exc:
         logger.error(str(exc))
         return EXIT_INPUT

@@ -298,7 +298,7 @@ def _build(transport: Transport, values: dict[str, Any], planner_params: dict[st
 
 
 SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout", "graph.interface", "graph.drive",
-                                    "ego.length", "ego.width"), _build)
+                                    "ego.length", "ego.width"), _build, waits_for_acks=True)
 
 
 def main(args: list[str] | None = None) -> int:

@@ -74,7 +74,7 @@ def _build(transport: Transport, values: dict[str, Any], planner_params: dict[st
 
 
 SPEC = NodeSpec("tracker", ("tracker.gate", "tracker.max_age", "attacked_layer", "graph.interface", "graph.drive",
-                            "graph.timeout"), _build)
+                            "graph.timeout"), _build, waits_for_acks=True)
 
 
 def main(args: list[str] | None = None) -> int:

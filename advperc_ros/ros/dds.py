@@ -71,7 +71,7 @@ _ANY_STATE = SampleState.Any | ViewState.Any | InstanceState.Any
 _TAKE_BATCH = 256
 _POLL_S = 0.002
 
-_DOMAINS: dict[int, tuple[Domain, bool]] = {}
+_DOMAINS: dict[int, tuple[Domain, bool, bool]] = {}  # id -> (domain, localhost_only, prompt_heartbeats)
 """Cyclone domains configured by this process: one per id, for the process's lifetime."""
 
 
@@ -92,22 +92,23 @@ def _qos(latched: bool, msgtype: str, reader: bool = False) -> Qos:
     )
 
 
-def _domain(domain_id: int, localhost_only: bool) -> None:
+def _domain(domain_id: int, localhost_only: bool, prompt_heartbeats: bool) -> None:
     """Configure the Cyclone domain once per process; a second, different request is an error."""
     if domain_id in _DOMAINS:
-        if _DOMAINS[domain_id][1] != localhost_only:
-            raise DdsError(f"domain {domain_id}: already set up with localhost_only={_DOMAINS[domain_id][1]} "
-                           "in this process")
+        if _DOMAINS[domain_id][1:] != (localhost_only, prompt_heartbeats):
+            raise DdsError(f"domain {domain_id}: already set up with localhost_only={_DOMAINS[domain_id][1]}, "
+                           f"prompt_heartbeats={_DOMAINS[domain_id][2]} in this process")
         return
     # not loopback only: CYCLONEDDS_URI or Cyclone's defaults, as the user widened discovery
-    config = with_prompt_heartbeats(LOCALHOST_CONFIG.format(max_index=MAX_PROCESSES - 1) if localhost_only
-                                    else os.environ.get("CYCLONEDDS_URI"))
+    config = LOCALHOST_CONFIG.format(max_index=MAX_PROCESSES - 1) if localhost_only else os.environ.get("CYCLONEDDS_URI")
+    if prompt_heartbeats:
+        config = with_prompt_heartbeats(config)
     try:
         domain = Domain(domain_id, config)
     except DDSException as exc:
         hint = f" (more than {MAX_PROCESSES} processes on this domain, or its UDP ports taken?)" if localhost_only else ""
         raise DdsError(f"domain {domain_id}: Cyclone DDS could not start it{hint}: {exc}") from exc
-    _DOMAINS[domain_id] = (domain, localhost_only)
+    _DOMAINS[domain_id] = (domain, localhost_only, prompt_heartbeats)
 
 
 def _delete(entity: Any) -> None:
@@ -222,12 +223,15 @@ class DdsTransport:
     A process can hold several transports on one domain, all with the same `localhost_only`.
     `partition`: a DDS partition for every reader and writer, so that graphs in other partitions
     on the same domain are invisible to this one ("" is the default partition, the one ROS 2 uses).
+    `prompt_heartbeats`: the writers ask for acknowledgements every 1 ms (`topics.PROMPT_HEARTBEATS`),
+    for a node that waits for them (the clock drive's player and tracker).
     """
 
-    def __init__(self, domain_id: int, localhost_only: bool = True, partition: str = "") -> None:
+    def __init__(self, domain_id: int, localhost_only: bool = True, partition: str = "",
+                 prompt_heartbeats: bool = False) -> None:
         if not 0 <= domain_id <= 232:
             raise DdsError(f"domain id {domain_id}: must be within 0..232 (RTPS port mapping)")
-        _domain(domain_id, localhost_only)
+        _domain(domain_id, localhost_only, prompt_heartbeats)
         self.domain_id = domain_id
         self._participant: DomainParticipant | None = DomainParticipant(domain_id)
         scope = Qos(Policy.Partition(partitions=[partition]))

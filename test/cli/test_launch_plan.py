@@ -15,6 +15,7 @@ from advperc_ros.exceptions import ParamsError
 from advperc_ros.launch_plan import DEFAULTS, main, plan
 from advperc_ros.nodes.graph_nodes import SPECS
 from advperc_ros.params import load_params, resolve_bag
+from advperc_ros.ros.topics import PROMPT_HEARTBEATS
 
 LAUNCH_FILE = REPO / "launch" / "attack.launch.py"
 PARAMS = str(REPO / "config" / "idm_lane_following.yaml")
@@ -46,18 +47,30 @@ def test_the_launch_file_declares_every_argument_launch_plan_takes_with_its_defa
 
 def test_a_plan_starts_every_node_with_the_parameters_the_graph_backend_gives_them():
     launched = plan({"params": PARAMS, "output": "results/x"})
-    assert [name for name, _ in launched.nodes] == [spec.name for spec in SPECS]
-    player = dict(launched.nodes)["scenario_player"]
+    assert [name for name, _, _ in launched.nodes] == [spec.name for spec in SPECS]
+    player = {name: parameters for name, parameters, _ in launched.nodes}["scenario_player"]
     assert player["bag"] == str(resolve_bag(load_params(PARAMS)).resolve())
     assert launched.overrides == {"rollout_backend": "graph", "graph.spawn_nodes": False, "graph.interface": "advperc",
                                   "graph.drive": "messages", "output": "results/x"}
     assert json.loads(launched.to_json())["orchestrator"]["params_file"] == PARAMS
+    assert all(env == {} for _, _, env in launched.nodes)  # the message drive waits for no acknowledgement
+
+
+def test_under_the_clock_drive_the_player_and_tracker_start_with_prompt_heartbeats(monkeypatch):
+    """They wait for every reader's acknowledgement of a frame; Cyclone, read when the node is made, asks
+    for them every 100 ms unless told otherwise (docs/stacks.md)."""
+    monkeypatch.setenv("CYCLONEDDS_URI", "<CycloneDDS><Domain/></CycloneDDS>")
+    launched = json.loads(plan({"params": PARAMS, "drive": "clock"}).to_json())
+    envs = {node["name"]: node["env"] for node in launched["nodes"]}
+    prompt = {"CYCLONEDDS_URI": f"<CycloneDDS><Domain/></CycloneDDS>,{PROMPT_HEARTBEATS}"}
+    assert envs == {"scenario_player": prompt, "error_injector": {}, "tracker": prompt, "planner": {},
+                    "rule_monitor": {}}
 
 
 def test_external_nodes_are_left_out_and_graph_arguments_override_the_params_file():
     launched = plan({"params": PARAMS, "planner": "external", "tracker": "external", "interface": "autoware",
                      "drive": "clock", "resume": "true"})
-    assert "planner" not in dict(launched.nodes) and "tracker" not in dict(launched.nodes)
+    assert {name for name, _, _ in launched.nodes} == {"scenario_player", "error_injector", "rule_monitor"}
     assert launched.overrides["graph.interface"] == "autoware" and launched.overrides["graph.drive"] == "clock"
     assert launched.overrides["resume"] is True
 

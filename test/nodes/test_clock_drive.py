@@ -148,3 +148,14 @@ def test_the_confirmed_flag_travels_and_defaults_to_false_for_senders_that_preda
     for confirmed in (True, False):
         assert parse_ready(ready_message(RolloutReady(4, False, confirmed))).confirmed is confirmed
     assert parse_ready(type("Msg", (), {"data": '{"rollout": 4, "ahead": true}'})()) == RolloutReady(4, True, False)
+
+
+def test_only_the_clock_drive_s_player_and_tracker_get_prompt_heartbeats():
+    """Prompt heartbeats are for the nodes that wait for acknowledgements; in every node they cost the message
+    drive a third more CPU (benchmarks/graph_bench.py)."""
+    from advperc_ros.nodes.graph_nodes import SPECS
+    from advperc_ros.nodes.runtime import prompt_heartbeats
+
+    for drive in ("messages", "clock"):
+        chosen = {spec.name for spec in SPECS if prompt_heartbeats(spec, {"graph.drive": drive})}
+        assert chosen == ({"scenario_player", "tracker"} if drive == "clock" else set())

@@ -522,6 +522,31 @@ def test_a_launch_whose_planner_never_answers_exits_4_naming_who_is_silent(works
     assert sorted(path.name for path in tmp_path.iterdir()) == [params.name]
 
 
+def test_a_launch_beside_a_planner_publishing_best_effort_exits_4_naming_its_qos(workspace, ros_domain, tmp_path):
+    """Issue 51: a team's planner whose plans go out best effort, which our reliable subscriber never
+    matches (rclpy warns once, mid-log): the launch ends with exit code 4 and one line naming the node
+    and its QoS, not "no plan stamped 0 ... (a node is dead or silent)"; nothing written."""
+    planner = tmp_path / "best_effort_planner.py"
+    text = (REPO / "examples" / "external_planner.py").read_text()
+    reliable = "depth=1000, reliability=ReliabilityPolicy.RELIABLE"
+    assert text.count(reliable) == 1
+    planner.write_text(text.replace(reliable, "depth=1000, reliability=ReliabilityPolicy.BEST_EFFORT"))
+    params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
+    node = _in_workspace(workspace, f"python3 {planner}", ros_domain)
+    try:
+        launch = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} planner:=external "
+                                          f"output:={tmp_path / 'attack'}", ros_domain)
+        code, output = _ended(launch, timeout=TIMEOUT)
+    finally:
+        os.killpg(node.pid, signal.SIGINT)
+        _ended(node, timeout=60)
+    errors = [text for text in output.splitlines() if "[ERROR]" in text and "[orchestrator]" in text]
+    assert code == 4 and len(errors) == 1, _orchestrator_lines(output)
+    assert ("/external_planner publishes plans on /planning/trajectory best effort, which our reliable subscribers "
+            "never match") in errors[0], errors[0]
+    assert not (tmp_path / "attack").exists()
+
+
 @pytest.fixture(scope="module")
 def ros_only_python(tmp_path_factory) -> Path:
     """A venv holding only what the ROS 2 tools themselves import (the kit's pip-runtime.txt), none of

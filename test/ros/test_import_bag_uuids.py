@@ -95,3 +95,39 @@ def test_import_bag_and_an_attack_carry_the_team_s_uuids_in_their_bags(tmp_path,
     report = json.loads((tmp_path / "attack" / "report.json").read_text())
     agent = report["collision_agent"]
     assert imported.object_uuids[agent] in metadata  # the agent the attack hid, by the team's own UUID
+
+
+def test_a_log_recorded_by_ros2_bag_record_imports_with_the_team_s_uuids(tmp_path, bundled, ros_domain):
+    """The team's uuid4 log played by `ros2 bag play` and recorded by `ros2 bag record` (rosbag2's own MCAP
+    writer, metadata, QoS and receive-time log stamps): it imports as the log written directly does, frame
+    for frame, numbered 1..n and with the team's UUIDs kept."""
+    import os
+    import signal
+    import subprocess
+
+    from conftest import need_program
+
+    ros2 = need_program("ros2")
+    uuids = _layouts(bundled)["uuid4"]
+    played = team_log(tmp_path / "played", bundled, uuids)
+    recorded = tmp_path / "recorded"
+    logs = (tmp_path / "record.log").open("w")
+    record = subprocess.Popen([ros2, "bag", "record", "-s", "mcap", "-o", str(recorded), OBJECTS, ODOMETRY],
+                              stdout=logs, stderr=subprocess.STDOUT, start_new_session=True)
+    try:  # the recorder subscribes once it sees the player's publishers: the play waits 3 s, then for acknowledgements
+        play = subprocess.run([ros2, "bag", "play", str(played), "--rate", "5", "--delay", "3",
+                               "--wait-for-all-acked", "5000", "--disable-keyboard-controls"],
+                              capture_output=True, text=True, timeout=180)
+        assert play.returncode == 0, play.stderr[-2000:]
+    finally:
+        os.killpg(record.pid, signal.SIGINT)  # rosbag2 closes its bag on SIGINT
+        record.wait(timeout=60)
+        logs.close()
+    assert (recorded / "metadata.yaml").is_file(), (tmp_path / "record.log").read_text()[-2000:]
+    direct = import_drive(played).scenario
+    drive = import_drive(recorded)
+    assert drive.scenario.num_frames == direct.num_frames, (tmp_path / "record.log").read_text()[-2000:]
+    for field in ("ids", "valid", "x", "y", "yaw", "vx", "vy", "length", "width"):
+        np.testing.assert_array_equal(getattr(drive.scenario.agents, field), getattr(direct.agents, field), err_msg=field)
+    assert drive.scenario.object_uuids == direct.object_uuids
+    assert sorted(drive.scenario.object_uuids.values()) == sorted(u.hex() for u in uuids.values())

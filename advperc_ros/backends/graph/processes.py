@@ -22,6 +22,7 @@ from typing import Any
 import yaml
 
 from advperc_ros.nodes.graph_nodes import SPECS
+from advperc_ros.nodes.runtime import node_environment
 
 STOP_TIMEOUT = 5.0  # s between SIGTERM and SIGKILL on shutdown
 LOG_TAIL = 5  # lines of a dead child's log quoted in the error
@@ -78,6 +79,9 @@ class NodeProcesses:
         self._commands = {name: [sys.executable, "-m", f"advperc_ros.nodes.{name}", *self._arguments(
             name, params_json, domain_id, localhost_only, partition, ros_parameters)] for name in NODES}
         self._ros = ros_parameters is not None
+        # an rclpy node reads its DDS configuration before its parameters: what the clock drive's need, given here
+        self._environments = {spec.name: node_environment(spec, ros_parameters[spec.name]) if ros_parameters else {}
+                              for spec in SPECS}
         self.running: dict[str, subprocess.Popen] = {}
 
     def _arguments(self, name: str, params_json: str, domain_id: int, localhost_only: bool, partition: str,
@@ -95,7 +99,8 @@ class NodeProcesses:
         for name in NODES:
             with (Path(self._workdir.name) / f"{name}.log").open("ab") as output:
                 self.running[name] = subprocess.Popen(
-                    self._commands[name], stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT, env=env,
+                    self._commands[name], stdin=subprocess.DEVNULL, stdout=output, stderr=subprocess.STDOUT,
+                    env={**env, **self._environments[name]},
                     preexec_fn=_die_with_parent if self._ros else None)
 
     def dead(self) -> str | None:

@@ -88,7 +88,12 @@ class InconclusiveSearch(AdvpercError, RuntimeError):
 
 
 class RolloutFault(AdvpercError):
-    """A rollout the graph failed to finish (not the planner's verdict)."""
+    """A rollout the graph failed to finish (not the planner's verdict); `gone` says how a node it needs
+    went for good, where the player saw it (no publisher of the plans left), else ""."""
+
+    def __init__(self, text: str, gone: str = "") -> None:
+        super().__init__(text)
+        self.gone = gone
 
 
 class DdsError(AdvpercError, RuntimeError):

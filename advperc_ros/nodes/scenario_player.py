@@ -96,6 +96,7 @@ class ScenarioPlayer:
     def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, profile: Profile,
                  by_clock: bool, logger: Logger, ego_size: tuple[float, float]) -> None:
         self.scenario = read_scenario(bag)
+        self._transport = transport
         self._frame_stamps = frozenset(int(stamp) for stamp in self.scenario.stamps_ns)
         self._plan_layer = profile.plan
         self._tracks_layer = profile.tracks
@@ -259,14 +260,27 @@ class ScenarioPlayer:
             return
         missing = " and ".join(what for what, got in (("rule value", run.rule), ("tracked objects", run.clocked or None),
                                                       ("plan", run.plan)) if got is None)
-        why = "(a node is dead or silent)" if run.plan is not None or run.stray is None else \
+        gone = self._gone(run)
+        why = f"({gone})" if gone else "(a node is dead or silent)" if run.plan is not None or run.stray is None else \
             stray_stamps(run.stray, self._stamp(run.frame), self.scenario.stamps_ns)
         self._finish(Status.INCONCLUSIVE, f"frame {run.frame}: no {missing} stamped {self._stamp(run.frame)} within "
-                                   f"{self._timeout:g} s {why}", timeout=True)
+                                   f"{self._timeout:g} s {why}", timeout=True, gone=gone)
 
-    def _finish(self, status: Status, reason: str = "", timeout: bool = False, collided: bool = False) -> None:
+    def _gone(self, run: _Run) -> str:
+        """What a frame waited on that no node publishes any more (its process ended, or its DDS lease did):
+        the plans, or under the clock drive a team's tracks; "" while each has a publisher."""
+        waited = [("plans", self._plan_layer.topic)] if run.plan is None else []
+        if not run.clocked and not run.confirmed:
+            waited.append(("tracked objects", self._tracks_layer.topic))
+        for what, topic in waited:
+            if self._transport.publisher_count(topic) == 0:
+                return f"no node publishes {what} on {topic} (never started, ended, or left the DDS domain)"
+        return ""
+
+    def _finish(self, status: Status, reason: str = "", timeout: bool = False, collided: bool = False,
+                gone: str = "") -> None:
         run = self._running()
-        done = RolloutDone(run.rollout, run.frame + 1, status, reason, timeout)
+        done = RolloutDone(run.rollout, run.frame + 1, status, reason, timeout, gone)
         ended = "stopped at a collision" if collided else "driven to its end" if status == Status.OK else str(status)
         line = f"rollout {run.rollout}: {done.frames} frames, {ended}" + (f": {reason}" if reason else "")
         # one call site per severity: rclpy's logger raises when a call site changes its severity

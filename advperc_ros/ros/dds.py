@@ -317,6 +317,11 @@ class DdsTransport:
         """As `publishers_of`: no node names over bare DDS."""
         return None
 
+    def publisher_count(self, topic: str) -> int | None:
+        """The writers matched by this transport's readers of `topic` (DDS discovery); None without one."""
+        readers = [subscription for subscription in self._subscriptions if subscription.topic == topic]
+        return sum(subscription.matched_count() for subscription in readers) if readers else None
+
     def best_effort_publishers(self, topic: str) -> None:
         """A remote writer's QoS is in the builtin publication topic, whose readers crash cyclonedds 11.0.1."""
         return None

@@ -8,7 +8,7 @@ written with `repr` by the json module and so round-trip exactly):
 | /attack/errors | latched | orchestrator -> injector | {"rollout", "agent_ids", "stamps_ns", "dx", "dy", "dyaw", "fn", "ahead", "confirmed"}, and the arrays of each extended error kind on (`core.perception_errors.KINDS`) |
 | /attack/ready | volatile | injector -> player | {"rollout", "ahead", "confirmed"}: the injector holds that rollout's errors |
 | /attack/delivered | volatile | tracker -> player | {"topic", "stamp_ns"}: (drive: clock) every reader of the tracks stamped stamp_ns holds them |
-| /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout"} |
+| /attack/done | volatile | player -> orchestrator | {"rollout", "frames", "status": "ok" or "inconclusive", "reason", "timeout", "gone"} |
 | /attack/nodes | latched | every graph node -> orchestrator | {"node", "pid"}: the node is up, its topics created |
 | /attack/reference | latched | orchestrator -> rule monitor | {"ego", "dt"}: the ground truth's rollout (ego rows x, y, yaw, v; frame period s) |
 
@@ -25,7 +25,9 @@ machine. A team's tracker confirms nothing; the player then goes by the tracks' 
 
 `timeout` in /attack/done is true when the rollout is inconclusive because the graph failed to
 answer (a node died or went silent), as opposed to the planner's own failure; the orchestrator
-then restarts the nodes it owns.
+then restarts the nodes it owns. `gone` (optional, "" when absent) says, with a timeout, that no
+node publishes a topic the frame waited on any more (the player's readers match no publisher): a
+node gone for good, which ends the search.
 
 /rules/diagnostics carries the rule value of frame k stamped t_k: one DiagnosticStatus named
 `collision` whose KeyValues are `min_signed_distance` and `agent <id>` per agent present, values
@@ -99,6 +101,7 @@ class RolloutDone:
     status: Status
     reason: str
     timeout: bool
+    gone: str = ""  # (a timeout) a node the graph needs is gone for good: no publisher of its topic is left
 
 
 def errors_message(item: RolloutErrors):
@@ -247,14 +250,15 @@ def parse_presence(msg) -> tuple[str, int, str | None]:
 
 def done_message(done: RolloutDone):
     return msgs.string(json.dumps({"rollout": done.rollout, "frames": done.frames, "status": done.status.value,
-                                   "reason": done.reason, "timeout": done.timeout}))
+                                   "reason": done.reason, "timeout": done.timeout, "gone": done.gone}))
 
 
 def parse_done(msg) -> RolloutDone:
     data = _json_object(msg, DONE)
     return RolloutDone(_field(data, DONE, "rollout", int), _field(data, DONE, "frames", int),
                        Status(_field(data, DONE, "status", str, tuple(s.value for s in Status))),
-                       _field(data, DONE, "reason", str), _field(data, DONE, "timeout", bool))
+                       _field(data, DONE, "reason", str), _field(data, DONE, "timeout", bool),
+                       _field(data, DONE, "gone", str) if "gone" in data else "")
 
 
 def rule_diagnostics(ns_time: int, agent_ids: np.ndarray, distances: np.ndarray) -> bytes:

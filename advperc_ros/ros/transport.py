@@ -68,6 +68,11 @@ class Transport(Protocol):
         """Full names of the ROS nodes publishing `topic`, where the middleware says (rclpy's graph
         API); None over bare DDS, which carries no node names (so "cannot tell" is not "nobody")."""
 
+    def publisher_count(self, topic: str) -> int | None:
+        """How many publishers of `topic` the middleware knows now, on either transport (over bare DDS:
+        those matched by this transport's readers of it, None without one). A killed process's
+        publishers leave once its DDS lease ends (Cyclone's default: 10 s)."""
+
     def node_names(self) -> tuple[str, ...] | None:
         """Full names of the ROS nodes in the graph now; None over bare DDS, as for `publishers_of`."""
 
@@ -290,6 +295,9 @@ class RclpyTransport:
 
     def publishers_of(self, topic: str) -> tuple[str, ...]:
         return tuple(sorted({_full_name(info) for info in self._node.get_publishers_info_by_topic(topic)}))
+
+    def publisher_count(self, topic: str) -> int:
+        return int(self._node.count_publishers(topic))
 
     def best_effort_publishers(self, topic: str) -> tuple[str, ...]:
         from rclpy.qos import ReliabilityPolicy

@@ -100,7 +100,7 @@ CONTROL = {  # topic -> (parser, a valid message as JSON)
                          json.loads(lockstep.delivered_message(lockstep.Delivered("/tracking/objects", 5)).data)),
     lockstep.PRESENCE: (lockstep.parse_presence, json.loads(lockstep.presence_message("tracker", 42).data)),
     lockstep.DONE: (lockstep.parse_done,
-                    json.loads(lockstep.done_message(lockstep.RolloutDone(3, 9, lockstep.Status.OK, "", False)).data)),
+                    json.loads(lockstep.done_message(lockstep.RolloutDone(3, 9, lockstep.Status.OK, "", False, "")).data)),
 }
 
 
@@ -131,6 +131,7 @@ def check_control(parsed, topic: str) -> None:
             assert values.shape == shape and np.isfinite(values).all()
     elif topic == lockstep.DONE:
         assert parsed.status in (lockstep.Status.OK, lockstep.Status.INCONCLUSIVE) and isinstance(parsed.timeout, bool)
+        assert isinstance(parsed.gone, str)
     elif topic == lockstep.PRESENCE:
         assert isinstance(parsed[0], str) and type(parsed[1]) is int
     elif topic == lockstep.DELIVERED:

@@ -301,6 +301,43 @@ def test_a_team_s_planner_that_dies_mid_search_stops_it_naming_the_node_gone(tmp
     assert 1 <= len(checkpointed) <= int(seen.read_text())  # at most one rollout waited on the planner once it died
 
 
+def test_a_planner_that_dies_mid_search_over_bare_dds_stops_it_naming_the_plans_nobody_publishes(
+        tmp_path, fresh_domain, monkeypatch):
+    """Issue 51 over bare DDS, which names no nodes: a planner started by hand died, and each rollout after
+    cost a timeout. Now the player's reader of the plans matches no publisher once the dead process's DDS
+    lease ends, the frame's timeout says so, and the search stops: exit 4, the checkpoint kept, within a
+    few rollouts (Cyclone's lease is 10 s, the frame's timeout here 5 s)."""
+    frames = bags.read_scenario(REPO / "bags" / "idm_lane_following").num_frames
+    seen = tmp_path / "rollouts_seen"
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test" / "backends"), str(REPO / "test"),
+                                                      os.environ.get("PYTHONPATH", "")]))
+    monkeypatch.setenv("ADVPERC_TEST_EXIT_AFTER", f"{3 * frames}:{seen}")
+    params_file = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
+                                bag=str(REPO / "bags" / "idm_lane_following"), planner="test_graph:ExitingPlanner",
+                                dds={"domain_id": fresh_domain, "localhost_only": True},
+                                graph={"spawn_nodes": False, "timeout": 5.0}, rollout_backend="graph")
+    nodes = []
+    try:
+        for spec in SPECS:
+            with (tmp_path / f"{spec.name}.log").open("w") as log:
+                nodes.append(subprocess.Popen([sys.executable, "-m", f"advperc_ros.nodes.{spec.name}", "--params-file",
+                                               str(params_file), "--exit-with-parent"], stdout=subprocess.DEVNULL,
+                                              stderr=log))
+        output = tmp_path / "attack"
+        run = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "attack", str(params_file), "--output",
+                              str(output), "--quiet"], capture_output=True, text=True, timeout=TIMEOUT)
+    finally:
+        with contextlib.suppress(subprocess.TimeoutExpired):  # the planner exits by itself; the others are stopped
+            nodes[[spec.name for spec in SPECS].index("planner")].wait(timeout=30)
+        _stop(nodes, tmp_path)
+    assert run.returncode == 4, run.stderr[-3000:]
+    assert "the search stops" in run.stderr and "no node publishes plans on /planning/trajectory (never started, " \
+        "ended, or left the DDS domain)" in run.stderr, run.stderr[-3000:]
+    assert "--resume" in run.stderr and not output.exists()
+    checkpointed = (output.parent / f".{output.name}.checkpoint" / "rollouts.jsonl").read_text().splitlines()
+    assert 1 <= len(checkpointed) <= int(seen.read_text())  # the rollouts before its death, none after
+
+
 def _stop(nodes: list[subprocess.Popen], logs: Path) -> None:
     """SIGINT to every node, as Ctrl-C; a node still running 30 s later is hung: SIGABRT makes faulthandler
     write its threads' stacks into its log, which the failure shows."""

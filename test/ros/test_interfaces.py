@@ -272,6 +272,9 @@ class _Recorder:
     def subscriber(self, topic, msgtype, latched=False, callback=None, raw=False, wake=True):
         self.callbacks[topic] = callback
 
+    def publisher_count(self, topic):
+        return None  # as a transport that cannot tell
+
 
 def _three_frames(profile_name: str, transport=None, said=None, ahead=False):
     """The player of idm_lane_following under a profile, through three frames whose plans speed the ego up,
@@ -416,3 +419,28 @@ def test_a_ros_without_tf2_msgs_for_python_leaves_tf_out_and_says_so_once():
     assert said == ["/tf is not published: tf2_msgs/msg/TFMessage: this ROS 2 has no Python package 'tf2_msgs'"]
     assert autoware.TRANSFORMS_TOPIC not in transport.published
     assert len(transport.published[autoware.ACCELERATION_TOPIC]) == len(transport.published["/ego/odometry"]) >= 3
+
+
+@pytest.mark.parametrize("publishers, gone", [(0, True), (1, False), (None, False)])
+def test_a_frame_whose_plans_have_no_publisher_left_says_so_and_marks_the_node_gone(publishers, gone):
+    """Issue 51 over bare DDS, which names no nodes: a planner started by hand that died left each rollout to
+    time out; the player's reader of the plans matching no publisher is how the orchestrator learns it is gone
+    (`gone` in /attack/done), where a transport that cannot tell (None) or a live publisher changes nothing."""
+    import time
+
+    from advperc_ros.nodes.scenario_player import ScenarioPlayer
+    from advperc_ros.ros.lockstep import RolloutReady, parse_done, ready_message
+    from advperc_ros.ros.topics import DONE, READY
+
+    transport = _Recorder()
+    transport.publisher_count = lambda topic: publishers if topic == "/planning/trajectory" else 1
+    logger = type("Log", (), {"info": print, "warning": staticmethod(print)})()
+    player = ScenarioPlayer(transport, REPO / "bags" / "idm_lane_following", True, 0.2, load_profile("advperc"), False,
+                            logger, (4.6, 1.9))
+    transport.callbacks[READY](ready_message(RolloutReady(1, False)))
+    time.sleep(0.3)
+    player.poll()
+    done = parse_done(transport.published[DONE][-1])
+    said = "no node publishes plans on /planning/trajectory (never started, ended, or left the DDS domain)"
+    assert done.timeout and (done.gone == said) is gone and (said in done.reason) is gone, done
+    assert done.gone or "(a node is dead or silent)" in done.reason

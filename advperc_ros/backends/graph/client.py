@@ -151,7 +151,7 @@ class LockstepClient:
                 raise RolloutFault(death)
             done = next((d for d in self._done if d.rollout == rollout), None)
             if done is not None and done.timeout:
-                raise RolloutFault(done.reason)
+                raise RolloutFault(done.reason, done.gone)
             if done is not None and complete(self.received, self._stamps, done, record, self._stop_at_collision):
                 return done
             if time.monotonic() - idle_since > stall:

@@ -292,9 +292,10 @@ class GraphRollouts:
             return self._gone()
         return look
 
-    def _stop_if_gone(self, running: int | None) -> None:
-        """`NodeGone` when a node the graph needs is gone (`running`: the rollout it was in)."""
-        gone = self._gone()
+    def _stop_if_gone(self, running: int | None, seen: str = "") -> None:
+        """`NodeGone` when a node the graph needs is gone (`running`: the rollout it was in; `seen`: how
+        the player saw it go, which bare DDS tells of a node not ours where nothing else can)."""
+        gone = self._gone() or seen or None
         if gone is not None:
             during = f"in rollout {running}, " if running is not None else ""
             raise NodeGone(f"the search stops, as every rollout after would be inconclusive: {during}{gone}")
@@ -342,7 +343,7 @@ class GraphRollouts:
         try:
             done = client.collect(rollout, self.execution.graph_timeout + GRACE, record, self._watch())
         except RolloutFault as raised:
-            self._stop_if_gone(rollout)
+            self._stop_if_gone(rollout, raised.gone)
             fault = self._named(raised)
             log.error(f"rollout {rollout} inconclusive: {fault}; "
                       + ("restarting the graph nodes" if self.execution.spawn_nodes

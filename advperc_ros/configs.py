@@ -16,6 +16,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from advperc_ros.core.perception_errors import ErrorSpace, parse_error_kinds
+from advperc_ros.core.perception_errors.registry import bounds as error_bounds
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.rollout import RolloutConfig
 from advperc_ros.core.rules.base import parameter_info
@@ -39,16 +40,16 @@ SEARCH = {"heuristic_iterations": "search.heuristic.iterations", "joint_max_agen
           "approach_steps": "search.approach.steps", "approach_patience": "search.approach.patience",
           "refine_iterations": "search.refine.iterations", "seed": "seed", "method": "search.method",
           "budget": "search.budget"}
-ERRORS = {"max_speed_error": "errors.max_speed_error", "min_scale": "errors.min_scale", "max_scale": "errors.max_scale",
-          "max_latency": "errors.max_latency", "ghosts": "errors.ghosts"}  # and `kinds`, parsed from errors.kinds
+ERRORS = {name: f"errors.{name}" for name in error_bounds()}  # every kind's bounds; and `kinds`, from errors.kinds
 EGO = {"ego_length": "ego.length", "ego_width": "ego.width"}  # of PlanningContext, whose other fields are the scenario's
 EXECUTION = {"backend": "rollout_backend", "workers": "workers", "spawn_nodes": "graph.spawn_nodes",
              "drive": "graph.drive", "graph_timeout": "graph.timeout", "domain_id": "dds.domain_id",
              "localhost_only": "dds.localhost_only"}
 TABLES: tuple[tuple[type, Mapping[str, str]], ...] = (
     (RolloutConfig, ROLLOUT), (TrackerConfig, TRACKER), (RandomSearchConfig, RANDOM), (GuidedConfig, GUIDED),
-    (SearchConfig, SEARCH), (ErrorSpace, ERRORS))
-"""Every (core config, table) pair whose defaults must be the schema's."""
+    (SearchConfig, SEARCH))
+"""Every (core config, table) pair whose defaults must be the schema's (the error space's bounds have one
+definition, the kinds' `Bound`s, which the schema and `ErrorSpace` both read)."""
 
 
 def _fields(table: Mapping[str, str], values: Mapping[str, Any]) -> dict[str, Any]:

@@ -18,6 +18,7 @@ from types import MappingProxyType
 from typing import Any, cast
 
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
+from advperc_ros.core.perception_errors.registry import bounds as error_bounds
 from advperc_ros.core.rules.base import parameter_info
 from advperc_ros.core.rules.registry import RULES, rule_class
 from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
@@ -198,20 +199,22 @@ class GuidedParams:
 
 
 @dataclass(frozen=True)
-class ErrorsParams:
-    """The error space the search may use and the bounds of each kind beyond the paper's three."""
+class ErrorKindsChoice:
+    """The error kinds the search may use; `ErrorsParams` adds every kind's bounds."""
 
     kinds: str = _param("paper", "error kinds the search may use: paper (position, yaw and drop, the paper's: its "
                         "results bit for bit), all, or a comma-separated list of the kinds added to the paper's: "
                         + ", ".join(ERROR_KINDS[len(PAPER_KINDS):]) + " (docs/errors.md)", parse=parse_error_kinds)
-    max_speed_error: float = _param(5.0, "velocity kind: the largest error of a detection's velocity (m/s)",
-                                    positive=True, high=100.0)
-    min_scale: float = _param(0.5, "size kind: the smallest factor on a detection's length and width", positive=True,
-                              high=1.0)
-    max_scale: float = _param(2.0, "size kind: the largest factor on a detection's length and width", low=1.0,
-                              high=10.0)
-    max_latency: int = _param(5, "latency kind: the most frames a detection may lag behind its car", low=1, high=100)
-    ghosts: int = _param(2, "ghost kind: ghost detections per frame at most", low=1, high=64)
+
+
+ErrorsParams: type[ErrorKindsChoice] = dataclasses.make_dataclass(
+    "ErrorsParams",
+    [(bound.name, type(bound.default), _param(bound.default, bound.description, low=bound.low, high=bound.high,
+                                              positive=bound.positive)) for bound in error_bounds().values()],
+    bases=(ErrorKindsChoice,), frozen=True,
+    namespace={"__doc__": "The error space the search may use (`ErrorKindsChoice`) and the bounds each kind beyond "
+                          "the paper's three declares (`ErrorKind.bounds`: one definition, in the kind's module)."})
+ERRORS_DEFAULTS = ErrorsParams()
 
 
 @dataclass(frozen=True)
@@ -275,7 +278,7 @@ class AttackParams:
     rule: RuleChoice = RULE_DEFAULTS
     ego: EgoParams = EgoParams()
     tracker: TrackerParams = TrackerParams()
-    errors: ErrorsParams = ErrorsParams()
+    errors: ErrorKindsChoice = ERRORS_DEFAULTS
     search: SearchParams = SearchParams()
     workers: int = _param(1, "embedded backend: processes that run a guided round's rollouts at once; the attack "
                           "is the same whatever the number", low=1, high=256)

@@ -1,10 +1,11 @@
-"""The error kinds' registry is the one home of a kind: the tensor's fields are its arrays, each kind's
+"""The error kinds' registry is the one home of a kind: the tensor's arrays are its arrays, each kind's
 bounds are the `errors.*` params, the PEM's terms are of registered kinds, and a kind registered here
-(a toy) flows through the tensor, its checks, the attack function, the guided search's wrongness and
-the lockstep codec without a line of those modules naming it."""
+(a toy: its record and the registry's line, nothing else) flows through the tensor, its checks, the
+attack function, the guided search's wrongness and the lockstep codec without a line of those
+modules naming it."""
 
 import json
-from dataclasses import dataclass, fields
+from dataclasses import fields
 
 import numpy as np
 import pytest
@@ -29,24 +30,30 @@ from advperc_ros.ros import lockstep
 from advperc_ros.ros import messages as msgs
 
 
-def test_the_tensors_fields_are_the_registrys_arrays_in_order():
-    assert [f.name for f in fields(PerceptionErrors)] == [spec.name for kind in KINDS for spec in kind.arrays]
+def test_the_tensors_arrays_are_the_registrys_in_order_the_papers_its_fields():
+    everything = PerceptionErrors.none(3, 2, registry.ERROR_KINDS, ghosts=1)
+    assert list(everything.arrays()) == [spec.name for kind in KINDS for spec in kind.arrays]
     assert [kind.name for kind in KINDS if kind.paper] == ["position", "yaw", "drop"]
-    assert [f.name for f in fields(PerceptionErrors) if f.default is not None] == ["dx", "dy", "dyaw", "fn"]
+    assert [f.name for f in fields(PerceptionErrors)] == ["dx", "dy", "dyaw", "fn", "extended"]
+    assert PerceptionErrors.none(3, 2).dvx is None  # an extended kind's array, while the kind is off
+    with pytest.raises(AttributeError, match="no attribute 'dvz'"):
+        everything.dvz  # noqa: B018 -- a name no kind registers is no attribute
 
 
-def test_each_kinds_bounds_are_its_errors_params_with_the_error_spaces_defaults():
+def test_each_kinds_bounds_are_its_errors_params_and_the_error_spaces_attributes():
     space, bounded = ErrorSpace(), set()
     for kind in KINDS:
         for bound in kind.bounds:
-            param = SCHEMA[f"errors.{bound}"]
-            assert param.description.startswith(f"{kind.name} kind:"), (kind.name, bound)
-            assert param.default == getattr(space, bound) and type(param.default) is param.type
-            assert param.check(f"errors.{bound}", getattr(space, bound)) == getattr(space, bound)  # within its range
-            assert ERRORS[bound] == f"errors.{bound}"  # and the config table maps it
-            bounded.add(bound)
+            param = SCHEMA[f"errors.{bound.name}"]
+            assert param.description == bound.description and bound.description.startswith(f"{kind.name} kind:")
+            assert param.default == getattr(space, bound.name) == bound.default and type(param.default) is param.type
+            assert param.check(f"errors.{bound.name}", bound.default) == bound.default  # within its range
+            assert ERRORS[bound.name] == f"errors.{bound.name}"  # and the config table maps it
+            bounded.add(bound.name)
     assert bounded == {name[len("errors."):] for name in SCHEMA if name.startswith("errors.")} - {"kinds"}
-    assert bounded == {f.name for f in fields(ErrorSpace)} - {"kinds"}
+    assert ErrorSpace(max_scale=1.6).max_scale == 1.6 and ErrorSpace(max_scale=1.6).min_scale == space.min_scale
+    with pytest.raises(TypeError, match="'max_height', which no error kind declares as a bound"):
+        ErrorSpace(max_height=3.0)
 
 
 def test_a_kinds_arrays_keep_the_floor_its_bounds_allow():
@@ -63,18 +70,11 @@ def test_every_pem_term_is_of_a_registered_kind_beyond_the_papers_in_registry_or
 
 
 # ----- a toy kind, registered by the test alone -----
-@dataclass(frozen=True)
-class ToyErrors(PerceptionErrors):
-    """The tensor with the toy kind's array: the one line a new kind adds to the tensor."""
-
-    height_scale: np.ndarray | None = None
-
-
-def _show_height(shown: Shown, errors: ToyErrors, rows: slice) -> None:
+def _show_height(shown: Shown, errors: PerceptionErrors, rows: slice) -> None:
     shown.boxes["height"] = shown.source["height"] * errors.height_scale[rows]
 
 
-def _height_wrongness(errors: ToyErrors, space: ErrorSpace) -> np.ndarray:
+def _height_wrongness(errors: PerceptionErrors, space: ErrorSpace) -> np.ndarray:
     return np.minimum(np.abs(np.log(errors.height_scale)) / np.log(2.0), 1.0)
 
 
@@ -84,14 +84,13 @@ HEIGHT = ErrorKind(name="height", arrays=(ArraySpec("height_scale", 1.0, above=0
 
 @pytest.fixture
 def toy(monkeypatch):
-    monkeypatch.setattr(registry, "KINDS", (*registry.KINDS, HEIGHT))
-    monkeypatch.setattr(lockstep, "PerceptionErrors", ToyErrors)
+    monkeypatch.setattr(registry, "KINDS", (*registry.KINDS, HEIGHT))  # the registry's one line
     return HEIGHT
 
 
 def test_a_kind_registered_in_a_test_flows_through_tensor_checks_injection_wrongness_and_codec(toy):
     truth = _truth(6, 3, gaps=False)
-    errors = ToyErrors.none(6, 3, ("position", "height"))
+    errors = PerceptionErrors.none(6, 3, ("position", "height"))
     assert errors.kinds == ("position", "yaw", "drop", "height") and (errors.height_scale == 1.0).all()
     assert not errors.attacked().any() and errors.used_kinds(6) == ()
     assert (wrongness(errors) == 0.0).all()
@@ -104,15 +103,15 @@ def test_a_kind_registered_in_a_test_flows_through_tensor_checks_injection_wrong
     assert not errors.without("height").attacked().any()
 
     arrays = errors.arrays()
-    assert list(arrays)[-1] == "height_scale" and ToyErrors.from_arrays(arrays).equals(errors)
+    assert list(arrays)[-1] == "height_scale" and PerceptionErrors.from_arrays(arrays).equals(errors)
     with pytest.raises(ValueError, match="field 'height_scale' must be above 0 everywhere"):
-        ToyErrors.from_arrays({**arrays, "height_scale": np.zeros((6, 3))})
+        PerceptionErrors.from_arrays({**arrays, "height_scale": np.zeros((6, 3))})
     with pytest.raises(ValueError, match="field 'height_scale' must hold finite numbers"):
-        ToyErrors.from_arrays({**arrays, "height_scale": np.full((6, 3), np.inf)})
+        PerceptionErrors.from_arrays({**arrays, "height_scale": np.full((6, 3), np.inf)})
 
     item = lockstep.RolloutErrors(7, errors, np.arange(3), np.arange(6) * 100, False)
     back = lockstep.parse_errors(lockstep.errors_message(item))
-    assert isinstance(back.errors, ToyErrors) and back.errors.equals(errors) and back.errors.height_scale.dtype == float
+    assert back.errors.equals(errors) and back.errors.height_scale.dtype == float
     data = json.loads(lockstep.errors_message(item).data)
     data["height_scale"] = np.ones((6, 3), dtype=bool).tolist()  # the element type is the kind's dtype's
     with pytest.raises(MessageError, match="field 'height_scale' must be a 6x3 array of finite numbers"):

@@ -189,8 +189,8 @@ def test_a_tensor_of_every_kind_survives_every_way_it_travels(tmp_path):
     np.savez(tmp_path / "e.npz", **errors.arrays())
     from advperc_ros.results.folder import load_errors
     assert load_errors(tmp_path / "e.npz").equals(errors)
-    assert _digest(errors) != _digest(replace(errors, latency=None, ghost_on=None, ghost_x=None, ghost_y=None,
-                                              ghost_yaw=None, ghost_vx=None, ghost_vy=None))
+    assert _digest(errors) != _digest(errors.with_arrays(latency=None, ghost_on=None, ghost_x=None, ghost_y=None,
+                                                         ghost_yaw=None, ghost_vx=None, ghost_vy=None))
 
 
 @pytest.mark.parametrize(("change", "words"), [

@@ -231,7 +231,7 @@ def _node_params(folder: Path, params_file: Path) -> Path:
 @pytest.mark.parametrize("over_rclpy", [("scenario_player", "error_injector", "tracker"), ("planner", "rule_monitor"), ()],
                          ids=["player-injector-tracker-rclpy", "planner-rule-rclpy", "all-cyclone-no-ros"])
 def test_a_mixed_graph_gives_the_embedded_report(tmp_path, fresh_domain, over_rclpy):
-    """Nodes started by hand (`graph.spawn_nodes: false`, as the bare-DDS recipe of docs/graph.md
+    """Nodes started by hand (`graph.spawn_nodes: false`, as the bare-DDS recipe of docs/planner-node.md
     does), some over rclpy where given, the others and the orchestrator over bare Cyclone."""
     if over_rclpy:
         need_ros("rclpy")

@@ -12,11 +12,11 @@ from PIL import Image
 from test_cli import write_params
 from toy_scenarios import FOLLOW_SPEC, RUNAWAY_LEAD_SPEC, rotated
 
-from advperc_ros.results import plots
 from advperc_ros.application import run_attack
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.params import load_params
+from advperc_ros.results import plots
 from advperc_ros.ros.bag import read_scenario
 
 
@@ -86,8 +86,8 @@ def test_a_ghost_detection_beside_the_ego_is_drawn_inside_every_panel(outcome, t
     on = np.zeros((frames, 2), dtype=bool)
     on[:, 1] = True
     ahead = {"ghost_x": ego[:, 0] + 6.0 * np.cos(ego[:, 2]), "ghost_y": ego[:, 1] + 6.0 * np.sin(ego[:, 2])}
-    ghosted = dataclasses.replace(errors, ghost_on=on, ghost_yaw=np.repeat(ego[:, 2:3], 2, axis=1),
-                                  **{name: np.repeat(values[:, None], 2, axis=1) for name, values in ahead.items()})
+    ghosted = errors.with_arrays(ghost_on=on, ghost_yaw=np.repeat(ego[:, 2:3], 2, axis=1),
+                                 **{name: np.repeat(values[:, None], 2, axis=1) for name, values in ahead.items()})
     shown = dataclasses.replace(outcome, best=dataclasses.replace(outcome.best, errors=ghosted))
     fig = plots.bev_figure(shown)
     for ax in [ax for ax in fig.axes if ax.get_title()]:

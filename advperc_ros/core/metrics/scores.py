@@ -78,7 +78,7 @@ def matched_errors(gt: BoxSequence, pred: BoxSequence, ego_xy: np.ndarray, beyon
     for kind in registry.KINDS:
         if kind.read_back is not None and (kind.paper or beyond_the_paper):
             arrays.update(kind.read_back(matches))
-    return PerceptionErrors(**arrays), result.gt_in_range, result
+    return PerceptionErrors.of(**arrays), result.gt_in_range, result
 
 
 def score(

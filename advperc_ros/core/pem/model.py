@@ -200,7 +200,7 @@ class PEM:
         for term in TERMS:  # in the kinds' order, each drawing after the paper's parts and the terms before it
             if term.on(self):
                 kinds.update(term.sample(self, draw, rng))
-        return PerceptionErrors(dx=dx, dy=dy, dyaw=dyaw, fn=~detected, **kinds)
+        return PerceptionErrors.of(dx=dx, dy=dy, dyaw=dyaw, fn=~detected, **kinds)
 
     # ----- persistence -----
     def save(self, path: Path) -> None:

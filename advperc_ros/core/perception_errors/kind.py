@@ -21,6 +21,20 @@ if TYPE_CHECKING:
 
 
 @dataclass(frozen=True)
+class Bound:
+    """A limit of the error space on one kind (`ErrorSpace.<name>`, the param `errors.<name>`): its
+    default, the params reference's line (starting with the kind's name), and the range a params file
+    may set (`low`/`high` inclusive, `positive`: above 0), checked as every param is."""
+
+    name: str
+    default: float | int
+    description: str
+    low: float | None = None
+    high: float | None = None
+    positive: bool = False
+
+
+@dataclass(frozen=True)
 class ArraySpec:
     """One array of the error tensor: what it holds when nothing is wrong (`neutral`), its element
     type, whether it is per frame and agent or per frame and ghost slot, and the floor its values
@@ -104,7 +118,7 @@ class ErrorKind:
 
     - `paper`: one of the paper's kinds, whose arrays every tensor has; the others have theirs only
       when on;
-    - `bounds`: the `ErrorSpace` fields (and so the `errors.*` params) that bound it;
+    - `bounds`: the limits of the error space on it (`ErrorSpace.<name>`, the params `errors.<name>`);
     - `attacks`: whether an object-frame with this error alone counts as attacked;
     - `source(valid, errors, rows)`: the truth frame each detection of `rows` shows;
     - `show(shown, errors, rows)`: its change to the boxes, in place;
@@ -119,7 +133,7 @@ class ErrorKind:
     name: str
     arrays: tuple[ArraySpec, ...]
     paper: bool = False
-    bounds: tuple[str, ...] = ()
+    bounds: tuple[Bound, ...] = ()
     attacks: bool = True
     source: Callable[[np.ndarray, "PerceptionErrors", slice], np.ndarray] | None = None
     show: Callable[[Shown, "PerceptionErrors", slice], None] | None = None

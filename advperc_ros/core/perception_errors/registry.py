@@ -1,12 +1,12 @@
 """The error kinds, in order: the paper's three, then the kinds beyond it.
 
-Adding a kind: a module in `kinds/` defining its `ErrorKind` (`KIND`), one line here, and its arrays
-as fields of `PerceptionErrors` (in this order, defaulting to None; a test checks both agree). The
-order is the tensor's field order, so files, messages and digests keep it. Everything that loops over
+Adding a kind: a module in `kinds/` defining its `ErrorKind` (`KIND`) and one line here; the tensor
+holds its arrays by their names (`PerceptionErrors.extended`). The order is the tensor's array
+order, so files, messages and digests keep it: add a kind at the end. Everything that loops over
 kinds reads `KINDS` when it runs, so a test may register a kind of its own.
 """
 
-from advperc_ros.core.perception_errors.kind import ArraySpec, ErrorKind
+from advperc_ros.core.perception_errors.kind import ArraySpec, Bound, ErrorKind
 from advperc_ros.core.perception_errors.kinds import drop, flip, ghost, latency, position, size, velocity, yaw
 
 KINDS: tuple[ErrorKind, ...] = (
@@ -38,6 +38,11 @@ def kind_named(name: str) -> ErrorKind:
 def array_specs() -> dict[str, ArraySpec]:
     """Every registered array by name, in field order."""
     return {spec.name: spec for kind in KINDS for spec in kind.arrays}
+
+
+def bounds() -> dict[str, Bound]:
+    """Every registered kind's limits on the error space by name, in kind order (the `errors.*` params)."""
+    return {bound.name: bound for kind in KINDS for bound in kind.bounds}
 
 
 def parse_error_kinds(text: str) -> tuple[str, ...]:

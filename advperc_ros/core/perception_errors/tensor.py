@@ -4,28 +4,54 @@ Each array belongs to one kind (`registry.KINDS`); the tensor's operations loop 
 none of them names one.
 """
 
-from collections.abc import Iterator
-from dataclasses import dataclass, fields, replace
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 import advperc_ros.core.perception_errors.registry as registry
 from advperc_ros.core.perception_errors.kind import ArraySpec, ErrorKind
-from advperc_ros.core.perception_errors.registry import PAPER_KINDS
+from advperc_ros.core.perception_errors.registry import PAPER_ARRAYS, PAPER_KINDS
+
+_EXTENDED: list = [None, frozenset()]  # (the registry's KINDS, the names of their extended arrays)
 
 
-@dataclass(frozen=True)
+def _extended_names() -> frozenset[str]:
+    """The names of the registered kinds' arrays beyond the paper's, kept while `registry.KINDS` is the
+    same tuple (a test may register a kind of its own)."""
+    if _EXTENDED[0] is not registry.KINDS:
+        _EXTENDED[:] = [registry.KINDS, frozenset(registry.array_specs()) - frozenset(PAPER_ARRAYS)]
+    names: frozenset[str] = _EXTENDED[1]
+    return names
+
+
+@dataclass(frozen=True, init=False)
 class ErrorSpace:
-    """Which errors the search may make and how large: the kinds on (`ERROR_KINDS` order) and the bounds
-    of the extended ones (each kind's `bounds` names its fields). The paper's kinds are bounded by the
-    search's own moves (a push stays within a match threshold, a drop is a drop)."""
+    """Which errors the search may make and how large: the kinds on (`ERROR_KINDS` order) and the limits
+    the extended ones declare (`ErrorKind.bounds`), read as attributes (`space.max_scale`) and given as
+    keywords (`ErrorSpace(kinds, max_scale=1.6)`), each its kind's default unless given. The paper's
+    kinds are bounded by the search's own moves (a push stays within a match threshold, a drop is a
+    drop)."""
 
-    kinds: tuple[str, ...] = PAPER_KINDS
-    max_speed_error: float = 5.0  # m/s, of a detection's velocity in each axis
-    min_scale: float = 0.5  # of a detection's length and width
-    max_scale: float = 2.0
-    max_latency: int = 5  # frames
-    ghosts: int = 2  # slots per frame
+    kinds: tuple[str, ...]
+    bounds: tuple[tuple[str, float | int], ...]  # (name, value) of every registered bound, in kind order
+
+    def __init__(self, kinds: tuple[str, ...] = PAPER_KINDS, **bounds: float | int) -> None:
+        declared = registry.bounds()
+        unknown = sorted(set(bounds) - set(declared))
+        if unknown:
+            raise TypeError(f"ErrorSpace got '{unknown[0]}', which no error kind declares as a bound")
+        object.__setattr__(self, "kinds", tuple(kinds))
+        object.__setattr__(self, "bounds", tuple((name, bounds.get(name, bound.default))
+                                                 for name, bound in declared.items()))
+
+    def __getattr__(self, name: str) -> Any:
+        """A kind's bound by name; any other name is no attribute (pickling looks up optional methods)."""
+        for bound, value in self.__dict__.get("bounds", ()):
+            if bound == name:
+                return value
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     def blank(self, num_frames: int, num_agents: int) -> "PerceptionErrors":
         """No error, with an array for every kind on."""
@@ -35,34 +61,47 @@ class ErrorSpace:
 @dataclass(frozen=True)
 class PerceptionErrors:
     """The error tensor e: per frame and agent a position and yaw offset and a dropped flag (the
-    paper's), and the arrays of whatever extended kinds are on (None when off). Everything the search
-    changes is in it and nothing else, so an attack is this tensor; it is saved with the results
-    (attack_errors.npz) and replayed from there. Its fields are the registry's arrays, in order."""
+    paper's), and the arrays of whatever extended kinds are on. Everything the search changes is in it
+    and nothing else, so an attack is this tensor; it is saved with the results (attack_errors.npz) and
+    replayed from there. The paper's arrays are its fields; an extended kind's are in `extended`, read
+    as attributes by their registered names (`errors.dvx`; None while the kind is off), so a kind adds
+    its module and its registry line and nothing here. `arrays()` keeps the registry's order."""
 
     dx: np.ndarray  # (T, N) metres
     dy: np.ndarray  # (T, N) metres
     dyaw: np.ndarray  # (T, N) rad
     fn: np.ndarray  # (T, N) bool, True drops the detection
-    dvx: np.ndarray | None = None  # (T, N) m/s added to the true velocity, world frame
-    dvy: np.ndarray | None = None
-    length_scale: np.ndarray | None = None  # (T, N) factor on the true length
-    width_scale: np.ndarray | None = None
-    flip: np.ndarray | None = None  # (T, N) bool, the heading turned by pi
-    latency: np.ndarray | None = None  # (T, N) int, frames the detection lags behind the agent
-    ghost_on: np.ndarray | None = None  # (T, G) bool, ghost slot g shows a car at frame k
-    ghost_x: np.ndarray | None = None  # (T, G) metres, frame `map`
-    ghost_y: np.ndarray | None = None
-    ghost_yaw: np.ndarray | None = None  # rad
-    ghost_vx: np.ndarray | None = None  # m/s
-    ghost_vy: np.ndarray | None = None
+    extended: Mapping[str, np.ndarray] = field(default_factory=dict)  # the extended kinds' arrays on, by name
+
+    def __getattr__(self, name: str) -> np.ndarray | None:
+        """An extended kind's array (None while its kind is off); a name no kind registers is no attribute
+        (so pickling and copying, which look up optional methods by name, find nothing here)."""
+        if name not in _extended_names():
+            raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+        return self.__dict__.get("extended", {}).get(name)
+
+    @classmethod
+    def of(cls, **arrays: np.ndarray) -> "PerceptionErrors":
+        """The tensor of these named arrays, unchecked (`from_arrays` checks a file's or a message's)."""
+        dx, dy, dyaw, fn = (arrays[name] for name in PAPER_ARRAYS)
+        return cls(dx, dy, dyaw, fn, extended={name: array for name, array in arrays.items() if name not in PAPER_ARRAYS})
+
+    def with_arrays(self, **arrays: np.ndarray | None) -> "PerceptionErrors":
+        """The same tensor with these arrays in place (the arrays themselves, not copies); an extended
+        array given as None is taken out."""
+        unknown = sorted(set(arrays) - _extended_names() - set(PAPER_ARRAYS))
+        if unknown:
+            raise ValueError(f"field '{unknown[0]}' is no part of an error tensor")
+        merged = {**self.arrays(), **arrays}
+        return type(self).of(**{name: array for name, array in merged.items() if array is not None})
 
     @classmethod
     def none(cls, num_frames: int, num_agents: int, kinds: tuple[str, ...] = PAPER_KINDS,
              ghosts: int = 0) -> "PerceptionErrors":
         """No error at all, with the arrays of the extended `kinds` (`ghosts` slots per frame)."""
         shape = (num_frames, num_agents)
-        out = cls(**{spec.name: np.full(shape, spec.neutral, dtype=spec.dtype)
-                     for kind in registry.KINDS if kind.paper for spec in kind.arrays})
+        out = cls.of(**{spec.name: np.full(shape, spec.neutral, dtype=spec.dtype)
+                        for kind in registry.KINDS if kind.paper for spec in kind.arrays})
         for kind in kinds:
             out = out.with_kind(kind, ghosts)
         return out
@@ -103,7 +142,7 @@ class PerceptionErrors:
             if not spec.admits(array):
                 raise ValueError(f"field '{name}' must be {spec.floor()} everywhere")
             checked[name] = array.astype(dtype)
-        return cls(**checked)
+        return cls.of(**checked)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -122,19 +161,19 @@ class PerceptionErrors:
         return tuple(kind.name for kind in registry.KINDS if kind.present(self))
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Every array it has, by name, in the fixed field order (what files, messages and digests hold)."""
-        return {f.name: value for f in fields(self) if (value := getattr(self, f.name)) is not None}
+        """Every array it has, by name, in the registry's order (what files, messages and digests hold)."""
+        return {name: array for name in registry.array_specs() if (array := getattr(self, name)) is not None}
 
     def with_kind(self, kind: str, ghosts: int = 0) -> "PerceptionErrors":
         """These errors with the arrays of `kind`, neutral where they were absent (itself if present)."""
         record = registry.kind_named(kind)
         if record.present(self):
             return self
-        return replace(self, **{spec.name: np.full((self.shape[0], ghosts) if spec.per_ghost else self.shape,
-                                                   spec.neutral, dtype=spec.dtype) for spec in record.arrays})
+        return self.with_arrays(**{spec.name: np.full((self.shape[0], ghosts) if spec.per_ghost else self.shape,
+                                                      spec.neutral, dtype=spec.dtype) for spec in record.arrays})
 
     def copy(self) -> "PerceptionErrors":
-        return type(self)(**{name: array.copy() for name, array in self.arrays().items()})
+        return type(self).of(**{name: array.copy() for name, array in self.arrays().items()})
 
     def with_drop(self, agent: int, start: int, end: int) -> "PerceptionErrors":
         """These errors plus agent `agent` dropped on frames start..end inclusive."""

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from advperc_ros.core.geometry import wrap_angle
-from advperc_ros.core.perception_errors.kind import ArraySpec, ErrorKind, MatchedBoxes, MoveContext
+from advperc_ros.core.perception_errors.kind import ArraySpec, Bound, ErrorKind, MatchedBoxes, MoveContext
 from advperc_ros.core.perception_errors.runs import dropped_runs, run_edge
 
 if TYPE_CHECKING:
@@ -128,6 +128,7 @@ KIND = ErrorKind(
     arrays=(ArraySpec("ghost_on", False, np.bool_, per_ghost=True),
             *(ArraySpec(name, 0.0, per_ghost=True) for name in ("ghost_x", "ghost_y", "ghost_yaw", "ghost_vx",
                                                                  "ghost_vy"))),
-    bounds=("ghosts",), slots=_slots, read_back=_read_back, used=_used,
+    bounds=(Bound("ghosts", 2, "ghost kind: ghost detections per frame at most", low=1, high=64),),
+    slots=_slots, read_back=_read_back, used=_used,
     moves=(("ghost_ahead", ghost_ahead), ("ghost_gone", ghost_gone)),
 )

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from advperc_ros.core.perception_errors.kind import ArraySpec, ErrorKind, MoveContext
+from advperc_ros.core.perception_errors.kind import ArraySpec, Bound, ErrorKind, MoveContext
 from advperc_ros.core.perception_errors.moves import car_move
 
 if TYPE_CHECKING:
@@ -58,6 +58,8 @@ def _lagging(out: PerceptionErrors, j: int, rows: slice, rng: np.random.Generato
 late = car_move("latency", _lagging)
 
 KIND = ErrorKind(
-    name="latency", arrays=(ArraySpec("latency", 0, np.int64, at_least=0.0),), bounds=("max_latency",),
+    name="latency", arrays=(ArraySpec("latency", 0, np.int64, at_least=0.0),),
+    bounds=(Bound("max_latency", 5, "latency kind: the most frames a detection may lag behind its car", low=1,
+                  high=100),),
     source=_source, wrongness=_wrongness, moves=(("late", late),),
 )

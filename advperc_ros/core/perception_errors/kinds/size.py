@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from advperc_ros.core.perception_errors.kind import ArraySpec, ErrorKind, MatchedBoxes, MoveContext, Shown
+from advperc_ros.core.perception_errors.kind import ArraySpec, Bound, ErrorKind, MatchedBoxes, MoveContext, Shown
 from advperc_ros.core.perception_errors.moves import car_move
 
 if TYPE_CHECKING:
@@ -49,6 +49,10 @@ resized = car_move("size", _wrong_size)
 
 KIND = ErrorKind(
     name="size", arrays=(ArraySpec("length_scale", 1.0, above=0.0), ArraySpec("width_scale", 1.0, above=0.0)),
-    bounds=("min_scale", "max_scale"), show=_show, wrongness=_wrongness, read_back=_read_back,
+    bounds=(Bound("min_scale", 0.5, "size kind: the smallest factor on a detection's length and width", positive=True,
+                  high=1.0),
+            Bound("max_scale", 2.0, "size kind: the largest factor on a detection's length and width", low=1.0,
+                  high=10.0)),
+    show=_show, wrongness=_wrongness, read_back=_read_back,
     moves=(("resized", resized),),
 )

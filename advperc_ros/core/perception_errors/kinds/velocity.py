@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from advperc_ros.core.perception_errors.kind import ArraySpec, ErrorKind, MatchedBoxes, MoveContext, Shown
+from advperc_ros.core.perception_errors.kind import ArraySpec, Bound, ErrorKind, MatchedBoxes, MoveContext, Shown
 from advperc_ros.core.perception_errors.moves import car_move
 
 if TYPE_CHECKING:
@@ -43,7 +43,9 @@ def _wrong_velocity(out: PerceptionErrors, j: int, rows: slice, rng: np.random.G
 faster_or_slower = car_move("velocity", _wrong_velocity)
 
 KIND = ErrorKind(
-    name="velocity", arrays=(ArraySpec("dvx", 0.0), ArraySpec("dvy", 0.0)), bounds=("max_speed_error",),
+    name="velocity", arrays=(ArraySpec("dvx", 0.0), ArraySpec("dvy", 0.0)), bounds=(
+        Bound("max_speed_error", 5.0, "velocity kind: the largest error of a detection's velocity (m/s)", positive=True,
+              high=100.0),),
     show=_show, wrongness=_wrongness, read_back=_read_back,
     moves=(("faster_or_slower", faster_or_slower),),
 )

@@ -263,19 +263,26 @@ def test_a_mixed_graph_gives_the_embedded_report(tmp_path, fresh_domain, over_rc
                                                          for spec, node in zip(SPECS, nodes) if node.returncode]
 
 
-def test_a_team_s_planner_that_dies_mid_search_stops_it_naming_the_node_gone(tmp_path, ros_domain, monkeypatch):
-    """Issue 51: the team's own rclpy planner crashed, and the search ran on against it some 50 rollouts of a
-    timeout each, though it had reported it gone. Now the orchestrator sees it leave the ROS graph and stops:
-    exit 4, one error line naming it, the checkpoint kept."""
-    need_ros("rclpy")
+def _dying_planner(tmp_path: Path, monkeypatch, **changes) -> tuple[Path, Path]:
+    """The params of a short graph attack on nodes started by hand whose planner's process exits at the
+    first plan of its fourth rollout (test_graph.ExitingPlanner), and the file where it writes how many
+    rollouts it saw."""
     frames = bags.read_scenario(REPO / "bags" / "idm_lane_following").num_frames
     seen = tmp_path / "rollouts_seen"
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test" / "backends"), str(REPO / "test"),
                                                       os.environ.get("PYTHONPATH", "")]))
     monkeypatch.setenv("ADVPERC_TEST_EXIT_AFTER", f"{3 * frames}:{seen}")
-    params_file = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
-                                bag=str(REPO / "bags" / "idm_lane_following"), planner="test_graph:ExitingPlanner",
-                                graph={"spawn_nodes": False, "timeout": 5.0}, rollout_backend="graph")
+    return _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
+                         bag=str(REPO / "bags" / "idm_lane_following"), planner="test_graph:ExitingPlanner",
+                         graph={"spawn_nodes": False, "timeout": 5.0}, rollout_backend="graph", **changes), seen
+
+
+def test_a_team_s_planner_that_dies_mid_search_stops_it_naming_the_node_gone(tmp_path, ros_domain, monkeypatch):
+    """Issue 51: the team's own rclpy planner crashed, and the search ran on against it some 50 rollouts of a
+    timeout each, though it had reported it gone. Now the orchestrator sees it leave the ROS graph and stops:
+    exit 4, one error line naming it, the checkpoint kept."""
+    need_ros("rclpy")
+    params_file, seen = _dying_planner(tmp_path, monkeypatch)
     ros_params = _node_params(tmp_path, params_file)
     nodes = []
     try:
@@ -307,15 +314,7 @@ def test_a_planner_that_dies_mid_search_over_bare_dds_stops_it_naming_the_plans_
     cost a timeout. Now the player's reader of the plans matches no publisher once the dead process's DDS
     lease ends, the frame's timeout says so, and the search stops: exit 4, the checkpoint kept, within a
     few rollouts (Cyclone's lease is 10 s, the frame's timeout here 5 s)."""
-    frames = bags.read_scenario(REPO / "bags" / "idm_lane_following").num_frames
-    seen = tmp_path / "rollouts_seen"
-    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO / "test" / "backends"), str(REPO / "test"),
-                                                      os.environ.get("PYTHONPATH", "")]))
-    monkeypatch.setenv("ADVPERC_TEST_EXIT_AFTER", f"{3 * frames}:{seen}")
-    params_file = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml",
-                                bag=str(REPO / "bags" / "idm_lane_following"), planner="test_graph:ExitingPlanner",
-                                dds={"domain_id": fresh_domain, "localhost_only": True},
-                                graph={"spawn_nodes": False, "timeout": 5.0}, rollout_backend="graph")
+    params_file, seen = _dying_planner(tmp_path, monkeypatch, dds={"domain_id": fresh_domain, "localhost_only": True})
     nodes = []
     try:
         for spec in SPECS:

@@ -21,7 +21,7 @@ On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lo
    plan stamped in [t_k, t_{k+1}) is taken. A rollout starts with the clock at
    the scenario's last stamp, so that its step to t_0 is a jump back in every rollout, the first
    too: ROS timers do not fire on a jump back, so a timer-driven node must take one as the start of
-   a rollout (reset, and plan at once; docs/graph.md);
+   a rollout (reset, and plan once the executor has run its inputs' callbacks; docs/stacks.md);
 3. exactly as `core.rollout`: stop at a rule violation if `stop_at_collision`; an empty plan (the
    planner failed) or one that does not cover t_{k+1} makes the rollout inconclusive; else move the
    ego along the plan (`core.rollout.after_plan`, the embedded rollout's rule) and publish frame k+1;
@@ -207,8 +207,7 @@ class ScenarioPlayer:
     def _advance_clock(self, run: _Run) -> None:
         """(drive: clock) /clock to the frame's time, once every reader holds the ego's inputs too."""
         stamp = self._stamp(run.frame)
-        unacknowledged = [publisher for publisher in self._ego_inputs if not publisher.wait_for_acks(self._timeout)]
-        if unacknowledged:
+        if not all(publisher.wait_for_acks(self._timeout) for publisher in self._ego_inputs):
             self._finish(Status.INCONCLUSIVE, f"frame {run.frame}: the ego's inputs stamped {stamp} were not acknowledged "
                                               f"by every reader within {self._timeout:g} s (a node is hung)", timeout=True)
             return

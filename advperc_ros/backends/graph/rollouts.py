@@ -244,7 +244,7 @@ class GraphRollouts:
     def tracks_confirmed(self) -> bool:
         """Whether the player, under the clock drive, advances /clock only once our tracker confirms
         that every reader holds the frame's tracks (ros/lockstep.py): our tracker does; a team's
-        tracker does not, and the report says the delivery was not confirmed."""
+        tracker does not, and the attack's `reproduced` is the check there (docs/stacks.md)."""
         return self.execution.drive == "clock" and self._ours(TRACKER_NODE)
 
     def _warm_up(self, deadline: float, purpose: str) -> None:

@@ -14,7 +14,7 @@ import advperc_ros.core.perception_errors.registry as registry
 from advperc_ros.core.perception_errors.kind import ArraySpec, ErrorKind
 from advperc_ros.core.perception_errors.registry import PAPER_ARRAYS, PAPER_KINDS
 
-_EXTENDED: list = [None, frozenset()]  # (the registry's KINDS, the names of their extended arrays)
+_EXTENDED: list[Any] = [None, frozenset()]  # [the registry's KINDS when last read, their extended arrays' names]
 
 
 def _extended_names() -> frozenset[str]:

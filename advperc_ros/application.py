@@ -199,7 +199,7 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
         try:
             with open_rollouts(scenario, configs, bag_path, transport) as rollouts:
                 outcome = run_attack(scenario, params, progress=progress, configs=configs, say=say,
-                                     rollouts=ResumedRollouts(rollouts, checkpoint, scenario.agents, configs.rollout))
+                                     rollouts=ResumedRollouts(rollouts, checkpoint, scenario, configs.rollout))
             report = write_results(output, outcome, bag_path)
             finished = True
         except (InconclusiveSearch, GroundTruthFails):

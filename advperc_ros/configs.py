@@ -15,16 +15,17 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
+from advperc_ros.core.parameters import parameter_info
 from advperc_ros.core.perception_errors import ErrorSpace, parse_error_kinds
 from advperc_ros.core.perception_errors.registry import bounds as error_bounds
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.rollout import RolloutConfig
-from advperc_ros.core.rules.base import parameter_info
 from advperc_ros.core.rules.registry import Rulebook, rule_class
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig
 from advperc_ros.core.search.random_search import RandomSearchConfig
 from advperc_ros.core.tracker import TrackerConfig
+from advperc_ros.core.traffic import IDMParameters
 from advperc_ros.params import PLANNER_PARAMS, RULE_SECTIONS, AttackParams, rule_parameter
 from advperc_ros.ros.interfaces.base import Profile
 from advperc_ros.ros.interfaces.registry import load_profile
@@ -65,11 +66,18 @@ def rulebook(values: Mapping[str, Any]) -> Rulebook:
     return Rulebook(tuple(parameters))
 
 
+def traffic_model(values: Mapping[str, Any]) -> IDMParameters | None:
+    """The reactive agents' driver model (`traffic.*`), or None when traffic replays its recording."""
+    if not values["traffic.reactive"]:
+        return None
+    return IDMParameters(**{i.name: values[f"traffic.{i.name}"] for i in parameter_info(IDMParameters)})
+
+
 def rollout_config(values: Mapping[str, Any]) -> RolloutConfig:
     """How a rollout is run and judged (ego footprint, rule, plan timeout, whether detections carry
     their velocity: the interface profile's detection type says), from dotted values."""
     carries = load_profile(values["graph.interface"]).detections.carries_velocity
-    config = RolloutConfig(**_fields(ROLLOUT, values), detection_velocity=carries)
+    config = RolloutConfig(**_fields(ROLLOUT, values), detection_velocity=carries, traffic=traffic_model(values))
     return replace(config, at_fault_only=True) if values["rule.name"] == "at_fault_collision" else config
 
 

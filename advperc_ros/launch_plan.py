@@ -28,7 +28,7 @@ from advperc_ros.nodes.runtime import node_environment
 from advperc_ros.params import INTERFACES, SCHEMA, load_params, resolve_bag
 
 DEFAULTS = {"params": "", "planner": "ours", "tracker": "ours", "output": "", "resume": "false", "interface": "",
-            "drive": "", "rule": ""}
+            "drive": "", "rule": "", "traffic": ""}
 """Every launch argument attack.launch.py declares and its default (the launch file reads this table)."""
 GRAPH_ARGUMENTS = ("interface", "drive")  # each overrides the params file's graph.<argument> when given
 NODE_ARGUMENTS = ("planner", "tracker")  # ours (started) or external (a team's node runs instead)
@@ -81,6 +81,10 @@ def plan(arguments: Mapping[str, str]) -> LaunchPlan:
     if given["rule"]:  # the orchestrator attacks it; the nodes need not know (the rules judge in the orchestrator)
         params = params.with_values(**{"rule.name": _choice(given, "rule", SCHEMA["rule.name"].choices)})
         overrides["rule.name"] = given["rule"]
+    if given["traffic"]:  # the player moves the agents, so every node gets it
+        reactive = _choice(given, "traffic", ("reactive", "replayed")) == "reactive"
+        params = params.with_values(**{"traffic.reactive": reactive})
+        overrides["traffic.reactive"] = reactive
     if given["output"]:
         overrides["output"] = given["output"]
     if _choice(given, "resume", ("true", "false")) == "true":

@@ -132,7 +132,7 @@ def replay(attack: FoundAttack, params: AttackParams, bag_path: Path | None = No
         result = rollouts.rollout(attack.errors, record=True)
         if rule is not None:  # judged as the search judged it, against this configuration's ground truth
             result = rule.judge(result, truth)
-    scores = problem.scores(attack.errors, result.num_frames, result.ego_xy)
+    scores = problem.scores(attack.errors, result)
     evaluation = Evaluation(attack.errors, result, scores, getattr(scores, params.objective))
     return Replay(attack, params, scenario, truth.min_signed_distance, evaluation, time.perf_counter() - started)
 

@@ -7,12 +7,16 @@
     python benchmarks/recordings_bench.py --errors all          # every attack over the extended error kinds
     python benchmarks/recordings_bench.py --planners idm --rules collision phantom_braking   # each rule attacked
     python benchmarks/recordings_bench.py --bundled --rules progress  # the five bundled configs, not the recordings
+    python benchmarks/recordings_bench.py --planners idm --reactive   # traffic that brakes for the ego
 
 Per recording: `advperc import-commonroad X.xml --output DIR/bag` once, then `advperc attack
 DIR/bag.yaml` (IDM), `DIR/bag.obp.yaml` (ObP) or `DIR/bag.reactive.yaml` (the third-party
 commonroad-reactive-planner: run this script with the python of the venv holding the `reactive`
 extra). With `--rules`, every attack is run once per rule (`advperc attack --rule NAME`), a column per
-rule; with `--bundled`, the bundled configs (config/*.yaml, each with its own planner) are attacked
+rule; with `--reactive`, every attack under reactive traffic (`advperc attack --reactive`), each row
+saying whether a reacting agent was made to brake beyond the comfort bound (the `forced_braking`
+rule) and how many agents left their recording; with `--bundled`, the bundled configs (config/*.yaml,
+each with its own planner) are attacked
 instead of the recordings. The outcome is the command's: an attack (NDS / NDS-t of the attack found),
 no attack and why (report.json's message), refused (exit 1: the ground truth already breaks the rule,
 or another refusal), rejected (exit 3, import-commonroad's reason). Attacks run on a process pool
@@ -59,6 +63,9 @@ class Row:
     rule: str = DEFAULT_RULE  # the rule attacked (rows written before --rules have none)
     truth_value: float | None = None  # the attacked rule's value on the ground truth (report.json), null if infinite
     value: float | None = None  # the attacked rule's value on the attack's rollout
+    traffic: str = "replayed"  # report.json's `traffic`
+    forced: bool | None = None  # (reactive) the attack made a reacting agent brake beyond the bound (forced_braking)
+    deviated: int | None = None  # (reactive) agents of the attack's rollout that left their recording
 
 
 def advperc(*args: str) -> subprocess.CompletedProcess:
@@ -108,25 +115,27 @@ def bundled_job(name: str, keep: Path) -> Job:
     return Job(name, planner, REPO / "bags" / name, params, keep / name)
 
 
-def attack(job: Job, method: str | None = None, errors: str | None = None, rule: str | None = None) -> Row:
+def attack(job: Job, method: str | None = None, errors: str | None = None, rule: str | None = None,
+           reactive: bool = False) -> Row:
     """The row of one attack (`method`: the search method, `errors`: errors.kinds, `rule`: the rule attacked;
     None: the params file's); with --keep, a row written by an earlier run is read back instead (so a killed
     benchmark resumes)."""
-    cell = "-".join([job.planner, *(part for part in (method, errors, rule) if part)]).replace(",", "+")
+    parts = (method, errors, rule, "reactive" if reactive else None)
+    cell = "-".join([job.planner, *(part for part in parts if part)]).replace(",", "+")
     written = job.folder / f"row-{cell}.json"
     if job.params is not None and written.is_file():
         return Row(**json.loads(written.read_text()))
-    row = _attack(job, method, errors, rule, cell)
+    row = _attack(job, method, errors, rule, cell, reactive)
     if job.params is not None and row.outcome != "error":
         written.write_text(json.dumps(asdict(row)))
     return row
 
 
-def _attack(job: Job, method: str | None, errors: str | None, rule: str | None, cell: str) -> Row:
+def _attack(job: Job, method: str | None, errors: str | None, rule: str | None, cell: str, reactive: bool) -> Row:
     recording, planner, attacked = job.name, job.planner, rule or DEFAULT_RULE
     if job.bag is None or job.params is None:
         return Row(recording, planner, None, None, "rejected", job.rejected, None, None, None, 0.0, attacked)
-    from advperc_ros.ros.bag import read_scenario  # noqa: PLC0415 (the parent process needs no ROS types)
+    from advperc_ros.ros.bag import read_scenario
 
     scenario = read_scenario(job.bag)
     vehicles, frames = scenario.agents.shape[1], scenario.num_frames
@@ -138,7 +147,7 @@ def _attack(job: Job, method: str | None, errors: str | None, rule: str | None, 
     started = time.perf_counter()
     done = advperc("attack", str(job.params), "--output", str(out), "--quiet",
                    *(("--method", method) if method else ()), *(("--errors", errors) if errors else ()),
-                   *(("--rule", rule) if rule else ()))
+                   *(("--rule", rule) if rule else ()), *(("--reactive",) if reactive else ()))
     wall = time.perf_counter() - started
     said = [line for line in done.stderr.splitlines() if line.startswith("advperc: ")]  # not a library's noise
     last = said[-1] if said else ""
@@ -149,20 +158,26 @@ def _attack(job: Job, method: str | None, errors: str | None, rule: str | None, 
         return Row(recording, planner, vehicles, frames, kind, reason, None, None, None, wall, attacked)
     report = json.loads((out / "report.json").read_text())
     truth = (report.get("ground_truth_rules") or {}).get(attacked, {}).get("value")
+    traffic = report["traffic"]
     if report["collision"]:
         broken = report["rules"][attacked]
         where = (f"agent {report['collision_agent']} at frame {report['collision_frame']}"
                  if attacked == DEFAULT_RULE else f"{attacked} {broken['value']} from frame {broken['frame']}")
+        reacted = report.get("deviated_agents")
         return Row(recording, planner, vehicles, frames, "attack", where, report["nds"], report["nds_t"],
-                   report["rollouts"], wall, attacked, truth, broken["value"])
+                   report["rollouts"], wall, attacked, truth, broken["value"], traffic,
+                   None if reacted is None else report["rules"]["forced_braking"]["violated"],
+                   None if reacted is None else len(reacted))
     return Row(recording, planner, vehicles, frames, "no attack", report["message"], None, None, report["rollouts"],
-               wall, attacked, truth)
+               wall, attacked, truth, traffic=traffic)
 
 
 def short(row: Row) -> str:
     """The outcome in a few words, for the table (the whole reason is in --json)."""
     if row.outcome == "attack":
-        return f"attack, NDS {row.nds:.3f} / NDS-t {row.nds_t:.3f}"
+        forced = ", one forced to brake hard" if row.forced else ""
+        reacted = "" if row.deviated is None else f"; {row.deviated} agent{'s' * (row.deviated != 1)} reacted{forced}"
+        return f"attack, NDS {row.nds:.3f} / NDS-t {row.nds_t:.3f}{reacted}"
     if row.outcome == "no attack":
         # a rule's r has the rule's unit; the contact rules' is a distance (m)
         value, unit = r"(-?[\d.]+|inf)", " m" if row.rule in CONTACT_RULES else ""
@@ -203,6 +218,8 @@ def main() -> None:
                         f"files' rule): {', '.join(RULES)}")
     parser.add_argument("--bundled", action="store_true", help="attack the five bundled configs (config/*.yaml, each "
                         "with its own planner; --planners and --data unused) instead of the recordings")
+    parser.add_argument("--reactive", action="store_true", help="every attack under reactive traffic "
+                        "(advperc attack --reactive): agents keep their recorded paths but brake for the ego")
     parser.add_argument("--json", type=Path, help="also write the rows here")
     parser.add_argument("--keep", type=Path, help="write bags and results folders here (default: a temporary folder)")
     parser.add_argument("--markdown", action="store_true", help="print the table as Markdown")
@@ -219,7 +236,7 @@ def main() -> None:
             imported = dict(zip(names, pool.map(lambda n: import_recording(args.data / f"{n}.xml", tmp / n), names)))
             jobs = [recording_job(n, p, *imported[n], tmp / n) for n in names for p in args.planners]
         cells = [(job, rule) for job in jobs for rule in rules]
-        rows = list(pool.map(lambda cell: attack(cell[0], args.method, args.errors, cell[1]), cells))
+        rows = list(pool.map(lambda cell: attack(cell[0], args.method, args.errors, cell[1], args.reactive), cells))
         for row in rows:
             print(json.dumps(asdict(row)), file=sys.stderr, flush=True)
     if args.json:
@@ -246,6 +263,10 @@ def print_table(names: list[str], rows: list[Row], planners: list[str], rules: l
         print(("| " + " | ".join(cells) + " |") if markdown else "\t".join(cells))
     found = sum(any(by[n, p, r].outcome == "attack" for p, r in columns) for n in names)
     print(f"\n{found}/{len(names)} attacked by at least one planner and rule")
+    reacting = [row for row in rows if row.outcome == "attack" and row.deviated is not None]
+    if reacting:
+        print(f"reactive traffic: {sum(row.deviated > 0 for row in reacting)} of {len(reacting)} attacks made an agent "
+              f"react, {sum(bool(row.forced) for row in reacting)} forced one to brake beyond the comfort bound")
     contact = next((r for r in rules if r in CONTACT_RULES), None)
     others = [r for r in rules if r is not None and r not in CONTACT_RULES]
     for planner in planners if contact is not None and others else ():

@@ -6,6 +6,7 @@ orchestrator driving its search through them, all configured from one params fil
     ros2 launch advperc_ros attack.launch.py params:=my.yaml planner:=external interface:=autoware drive:=clock
     ros2 launch advperc_ros attack.launch.py params:=my.yaml output:=results/mine resume:=true  # after Ctrl-C
     ros2 launch advperc_ros attack.launch.py params:=my.yaml rule:=phantom_braking  # another rule (docs/rules.md)
+    ros2 launch advperc_ros attack.launch.py params:=my.yaml traffic:=reactive  # agents brake for the ego
 
 `planner:=external` leaves our planner node out: run yours on the planner topics (docs/graph.md);
 `tracker:=external` leaves our tracker out: yours reads the injector's detections and publishes
@@ -114,6 +115,10 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("rule", default_value="",
                               description="the driving rule to attack (docs/rules.md); "
                                           "default: the params file's rule.name"),
+        DeclareLaunchArgument("traffic", default_value="",
+                              description="reactive: agents keep their recorded paths but brake for the ego; replayed: "
+                                          "they replay their recording (docs/traffic.md); default: the params file's "
+                                          "traffic.reactive"),
         DeclareLaunchArgument("resume", default_value="false",
                               description="true: finish the attack interrupted while writing to `output`"),
         OpaqueFunction(function=_graph),

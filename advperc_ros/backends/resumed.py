@@ -38,7 +38,6 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros.backends.base import AttackedPlanner, Rollouts
-from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.perception_errors import PAPER_ARRAYS, PerceptionErrors
 from advperc_ros.core.rollout import RolloutConfig, RolloutResult, judge
 from advperc_ros.core.scenario import Scenario
@@ -243,10 +242,10 @@ class ResumedRollouts:
     """A backend whose rollouts already in the checkpoint are answered from it, in order; the rest
     run on `backend` and are appended. Recorded rollouts (tracks, plans) always run."""
 
-    def __init__(self, backend: Rollouts, checkpoint: Checkpoint, agents: BoxSequence, config: RolloutConfig) -> None:
+    def __init__(self, backend: Rollouts, checkpoint: Checkpoint, scenario: Scenario, config: RolloutConfig) -> None:
         self._backend = backend
         self._checkpoint = checkpoint
-        self._agents = agents
+        self._scenario = scenario
         self._config = config  # a stored rollout is judged again (at-fault), as every backend judges its own
         self._next = 0
 
@@ -270,7 +269,7 @@ class ResumedRollouts:
             if record.errors != _digest(errors):
                 raise ResultsError(f"{self._checkpoint.folder}: rollout {self._next + 1} differs from the one recorded: "
                                    "the checkpoint is of another attack (or another version of this tool)")
-            stored.append(judge(record.result, self._agents, self._config))
+            stored.append(judge(record.result, self._scenario, self._config))
             if observe is not None:  # the graph publishes the ground truth's rollout for its rule monitor
                 observe(errors, stored[-1])
             self._next += 1

@@ -64,6 +64,10 @@ class BoxSequence:
         """The frames `rows` (indices or a slice)."""
         return replace(self, **{f.name: getattr(self, f.name)[rows] for f in fields(self)})
 
+    def select_slots(self, columns: np.ndarray) -> "BoxSequence":
+        """The slots `columns` (indices), in that order."""
+        return replace(self, **{f.name: getattr(self, f.name)[:, columns] for f in fields(self)})
+
     def frames(self, stop: int) -> "BoxSequence":
         """The first `stop` frames."""
         return self.select(slice(0, stop))

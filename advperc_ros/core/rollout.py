@@ -1,8 +1,10 @@
-"""The paper's open-loop rollout: agents replay ground truth, only the ego reacts.
+"""The paper's rollout: agents replay ground truth (or, `RolloutConfig.traffic`, react to the ego).
 
 Per frame k: score the collision rule for the ego at t_k, inject errors into the true boxes,
-track, plan, and move the ego along the plan to t_{k+1}. Agents never react to the ego, so a
-rollout is a pure function of (scenario, errors, stack) and is deterministic.
+track, plan, and move the ego along the plan to t_{k+1}. By default agents never react to the ego;
+under reactive traffic (core.traffic) frame k+1's agents follow from frame k's and the ego's state
+there, before frame k+1 is judged and perceived. Either way a rollout is a pure function of
+(scenario, errors, stack) and is deterministic.
 
 A contact always ends a rollout that stops at collisions (a crash ends the drive); with
 `at_fault_only` the verdict counts only the contacts that are the ego's fault (core.rules), so a
@@ -24,11 +26,12 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import follow_plan
-from advperc_ros.core.perception_errors import PerceptionErrors, inject
+from advperc_ros.core.perception_errors import PerceptionErrors, inject, inject_frame
 from advperc_ros.core.planners.base import Planner, ReportsStats, Trajectory, planner_stats
 from advperc_ros.core.rules.contact import CollisionRule, excusable
 from advperc_ros.core.scenario import EgoState, Scenario
 from advperc_ros.core.tracker import ObjectTracker
+from advperc_ros.core.traffic import IDMParameters, ReactiveTraffic, recorded_paths, simulate
 from advperc_ros.exceptions import PlanError, PlanTimeout
 
 STAGES = ("injector", "tracker", "planner", "rule")  # "planner" includes following the plan
@@ -49,6 +52,9 @@ class RolloutConfig:
     # detections hand the tracker their velocity; False as from a detector whose message type has none
     # (vision_msgs/Detection3DArray), so that every backend tracks what the graph's tracker would receive
     detection_velocity: bool = True
+    # reactive traffic's driver model (core.traffic): agents keep their recorded paths and brake for the ego;
+    # None: they replay their recording (the paper's)
+    traffic: IDMParameters | None = None
 
 
 @dataclass
@@ -75,6 +81,9 @@ class RolloutResult:
     # the attacked rule's value when the search attacks a rule other than the contact rules
     # (`rules.verdict.AttackedRule`); None: the verdict is the contact rule's, from `counted`
     verdict: float | None = None
+    # the true agents the rollout was judged on, frames 0..K-1 of them simulated, when traffic reacts
+    # (`judge` sets it from the ego's states on every backend); None: the scenario's recording
+    agents: BoxSequence | None = None
 
     @property
     def num_frames(self) -> int:
@@ -128,12 +137,27 @@ class RolloutResult:
         return self.margin < 0.0
 
 
-def judge(result: RolloutResult, agents: BoxSequence, config: RolloutConfig) -> RolloutResult:
-    """`result` with the contacts that would not be the ego's fault excused when `config.at_fault_only`;
-    from the ego states alone, so any backend's result is judged the same way."""
+def judge(result: RolloutResult, scenario: Scenario, config: RolloutConfig) -> RolloutResult:
+    """`result`, a rollout of `scenario`, with its true agents when traffic reacts (`true_agents`), and with the
+    contacts that would not be the ego's fault excused when `config.at_fault_only`; from the ego states
+    alone, so any backend's result is judged the same way."""
+    if config.traffic is not None and result.agents is None:
+        result.agents = simulate(recorded_paths(scenario.agents), config.traffic, scenario.dt, ego_size(config),
+                                 result.ego)
     if config.at_fault_only:
-        result.excusable = excusable(result.ego, config.ego_length, agents)
+        result.excusable = excusable(result.ego, config.ego_length, true_agents(result, scenario),
+                                     reactive_dt=None if config.traffic is None else scenario.dt)
     return result
+
+
+def true_agents(result: RolloutResult, scenario: Scenario) -> BoxSequence:
+    """The true agents of a judged rollout of `scenario`: simulated when traffic reacted, else the recording."""
+    return scenario.agents if result.agents is None else result.agents
+
+
+def ego_size(config: RolloutConfig) -> tuple[float, float]:
+    """(length, width) of the ego's box, as the traffic model sees it when it is an agent's leader."""
+    return config.ego_length, config.ego_width
 
 
 def violates(rule_value: float, stop_at_collision: bool) -> bool:
@@ -205,17 +229,17 @@ def rollout(
     record: bool = False,
 ) -> RolloutResult:
     """One run of the stack on the scenario with `errors` injected, agents replaying ground truth and
-    only the ego reacting: per frame rule check, injection, tracking, planning, ego motion.
+    only the ego reacting (or, with `config.traffic`, the agents reacting to it too): per frame traffic
+    step, rule check, injection, tracking, planning, ego motion.
     Deterministic in its inputs, so an attack found is reproducible and a checkpoint can answer a
     rollout it already ran. `record` keeps tracks and plans."""
     clock = time.perf_counter
     stage_times = dict.fromkeys(STAGES, 0.0)
     started = clock()
-    agents = scenario.agents
-    detections = inject(agents, errors).every_frame()
-    if not config.detection_velocity:
-        for frame in detections:
-            frame["vx"], frame["vy"] = np.zeros_like(frame["vx"]), np.zeros_like(frame["vy"])
+    traffic = None if config.traffic is None else ReactiveTraffic(
+        recorded_paths(scenario.agents), config.traffic, scenario.dt, ego_size(config))
+    agents = scenario.agents if traffic is None else traffic.agents
+    detections = inject(agents, errors).every_frame() if traffic is None else None
     stage_times["injector"] += clock() - started
     times = scenario.times
     num_frames = scenario.num_frames
@@ -241,6 +265,14 @@ def rollout(
             if inconclusive is not None:  # reset() failed
                 break
             started = clock()
+            if traffic is not None and k > 0:  # frame k's agents answer the ego at frame k-1
+                traffic.advance(k - 1, EgoState(*ego_states[k - 1]))
+                rule.moved(k)
+            frame = detections[k] if detections is not None else inject_frame(agents, k, errors)
+            if not config.detection_velocity:
+                frame = {**frame, "vx": np.zeros_like(frame["vx"]), "vy": np.zeros_like(frame["vy"])}
+            stage_times["injector"] += clock() - started
+            started = clock()
             ends = False
             if config.stop_at_collision and rule.may_touch(ego, k):  # else frame k cannot end the rollout
                 distances[k], measured[k] = rule.distances(np.array(ego_states[k:]), [k])[0], True
@@ -250,7 +282,7 @@ def rollout(
                 last = k
                 break
             started = clock()
-            tracks = tracker.step(t, detections[k])
+            tracks = tracker.step(t, frame)
             stage_times["tracker"] += clock() - started
             started = clock()
             try:
@@ -294,4 +326,5 @@ def rollout(
         stage_times=stage_times,
         planner_failures=None if stats is None else stats.failures,
         fallback_frames=tuple(fallback_frames) if reports_stats else None,
-    ), agents, config)
+        agents=None if traffic is None else traffic.agents,
+    ), scenario, config)

@@ -124,14 +124,24 @@ class RolloutSoFar:
         boxes = {name: values[:k, :width] for name, values in self._boxes.items()}
         return BoxSequence(valid=self._valid[:k, :width], **boxes)
 
-    def inputs(self, dt: float, lanes: tuple[Lane, ...], route: Polyline, ego_size: tuple[float, float]) -> RuleInputs:
+    def recording(self, recorded: BoxSequence) -> BoxSequence:
+        """The recording `recorded` (a scenario's agents) at frames 0..k in this rollout's slots, matched by id:
+        what reactive agents left, for the rules that judge their reaction (forced_braking, at-fault contacts)."""
+        first = recorded.valid.argmax(axis=0)
+        column = {int(recorded.ids[k, j]): j for j, k in enumerate(first.tolist())}
+        return recorded.select(slice(0, len(self.stamps))).select_slots(
+            np.array([column[agent] for agent in self._slots], dtype=int))
+
+    def inputs(self, dt: float, lanes: tuple[Lane, ...], route: Polyline, ego_size: tuple[float, float],
+               recorded: BoxSequence | None = None) -> RuleInputs:
         """The rules' view of frames 0..k: every plan so far valid (the player went on from each, and
         frame k's own comes after this answer), the planner's fallback unknown (the graph carries no
-        planner statistics)."""
+        planner statistics); under reactive traffic with the recording the agents left (`recorded`)."""
         k = len(self.stamps)
         return RuleInputs(ego=self._ego[:k], dt=dt, agents=self.agents(), distances=self._distances[:k, :len(self._slots)],
                           lanes=lanes, route=route, ego_length=ego_size[0], ego_width=ego_size[1],
-                          plan_valid=np.ones(k, dtype=bool))
+                          plan_valid=np.ones(k, dtype=bool),
+                          recorded=None if recorded is None else self.recording(recorded))
 
 
 def reference_inputs(reference: ReferenceDrive, lanes: tuple[Lane, ...], route: Polyline,
@@ -157,8 +167,10 @@ class RuleMonitor:
     planner saw."""
 
     def __init__(self, transport: Transport, ego_length: float, ego_width: float, logger: Logger,
-                 rules: dict[str, Rule]) -> None:
+                 rules: dict[str, Rule], recorded: BoxSequence | None = None) -> None:
+        """`recorded`: under reactive traffic, the scenario's recording, which the player's agents left."""
         self._ego_size = (ego_length, ego_width)
+        self._recorded = recorded
         self._log = logger
         self._rules = rules
         self._pairs = StampPairs(self._answer)
@@ -220,17 +232,18 @@ class RuleMonitor:
         """The value of each of the monitored rules `names` at the last frame seen (the road must be in)."""
         assert self._route is not None
         period = self._period or (self._reference.dt if self._reference is not None else UNKNOWN_PERIOD)
-        inputs = self.so_far.inputs(period, self._lanes, self._route, self._ego_size)
+        inputs = self.so_far.inputs(period, self._lanes, self._route, self._ego_size, self._recorded)
         reference = (None if self._reference is None
                      else reference_inputs(self._reference, self._lanes, self._route, self._ego_size))
         return values_at_last_frame({name: self._rules[name] for name in names}, inputs, reference)
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> RuleMonitor:
-    return RuleMonitor(transport, values["ego.length"], values["ego.width"], logger, monitored_rules(values))
+    recorded = bags.read_scenario(values["bag"]).agents if values["traffic.reactive"] else None
+    return RuleMonitor(transport, values["ego.length"], values["ego.width"], logger, monitored_rules(values), recorded)
 
 
-SPEC = NodeSpec("rule_monitor", ("ego.length", "ego.width", *RULE_THRESHOLDS), _build)
+SPEC = NodeSpec("rule_monitor", ("bag", "ego.length", "ego.width", "traffic.reactive", *RULE_THRESHOLDS), _build)
 
 
 def main(args: list[str] | None = None) -> int:

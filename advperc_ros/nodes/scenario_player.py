@@ -2,7 +2,9 @@
 
 On /attack/ready (the injector holds rollout r's errors) it runs rollout r in lockstep:
 
-1. publish frame k: /clock, /ground_truth/objects (the bag's own message) and /ego/odometry, all
+1. publish frame k: /clock, /ground_truth/objects (the bag's own message; under reactive traffic,
+   `traffic.reactive`, the agents as `core.traffic` moves them, frame k+1 from frame k and the ego's
+   odometry there, as the embedded rollout moves them) and /ego/odometry, all
    stamped t_k (frame 0: the bag's own start odometry, restamped t_0). When the rollout's ready
    message says `ahead` (our tracker and planner, driven by messages), the ground truth runs one
    frame ahead of the ego: frame 0 comes with the ground truth of frame 1, and frame k with that of
@@ -39,10 +41,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from advperc_ros.configs import traffic_model
 from advperc_ros.core.planners.base import Trajectory
 from advperc_ros.core.rollout import after_plan, violates
+from advperc_ros.core.traffic import IDMParameters, ReactiveTraffic, RecordedPaths
 from advperc_ros.exceptions import MessageTypeMissing
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
+from advperc_ros.params import TRAFFIC_PARAMS
 from advperc_ros.ros import cdr
 from advperc_ros.ros import messages as msgs
 from advperc_ros.ros.bag import read_scenario, read_topics
@@ -94,8 +99,14 @@ class ScenarioPlayer:
     judge of every frame, which alone decides when a rollout ends and why."""
 
     def __init__(self, transport: Transport, bag: Path, stop_at_collision: bool, timeout: float, profile: Profile,
-                 by_clock: bool, logger: Logger, ego_size: tuple[float, float]) -> None:
+                 by_clock: bool, logger: Logger, ego_size: tuple[float, float],
+                 traffic: IDMParameters | None = None) -> None:
+        """`traffic`: the reactive agents' driver model (None: the agents replay the bag)."""
         self.scenario = read_scenario(bag)
+        self._traffic_model = traffic
+        self._ego_size = ego_size
+        self._paths = None if traffic is None else RecordedPaths(self.scenario.agents)
+        self._traffic: ReactiveTraffic | None = None
         self._transport = transport
         self._frame_stamps = frozenset(int(stamp) for stamp in self.scenario.stamps_ns)
         self._plan_layer = profile.plan
@@ -161,7 +172,7 @@ class ScenarioPlayer:
         elif frame == 0:
             self._pub[CLOCK].publish(cdr.encode_clock(self._stamp(-1)))
         if frame == 0 or not run.ahead:  # ahead, frame k's ground truth went out with frame k-1
-            self._pub[GROUND_TRUTH].publish(self._ground_truth[frame])
+            self._pub[GROUND_TRUTH].publish(self._truth(frame))
         for publisher in self._ego:
             publisher.publish(odometry)
         ego = msgs.ego_from_cdr(odometry, ODOMETRY)[1]
@@ -176,8 +187,16 @@ class ScenarioPlayer:
         run.ego_xy = (ego.x, ego.y)
         run.rule = run.plan = run.stray = None
         run.deadline = time.monotonic() + self._timeout
+        if self._traffic is not None and frame + 1 < self.scenario.num_frames:
+            self._traffic.advance(frame, ego)  # frame k+1's agents answer the ego at frame k
         if run.ahead and frame + 1 < self.scenario.num_frames:
-            self._pub[GROUND_TRUTH].publish(self._ground_truth[frame + 1])
+            self._pub[GROUND_TRUTH].publish(self._truth(frame + 1))
+
+    def _truth(self, frame: int) -> bytes:
+        """The ground truth of `frame`: the bag's own message, or the reactive agents' frame encoded alike."""
+        if self._traffic is None:
+            return self._ground_truth[frame]
+        return cdr.encode_objects(self._traffic.agents.frame(frame), self._stamp(frame), "ground_truth")
 
     def on_ready(self, msg: Any) -> None:
         ready = parse_ready(msg)
@@ -185,6 +204,8 @@ class ScenarioPlayer:
             self._finish(Status.INCONCLUSIVE, f"frame {self._run.frame}: superseded by rollout {ready.rollout}",
                          timeout=True)
         self._run = _Run(ready.rollout, 0, 0.0, ahead=ready.ahead, confirmed=ready.confirmed)
+        if self._paths is not None and self._traffic_model is not None:
+            self._traffic = ReactiveTraffic(self._paths, self._traffic_model, self.scenario.dt, self._ego_size)
         self._publish_frame(0, self._start)
 
     def on_tracks(self, data: bytes) -> None:
@@ -307,11 +328,11 @@ def stray_stamps(stray: int, expected: int, stamps_ns: Any) -> str:
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> ScenarioPlayer:
     return ScenarioPlayer(transport, values["bag"], values["stop_at_collision"], values["graph.timeout"],
                           load_profile(values["graph.interface"]), values["graph.drive"] == "clock", logger,
-                          (values["ego.length"], values["ego.width"]))
+                          (values["ego.length"], values["ego.width"]), traffic_model(values))
 
 
 SPEC = NodeSpec("scenario_player", ("bag", "stop_at_collision", "graph.timeout", "graph.interface", "graph.drive",
-                                    "ego.length", "ego.width"), _build, waits_for_acks=True)
+                                    "ego.length", "ego.width", *TRAFFIC_PARAMS), _build, waits_for_acks=True)
 
 
 def main(args: list[str] | None = None) -> int:

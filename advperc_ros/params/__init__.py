@@ -16,6 +16,7 @@ from advperc_ros.params.schema import (
     RULE_SECTIONS,
     RULE_THRESHOLDS,
     SCHEMA,
+    TRAFFIC_PARAMS,
     AttackParams,
     Param,
     rule_parameter,
@@ -24,5 +25,5 @@ from advperc_ros.params.strict_yaml import load_params, read_yaml
 from advperc_ros.params.tree import nest, node_values, params_from_values, parse_params
 
 __all__ = ["EXECUTION", "INTERFACES", "NODE", "PACKAGE", "PLANNER_PARAMS", "RULE_SECTIONS", "RULE_THRESHOLDS", "SCHEMA",
-           "AttackParams", "Param", "ParamsError", "find_bag", "load_params", "nest", "node_values", "package_share",
-           "params_from_values", "parse_params", "read_yaml", "resolve_bag", "rule_parameter"]
+           "TRAFFIC_PARAMS", "AttackParams", "Param", "ParamsError", "find_bag", "load_params", "nest", "node_values",
+           "package_share", "params_from_values", "parse_params", "read_yaml", "resolve_bag", "rule_parameter"]

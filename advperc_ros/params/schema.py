@@ -17,12 +17,13 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, cast
 
+from advperc_ros.core.parameters import parameter_info
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.perception_errors.registry import bounds as error_bounds
-from advperc_ros.core.rules.base import parameter_info
 from advperc_ros.core.rules.registry import RULES, rule_class
 from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.core.search.registry import METHODS
+from advperc_ros.core.traffic import IDMParameters
 from advperc_ros.exceptions import ParamsError
 from advperc_ros.ros.interfaces.registry import BUNDLED as INTERFACES
 from advperc_ros.ros.interfaces.registry import DEFAULT as DEFAULT_INTERFACE
@@ -131,6 +132,25 @@ RULE_DEFAULTS = RuleParams()
 RULE_THRESHOLDS = tuple(rule_parameter(name, f.name) for name, section in RULE_SECTIONS.items()
                         for f in dataclasses.fields(section))
 """Every rule threshold's dotted name (`rule.<rule>.<parameter>`): what a node that judges rules declares."""
+
+
+def _traffic_section() -> type:
+    """The params section `traffic`: whether agents react to the ego, and the driver model's parameters with
+    the model's defaults, sources and bounds (one definition, in core.traffic)."""
+    fields_: list[tuple[str, type, Any]] = [("reactive", bool, _param(
+        False, "agents keep their recorded paths but brake for the ego (IDM, as nuPlan's reactive agents; "
+               "docs/traffic.md); false: they replay their recording whatever the ego does, as in the paper"))]
+    fields_ += [(i.name, float, _param(i.default, f"reactive traffic: {i.source}", low=i.bounds.low, high=i.bounds.high,
+                                       positive=i.bounds.positive)) for i in parameter_info(IDMParameters)]
+    doc = ("How the agents move: replayed (the default) or reacting to the ego along their recorded paths, with "
+           "the driver model's parameters (`traffic.<parameter>`, read only when `traffic.reactive`).")
+    return dataclasses.make_dataclass("TrafficParams", fields_, frozen=True, namespace={"__doc__": doc})
+
+
+TrafficParams = _traffic_section()
+TRAFFIC_DEFAULTS = TrafficParams()
+TRAFFIC_PARAMS = tuple(f"traffic.{f.name}" for f in dataclasses.fields(TrafficParams))
+"""Every traffic parameter's dotted name: what the node that moves the agents (the scenario player) declares."""
 
 
 @dataclass(frozen=True)
@@ -278,6 +298,7 @@ class AttackParams:
     rule: RuleChoice = RULE_DEFAULTS
     ego: EgoParams = EgoParams()
     tracker: TrackerParams = TrackerParams()
+    traffic: Any = TRAFFIC_DEFAULTS
     errors: ErrorKindsChoice = ERRORS_DEFAULTS
     search: SearchParams = SearchParams()
     workers: int = _param(1, "embedded backend: processes that run a guided round's rollouts at once; the attack "

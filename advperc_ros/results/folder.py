@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from advperc_ros.core.perception_errors import PerceptionErrors, inject
+from advperc_ros.core.rollout import true_agents
 from advperc_ros.core.rules.registry import rule_class
 from advperc_ros.core.rules.verdict import DEFAULT_RULE
 from advperc_ros.core.scenario import EgoState
@@ -64,7 +65,8 @@ def stack_layers(profile: Profile) -> dict[str, ObjectsLayer | PlanLayer]:
 
 
 def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
-    """Per frame: ground truth, perceived objects, tracks, ego odometry, plan, and every rule's value on a topic
+    """Per frame: ground truth (under reactive traffic the agents as they drove, and on /ground_truth/recorded
+    their recording), perceived objects, tracks, ego odometry, plan, and every rule's value on a topic
     of its own (`topics.RULE_TOPICS`: the outcome's `attack_rules`, as report.json's `rules`; +inf where
     nothing can bring a rule near a violation), the collision rule's also in the diagnostics; under an
     interface profile of its own (`graph.interface`), the perceived objects, tracks, plan and ego also in the
@@ -75,7 +77,8 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
     if rules is None:
         raise ValueError(f"{scenario.name}: no ground-truth rollout to judge the attack's rules against")
     tracks, plans = rollout.tracks or [], rollout.plans or []
-    perceived = inject(scenario.agents, outcome.attack.errors)
+    agents = true_agents(rollout, scenario)  # under reactive traffic the agents as they drove, the recording beside them
+    perceived = inject(agents, outcome.attack.errors)
     profile = load_profile(outcome.params.graph.interface)
     detections, tracked, planned = profile.detections, profile.tracks, profile.plan
     # (topic, type, frames it has, its payload at frame k stamped ns) of each layer outside the contract
@@ -91,7 +94,9 @@ def write_attack_bag(path: Path, outcome: AttackOutcome, summary: str) -> None:
         for k in range(rollout.num_frames):
             ns = int(scenario.stamps_ns[k])
             bag.write(topics.CLOCK, ns, cdr.encode_clock(ns))
-            bag.write(topics.GROUND_TRUTH, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "ground_truth"))
+            bag.write(topics.GROUND_TRUTH, ns, cdr.encode_objects(agents.frame(k), ns, "ground_truth"))
+            if rollout.agents is not None:
+                bag.write(topics.RECORDED_AGENTS, ns, cdr.encode_objects(scenario.agents.frame(k), ns, "recorded"))
             odometry = msgs.ego_to_cdr(_ego(rollout.ego[k]), ns)
             bag.write(topics.ODOMETRY, ns, odometry)
             if ego_too:
@@ -141,8 +146,8 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile |
     `profile`, a raw-messages panel for each layer the bag also holds in the stack's own types (Foxglove draws
     no Autoware or vision_msgs objects in 3D, but reads their schemas from the MCAP file).
     config/foxglove_layout.json is this layout over the origin, for our own types and the collision rule."""
-    markers = {topics.GROUND_TRUTH: "ground_truth", topics.PERCEPTION: "perception", topics.TRACKING: "tracking",
-               topics.LANES: "lanes"}
+    markers = {topics.GROUND_TRUTH: "ground_truth", topics.RECORDED_AGENTS: "recorded", topics.PERCEPTION: "perception",
+               topics.TRACKING: "tracking", topics.LANES: "lanes"}
     layers = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
               for topic, kind in markers.items()}
     layers[topics.ODOMETRY] = {"visible": True, "type": "arrow", "arrowScale": [4.0, 0.8, 0.8], "color": _hex(EGO_COLOR),
@@ -166,7 +171,8 @@ def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile |
                 "transforms": {},
                 "topics": layers,
                 "layers": {},
-                "foxglovePanelTitle": "attack: truth white, perceived green, tracks blue, ego red, plan orange",
+                "foxglovePanelTitle": "attack: truth white (reactive traffic: its recording grey), perceived green, "
+                                      "tracks blue, ego red, plan orange",
             },
             plot: {
                 "foxglovePanelTitle": f"{rule} ({attacked.unit}), the attacked rule: {attacked.meaning}; < 0 a violation",

@@ -22,7 +22,7 @@ from PIL import Image
 
 from advperc_ros.core.geometry import box_corners
 from advperc_ros.core.perception_errors import inject
-from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.rollout import RolloutResult, true_agents
 from advperc_ros.core.rules.registry import rule_class
 from advperc_ros.core.rules.verdict import CONTACT_RULES
 from advperc_ros.core.search.books import SHARED_PHASES
@@ -187,7 +187,8 @@ class _Scene:
         self.outcome = outcome
         self.rollout = rollout
         self.tracks, self.plans = rollout.tracks, rollout.plans
-        self.perceived = inject(outcome.scenario.agents, outcome.best.errors)
+        self.truth = true_agents(rollout, outcome.scenario)  # under reactive traffic the agents as they drove
+        self.perceived = inject(self.truth, outcome.best.errors)
         self.ego_size = (outcome.params.ego.length, outcome.params.ego.width)
         mark = violation_mark(outcome)
         # the attacked rule's violation, where the collision's look (the drive ending at a contact) does not show it
@@ -201,7 +202,7 @@ class _Scene:
         tracks = self.tracks
         x, y, yaw = self.rollout.ego[k, :3]
         return {
-            "truth": _corners(self.outcome.scenario.agents.frame(k)),
+            "truth": _corners(self.truth.frame(k)),
             "perceived": _corners(self.perceived.frame(k)),
             "tracks": _corners(tracks[k]) if k < len(tracks) else np.zeros((0, 4, 2)),
             "ego": box_corners(x, y, yaw, *self.ego_size)[None],
@@ -214,7 +215,7 @@ class _Scene:
     def involved(self, k: int) -> np.ndarray:
         """Points a view of frame k must contain: the ego, where it heads, the collision agent (true and
         perceived; `watched`), every agent within NEAR of the ego and every ghost detection centred within NEAR."""
-        agents, perceived, ego = self.outcome.scenario.agents, self.perceived, self.rollout.ego[k]
+        agents, perceived, ego = self.truth, self.perceived, self.rollout.ego[k]
         slots = (self.rollout.distances[k] < NEAR) | (np.arange(agents.shape[1]) == self.watched)
         ghosts = np.hypot(perceived.x[k, len(slots):] - ego[0], perceived.y[k, len(slots):] - ego[1]) < NEAR
         x, y, yaw = ego[:3]

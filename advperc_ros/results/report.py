@@ -16,6 +16,7 @@ from advperc_ros.core.rules.base import RuleValue
 from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.core.search.diagnosis import listed_ids, why_no_collision
 from advperc_ros.core.search.problem import Evaluation, kind_costs
+from advperc_ros.core.traffic import REACTIVE, REPLAYED, deviations
 from advperc_ros.results.outcome import AttackOutcome
 from advperc_ros.ros import bag as bags
 
@@ -24,7 +25,9 @@ TRAJECTORY_FIELDS = ("min_signed_distance", "pem_ll", "metric")
 """Report floats that depend continuously on the ego trajectory. The graph backend's trajectory
 differs from the embedded one in the last bits (messages carry yaw as a quaternion and velocity as
 an arrow; docs/graph.md), so these are rounded to REPORT_DIGITS significant digits and both
-backends write the same report. Every other float is the same to the bit in both."""
+backends write the same report. Every other float is the same to the bit in both, but under reactive
+traffic, where the true agents themselves follow the ego's trajectory (core.traffic), and so every
+score of the perception against them: there every float is rounded."""
 REPORT_DIGITS = 7
 LIBRARIES = ("numpy", "scipy", "filterpy", "casadi", "rosbags", "mcap-ros2-support", "matplotlib")
 
@@ -33,16 +36,33 @@ def _finite_or_none(value: float) -> float | None:
     return None if value is None or (isinstance(value, float) and math.isnan(value)) else value
 
 
-def rounded(name: str, value):
-    """`value` as report.json holds it: trajectory-derived floats to REPORT_DIGITS (see above)."""
-    if name in TRAJECTORY_FIELDS and isinstance(value, float) and math.isfinite(value):
+def rounded(name: str, value, reactive: bool = False):
+    """`value` as report.json holds it: trajectory-derived floats to REPORT_DIGITS (see above), every float
+    under reactive traffic (`reactive`)."""
+    if (reactive or name in TRAJECTORY_FIELDS) and isinstance(value, float) and math.isfinite(value):
         return float(f"{value:.{REPORT_DIGITS}g}")
     return value
 
 
-def report_scores(evaluation: Evaluation) -> dict:
+def report_scores(evaluation: Evaluation, reactive: bool = False) -> dict:
     """An evaluation's scores as report.json holds them (NaN as null, rounded as `rounded`)."""
-    return {k: rounded(k, _finite_or_none(v)) for k, v in evaluation.scores.as_dict().items()}
+    return {k: rounded(k, _finite_or_none(v), reactive) for k, v in evaluation.scores.as_dict().items()}
+
+
+def traffic_entries(outcome: AttackOutcome) -> dict:
+    """report.json's `traffic` (`reactive` or `replayed`) and, under reactive traffic, `deviated_agents`: the
+    agents of the attack's rollout that left their recording (id, frames off it, how far, how hard they braked)."""
+    if outcome.rollout_config.traffic is None:
+        return {"traffic": REPLAYED}
+    rollout = outcome.recorded
+    simulated = None if rollout is None else rollout.agents
+    deviated = None
+    if rollout is not None and simulated is not None:
+        deviated = [{"agent": d.agent, "frames": d.frames, "max_distance": rounded("", d.max_distance, True),
+                     "hardest_braking": rounded("", d.hardest_braking, True)}
+                    for d in deviations(outcome.scenario.agents, simulated.frames(rollout.num_frames),
+                                        outcome.scenario.dt)]
+    return {"traffic": REACTIVE, "deviated_agents": deviated}
 
 
 def rule_entry(value: RuleValue) -> dict:
@@ -77,6 +97,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
     """report.json's fields: the attack found (Table 1's row) or why none was, and what it ran with."""
     params = outcome.params
     best = outcome.best
+    reactive = outcome.rollout_config.traffic is not None
     report: dict = {
         "scenario": outcome.scenario.name,
         "bag": params.bag,
@@ -87,6 +108,7 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         "error_kinds": {"enabled": list(error_kinds(params))},
         "seed": params.seed,
         "rule": params.rule.name,  # the rule attacked: `collision` says whether an attack broke it
+        **traffic_entries(outcome),
         "collision": best is not None,
         "min_signed_distance": None,
         "collision_frame": None,
@@ -106,17 +128,18 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
             min_signed_distance=rounded("min_signed_distance", rollout.min_signed_distance),
             collision_frame=frame,
             collision_agent=int(outcome.scenario.agents.ids[frame, slot]),
-            **report_scores(best),
+            **report_scores(best, reactive),
         )
         costs = kind_costs(outcome.scenario, best, params.objective, error_kinds(params))
-        report["error_kinds"].update(used=list(costs), cost={kind: _finite_or_none(cost) for kind, cost in costs.items()})
+        report["error_kinds"].update(used=list(costs), cost={kind: rounded(kind, _finite_or_none(cost), reactive)
+                                                             for kind, cost in costs.items()})
     else:
         report.update(why_no_collision(outcome.log, outcome.joint.blind.rollout if outcome.joint else None,
                                        outcome.approach, partial(rounded, "min_signed_distance"),
                                        None if params.rule.name in CONTACT_RULES else params.rule.name))
     if outcome.heuristic_best is not None:
         report["heuristic"] = {"metric": rounded("metric", outcome.heuristic_best.metric),
-                               **report_scores(outcome.heuristic_best)}
+                               **report_scores(outcome.heuristic_best, reactive)}
     report.update(rulebook(outcome))
     # no single drop collided: the agents the joint drops' failure mode hides together ([]: none found)
     report["joint_agents"] = list(outcome.joint.agents) if outcome.joint is not None else None
@@ -130,6 +153,16 @@ def build_report(outcome: AttackOutcome, bag_path: Path) -> dict:
         versions=versions(),
     )
     return report
+
+
+def _traffic_line(report: dict) -> list[str]:
+    """Under reactive traffic, the line that says so and who reacted (nothing for replayed traffic, the paper's)."""
+    if report["traffic"] != REACTIVE:
+        return []
+    deviated = report.get("deviated_agents") or []
+    who = ", ".join(f"agent {d['agent']} ({d['max_distance']:.2f} m behind its recording, braking at most "
+                    f"{d['hardest_braking']:.2f} m/s^2)" for d in deviated) or "no agent left its recording"
+    return [f"Traffic reacts to the ego (IDM along the recorded paths, docs/traffic.md): {who}.", ""]
 
 
 def _fmt(value, digits: int = 2) -> str:
@@ -150,7 +183,8 @@ def report_markdown(report: dict) -> str:
     rule = "" if report["rule"] == DEFAULT_RULE else f", rule {report['rule']}"
     title = (f"# Attack on {report['scenario']} ({_planner_label(report)} planner, objective {report['objective']}"
              f"{rule}{layer})")
-    lines = [title, ""] + (_table(report) if report["collision"] else _no_collision(report)) + _rules_table(report) + [
+    lines = [title, ""] + _traffic_line(report) + (_table(report) if report["collision"] else _no_collision(report)) + \
+        _rules_table(report) + [
         "",
         f"- seed {report['seed']}, config hash {report['config_hash']}, {report['rollouts']} rollouts, "
         f"wall time {report['wall_time_s']:.1f} s",

@@ -61,6 +61,7 @@ VELOCITY_NS = "velocity"
 ARROW_SCALE = (0.2, 0.4, 0.4)
 COLORS = {
     "ground_truth": (1.0, 1.0, 1.0, 0.8),
+    "recorded": (0.6, 0.6, 0.6, 0.35),  # the recording reactive agents left, faint beside the ground truth
     "perception": (0.1, 0.8, 0.2, 0.8),
     "tracking": (0.2, 0.4, 1.0, 0.8),
     "lanes": (0.3, 0.3, 0.3, 0.5),

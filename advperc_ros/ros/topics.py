@@ -21,6 +21,7 @@ LANES = "/map/lanes"
 ROUTE = "/ego/route"
 FOOTPRINT = "/ego/footprint"  # the ego's box around its reference point (the odometry's pose)
 SUMMARY = "/attack/summary"  # attack bags only
+RECORDED_AGENTS = "/ground_truth/recorded"  # attack bags under reactive traffic: the recording the agents left
 
 # lockstep control (advperc_ros.ros.lockstep): std_msgs/String holding JSON
 ERRORS = "/attack/errors"
@@ -44,6 +45,7 @@ TOPIC_TYPES = {
     ROUTE: "nav_msgs/msg/Path",
     FOOTPRINT: "geometry_msgs/msg/PolygonStamped",
     SUMMARY: "std_msgs/msg/String",
+    RECORDED_AGENTS: "visualization_msgs/msg/MarkerArray",
 }
 """The data topics: what bags hold and the graph's nodes exchange per frame."""
 CONTROL_TOPICS = (ERRORS, READY, DONE, PRESENCE, REFERENCE, DELIVERED)

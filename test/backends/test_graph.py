@@ -36,7 +36,9 @@ from advperc_ros.backends.resumed import checkpoint_folder  # noqa: E402
 from advperc_ros.exceptions import MessageError, NodeGone, ParamsError  # noqa: E402
 from advperc_ros.ros import lockstep  # noqa: E402
 from advperc_ros.ros.topics import CONTROL_TYPE  # noqa: E402
-from advperc_ros.ros.bag import read_scenario  # noqa: E402
+from advperc_ros.ros.bag import read_scenario, write_ground_truth_bag  # noqa: E402
+from advperc_ros.core.scenario_spec import build_scenario  # noqa: E402
+from advperc_ros.core.traffic import deviations  # noqa: E402
 from advperc_ros.ros.lockstep import RolloutClock  # noqa: E402
 
 BAG = REPO / "bags" / "idm_lane_following"
@@ -395,6 +397,39 @@ def test_graph_rollouts_through_a_stack_s_interface_equal_embedded_ones(tmp_path
         assert any(not np.allclose(a["vx"], b["vx"]) for a, b in zip(markers.tracks, embedded.tracks) if len(a["vx"]) == len(b["vx"]))
 
 
+FOLLOWED = {  # the ego behind a lead that stops, a car 16 m behind it: under reactive traffic it brakes for the ego
+    "name": "followed", "dt": 0.1, "duration": 9.0,
+    "lanes": [{"id": "east", "centerline": [[-200.0, -1.75], [600.0, -1.75]], "width": 3.5}],
+    "ego": {"route": ["east"], "start_s": 200.0, "speed": 10.0},
+    "agents": [{"id": 1, "lane": "east", "start_s": 225.0, "speed": [[0.0, 10.0], [2.0, 10.0], [5.0, 0.0]],
+                "size": [4.6, 1.9, 1.6]},
+               {"id": 2, "lane": "east", "start_s": 184.0, "speed": 10.0, "size": [4.6, 1.9, 1.6]}],
+}
+
+
+@pytest.mark.parametrize("drive", ["messages", "clock"])
+def test_graph_rollouts_under_reactive_traffic_equal_embedded_ones(tmp_path, drive):
+    """The player moves the agents (core.traffic) from the ego's odometry, frame by frame: the follower that
+    brakes for the ego brakes alike in both, and the backend's agents are the ones the player published."""
+    bag = tmp_path / "followed"
+    write_ground_truth_bag(bag, build_scenario(FOLLOWED))
+    scenario = read_scenario(bag)
+    params = load_params(params_for(tmp_path, **{"bag": str(bag), "traffic.reactive": True, "graph.drive": drive}))
+    configs = core_configs(params)
+    truth = PerceptionErrors.none(*scenario.agents.shape)
+    embedded = Stack(scenario, configs).rollout(truth, record=True)
+    with GraphRollouts(scenario, configs, bag) as graph:
+        result = graph.rollout(truth, record=True)
+    assert_same_rollout(result, embedded)
+    follower = deviations(scenario.agents, embedded.agents.frames(embedded.num_frames), scenario.dt)
+    assert [d.agent for d in follower] == [2] and follower[0].hardest_braking > 1.0  # it reacted
+    for name in ("x", "y", "vx", "vy"):
+        np.testing.assert_allclose(getattr(result.agents, name)[embedded.agents.valid],
+                                   getattr(embedded.agents, name)[embedded.agents.valid], rtol=0, atol=TOLERANCE)
+    replayed = Stack(scenario, core_configs(params.with_values(**{"traffic.reactive": False}))).rollout(truth)
+    assert replayed.collided and not embedded.collided  # replayed, the follower drives into the braking ego
+
+
 # ----- (b) a search in graph mode writes the embedded report -----------------------------------------
 
 def test_graph_search_writes_the_embedded_report(tmp_path, capsys):
@@ -412,6 +447,26 @@ def test_graph_search_writes_the_embedded_report(tmp_path, capsys):
     for embedded, graph in zip(*logs):  # the log writes distances to 10 digits: the last may differ
         assert float(embedded.pop("min_signed_distance")) == pytest.approx(float(graph.pop("min_signed_distance")), abs=TOLERANCE)
         assert embedded == graph
+
+
+def test_graph_search_under_reactive_traffic_writes_the_embedded_report(tmp_path):
+    """`advperc attack --reactive` on a drive where the car behind the ego brakes for it: the same report.json on
+    both backends (its floats rounded, as the truth follows the ego's trajectory), saying who reacted."""
+    bag = tmp_path / "followed"
+    write_ground_truth_bag(bag, build_scenario(FOLLOWED))
+    params = params_for(tmp_path, bag=str(bag))
+    outputs = {backend: tmp_path / backend for backend in ("embedded", "graph")}
+    for backend, output in outputs.items():
+        assert advperc(["attack", str(params), "--output", str(output), "--quiet", "--backend", backend,
+                        "--reactive"]) == 0
+    reports = [json.loads((out / "report.json").read_text()) for out in outputs.values()]
+    for report in reports:
+        report.pop("wall_time_s")
+    assert reports[0] == reports[1]
+    assert reports[0]["traffic"] == "reactive" and reports[0]["collision"] and reports[0]["reproduced"]
+    assert isinstance(reports[0]["deviated_agents"], list)
+    markdown = (outputs["graph"] / "report.md").read_text()
+    assert "Traffic reacts to the ego" in markdown
 
 
 def test_an_inconclusive_warm_up_is_sent_again_before_the_search_starts(tmp_path, scenario, monkeypatch):

@@ -32,7 +32,7 @@ from advperc_ros.ros.topics import GROUND_TRUTH, LANES, ODOMETRY, REFERENCE, ROU
 BAG = REPO / "bags" / "idm_lane_following"
 EVERY_RULE = tuple(RULE_TOPICS.values())
 CAUSAL = ("collision", "at_fault_collision", "time_to_collision", "drivable_area", "driving_direction", "progress",
-          "planner_failure")
+          "planner_failure", "forced_braking")
 """The rules whose value at a frame reads no later frame: on the drive so far, the report's value frame by frame."""
 SMOOTHED = ("hard_braking", "comfort", "phantom_braking")
 """The motion rules, smoothed over frames on either side (Savitzky-Golay): equal to the report's at the last frame."""
@@ -257,7 +257,7 @@ def test_a_resumed_attack_shows_the_graph_the_ground_truth_it_answers_from_its_c
     batch = [PerceptionErrors.none(*scenario.agents.shape),
              PerceptionErrors.none(*scenario.agents.shape).with_drop(0, 20, scenario.num_frames - 1)]
     ResumedRollouts(Stack(scenario, configs), Checkpoint(tmp_path / "out", "params", scenario, False),
-                    scenario.agents, config).rollout_many(batch)
+                    scenario, config).rollout_many(batch)
 
     class Observed(Stack):
         def __init__(self, *args) -> None:
@@ -268,7 +268,7 @@ def test_a_resumed_attack_shows_the_graph_the_ground_truth_it_answers_from_its_c
             self.seen.append((errors, result))
 
     backend = Observed(scenario, configs)
-    resumed = ResumedRollouts(backend, Checkpoint(tmp_path / "out", "params", scenario, True), scenario.agents, config)
+    resumed = ResumedRollouts(backend, Checkpoint(tmp_path / "out", "params", scenario, True), scenario, config)
     stored = resumed.rollout_many(batch)
     assert len(backend.seen) == 2
     assert all(errors is asked and result is answered
@@ -297,3 +297,30 @@ def test_the_drive_so_far_keeps_one_slot_per_agent_as_agents_come_and_go():
     slot_ids = agents.ids[agents.valid.argmax(axis=0), np.arange(agents.shape[1])]  # each slot's id where first shown
     first = {int(agent): slot for slot, agent in enumerate(slot_ids)}
     assert all(agents.ids[k, first[int(agent)]] == agent for k, ids in enumerate(present) for agent in ids)
+
+
+def test_under_reactive_traffic_the_monitor_judges_the_agents_as_they_drove_against_their_recording():
+    """The player publishes the reacting agents; with the recording they left (`traffic.reactive`), the monitor's
+    forced_braking and at-fault values are the report's, frame by frame: a follower made to brake hard shows live."""
+    from traffic_scenes import REACTIVE, Braking, scene
+
+    from advperc_ros.core.rollout import rollout
+    from advperc_ros.core.tracker import Tracker
+
+    scenario = scene([{"id": 1, "start_s": 185.0, "speed": 12.0}])  # 15 m behind an ego that brakes at 7 m/s^2
+    drive = rollout(scenario, PerceptionErrors.none(*scenario.agents.shape), Tracker(), Braking(7.0), REACTIVE)
+    transport = Recorder()
+    RuleMonitor(transport, REACTIVE.ego_length, REACTIVE.ego_width, Said(), monitored_rules(DEFAULTS), scenario.agents)
+    transport.callbacks[ROUTE](cdr.encode_path(scenario.route.points[:, 0], scenario.route.points[:, 1],
+                                               scenario.route.heading(scenario.route.stations),
+                                               [0] * len(scenario.route.points), 0))
+    for k in range(drive.num_frames):
+        stamp = int(scenario.stamps_ns[k])
+        transport.callbacks[GROUND_TRUTH](cdr.encode_objects(drive.agents.frame(k), stamp, "ground_truth"))
+        transport.callbacks[ODOMETRY](msgs.ego_to_cdr(EgoState(*drive.ego[k]), stamp))
+    inputs = rule_inputs(drive, scenario, REACTIVE)
+    report = evaluate_rulebook(inputs, inputs)
+    assert report["forced_braking"].violated
+    live = transport.values("forced_braking")
+    np.testing.assert_allclose(live, report["forced_braking"].per_frame, rtol=0, atol=1e-9)
+    assert live.min() < 0

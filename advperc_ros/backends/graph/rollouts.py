@@ -375,7 +375,7 @@ class GraphRollouts:
                 recorded: tuple[int, int] | None) -> RolloutResult:
         """The result of what the graph published, judged as the embedded rollout judges its own."""
         result = assemble(received, self._stamps, self._slots, frames, inconclusive, recorded, self.client.plan)
-        return judge(result, self.scenario.agents, self._config)
+        return judge(result, self.scenario, self._config)
 
 
 def watch(transport: Transport, present: dict[str, int], profile: Profile) -> Watched:

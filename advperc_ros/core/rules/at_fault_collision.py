@@ -1,7 +1,8 @@
 """Rule `at_fault_collision`: the collision rule counting only contacts at the ego's fault.
 
 As nuPlan's no_ego_at_fault_collisions: a contact is excused when the ego is stopped or the agent
-hits it from behind (contact.excusable; why no closing-speed test is needed is said there). r is
+hits it from behind (contact.excusable; why no closing-speed test is needed is said there, and what
+changes when traffic reacts to the ego). r is
 the signed distance to the nearest agent whose contact would count; the rollout's `at_fault_only`
 verdict is the same rule (rollout.judge calls the same `excusable`).
 """
@@ -10,7 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
 from advperc_ros.core.rules.contact import STOPPED_SPEED, excusable
 from advperc_ros.core.rules.inputs import RuleInputs
 
@@ -35,5 +37,6 @@ class AtFaultCollision(ParameterisedRule):
     parameters: AtFaultCollisionParameters
 
     def per_frame(self, inputs: RuleInputs, reference: RuleInputs | None = None) -> np.ndarray:
-        excused = excusable(inputs.ego, inputs.ego_length, inputs.agents, self.parameters.stopped_speed)
+        excused = excusable(inputs.ego, inputs.ego_length, inputs.agents, self.parameters.stopped_speed,
+                            reactive_dt=None if inputs.recorded is None else inputs.dt)
         return np.where(excused, np.inf, inputs.distances).min(axis=1, initial=np.inf)

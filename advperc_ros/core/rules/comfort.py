@@ -13,10 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
-from advperc_ros.core.rules.hard_braking import BRAKING_BOUNDS, MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
+from advperc_ros.core.rules.hard_braking import BRAKING_BOUNDS
 from advperc_ros.core.rules.inputs import RuleInputs
-from advperc_ros.core.rules.motion import ego_motion
+from advperc_ros.core.rules.motion import MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE, ego_motion
 
 CONFIG = "nuPlan low_level/{}_statistics.yaml: {}"
 

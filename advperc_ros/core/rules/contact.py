@@ -12,6 +12,11 @@ the ego is stopped, or when the agent hits it from behind (the agent's centre li
 rear bumper in the ego's frame). No closing-speed test is needed for the latter: agents replay
 their recorded motion and the ego never reverses, so an agent behind the rear bumper that touches
 the ego has come from behind.
+
+Under reactive traffic (core.traffic) a follower brakes for the ego, so one that hits it had room
+to brake and is at fault, unless the ego braked harder than the hardest comfortable braking
+(hard_braking's bound) within the follower's headway time before the contact: then it could not
+stop, and the contact, from behind or with the ego stopped, is the ego's fault.
 """
 
 from collections.abc import Sequence
@@ -20,9 +25,12 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import signed_box_distance_pairs
+from advperc_ros.core.rules.motion import MIN_LON_ACCELERATION, speed_acceleration
 from advperc_ros.core.scenario import EgoState
+from advperc_ros.core.traffic import IDMParameters
 
 STOPPED_SPEED = 0.05  # m/s: below it the ego is stopped (nuPlan's stopped-speed threshold)
+REACTION_TIME = IDMParameters().headway_time  # s a reactive follower has to answer the ego's braking
 
 
 class CollisionRule:
@@ -40,6 +48,10 @@ class CollisionRule:
         reach = 0.5 * (np.hypot(agents.length, agents.width) + np.hypot(ego_length, ego_width)) + 0.1
         self._reach = np.where(agents.valid, reach, -1.0)
         self._centres = agents.x + 1j * agents.y  # as complex numbers: a frame's test is four numpy calls
+
+    def moved(self, k: int) -> None:
+        """The agents' frame k was written anew (reactive traffic, which writes each frame as the rollout reaches it)."""
+        self._centres[k] = self.agents.x[k] + 1j * self.agents.y[k]
 
     def may_touch(self, ego: EgoState, k: int) -> bool:
         """Whether the ego's box may touch an agent's at frame k; if not, every distance there is > 0."""
@@ -60,11 +72,24 @@ class CollisionRule:
 
 
 def excusable(ego: np.ndarray, ego_length: float, agents: BoxSequence,
-              stopped_speed: float = STOPPED_SPEED) -> np.ndarray:
+              stopped_speed: float = STOPPED_SPEED, reactive_dt: float | None = None) -> np.ndarray:
     """(K, N) where a contact would not be the ego's fault, from the ego's states `ego` (K, 4: x, y,
-    yaw, v) at frames 0..K-1: the ego stopped (below `stopped_speed`), or the agent behind its rear bumper."""
+    yaw, v) at frames 0..K-1: the ego stopped (below `stopped_speed`), or the agent behind its rear bumper.
+    With `reactive_dt` (reactive traffic, frames that far apart) neither excuses a frame within
+    REACTION_TIME of the ego braking beyond hard_braking's bound (`braked_too_hard`)."""
     frames = ego.shape[0]
     x, y, yaw, v = (ego[:, i : i + 1] for i in range(4))
     along = (agents.x[:frames] - x) * np.cos(yaw) + (agents.y[:frames] - y) * np.sin(yaw)
-    return (v < stopped_speed) | (along < -ego_length / 2)
+    excused = (v < stopped_speed) | (along < -ego_length / 2)
+    if reactive_dt is None:
+        return excused
+    return excused & ~braked_too_hard(ego[:, 3], reactive_dt)[:, None]
+
+
+def braked_too_hard(speeds: np.ndarray, dt: float) -> np.ndarray:
+    """(K,) the frames within REACTION_TIME after the ego braked harder than hard_braking's bound (its speeds
+    differentiated as that rule does): a follower braking for the ego could not have stopped behind it."""
+    hard = speed_acceleration(np.asarray(speeds, dtype=float), dt) < MIN_LON_ACCELERATION
+    window = int(round(REACTION_TIME / dt)) + 1
+    return np.convolve(hard.astype(float), np.ones(window))[: hard.size] > 0.0
 

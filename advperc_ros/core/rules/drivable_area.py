@@ -13,7 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.geometry import box_corners
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
 from advperc_ros.core.rules.inputs import RuleInputs
 from advperc_ros.core.rules.lanes import ROUTE_WIDTH, ROUTE_WIDTH_BOUNDS, ROUTE_WIDTH_SOURCE, outside_road, road
 

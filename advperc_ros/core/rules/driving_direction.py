@@ -14,7 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
 from advperc_ros.core.rules.inputs import RuleInputs
 from advperc_ros.core.rules.lanes import ROUTE_WIDTH, ROUTE_WIDTH_BOUNDS, ROUTE_WIDTH_SOURCE, containing_lane, road
 

@@ -11,12 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
 from advperc_ros.core.rules.inputs import RuleInputs
-from advperc_ros.core.rules.motion import longitudinal_acceleration
+from advperc_ros.core.rules.motion import MIN_LON_ACCELERATION, MIN_LON_ACCELERATION_SOURCE, longitudinal_acceleration
 
-MIN_LON_ACCELERATION = -4.05  # m/s^2, nuPlan's ego_lon_acceleration min_lon_accel
-MIN_LON_ACCELERATION_SOURCE = "nuPlan ego_lon_acceleration_statistics.yaml: min_lon_accel (m/s^2)"
 BRAKING_BOUNDS = Bounds(low=-30.0, high=0.0)  # m/s^2: a braking bound is a deceleration, at most 3 g
 
 

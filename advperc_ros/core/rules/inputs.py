@@ -11,7 +11,7 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
-from advperc_ros.core.rollout import RolloutConfig, RolloutResult
+from advperc_ros.core.rollout import RolloutConfig, RolloutResult, true_agents
 from advperc_ros.core.scenario import Lane, Scenario
 
 
@@ -21,7 +21,9 @@ class RuleInputs:
 
     `plan_valid` is False at the frame whose plan was missing or could not be followed (a rollout
     ends there, inconclusive: `rollout.recorded_frames`); `fallback_frames` are the frames whose plan
-    the planner's own fallback answered, None when the planner does not report them."""
+    the planner's own fallback answered, None when the planner does not report them. `agents` are the
+    agents as they drove in this rollout: under reactive traffic its simulation, with the recording
+    they left in `recorded` (None when traffic replays its recording, `agents` then being that)."""
 
     ego: np.ndarray  # (K, 4): x, y, yaw, v of the ego's box centre at frames 0..K-1
     dt: float  # s between frames
@@ -33,6 +35,7 @@ class RuleInputs:
     ego_width: float  # m
     plan_valid: np.ndarray  # (K,) bool
     fallback_frames: tuple[int, ...] | None = None
+    recorded: BoxSequence | None = None  # (K, N) the recording, when traffic reacted
 
     @property
     def num_frames(self) -> int:
@@ -46,10 +49,11 @@ def rule_inputs(result: RolloutResult, scenario: Scenario, config: RolloutConfig
     if result.inconclusive is not None:  # the frame that made it inconclusive is its last (recorded_frames)
         plan_valid[frames - 1] = False
     return RuleInputs(
-        ego=np.asarray(result.ego, dtype=float), dt=scenario.dt, agents=scenario.agents.frames(frames),
+        ego=np.asarray(result.ego, dtype=float), dt=scenario.dt, agents=true_agents(result, scenario).frames(frames),
         distances=result.distances, lanes=scenario.lanes, route=scenario.route,
         ego_length=config.ego_length, ego_width=config.ego_width, plan_valid=plan_valid,
         fallback_frames=result.fallback_frames,
+        recorded=None if result.agents is None else scenario.agents.frames(frames),
     )
 
 

@@ -8,7 +8,7 @@ time_to_collision (which looks sideways only when the ego is not within one lane
 
 import numpy as np
 
-from advperc_ros.core.rules.base import Bounds
+from advperc_ros.core.parameters import Bounds
 from advperc_ros.core.rules.inputs import RuleInputs
 from advperc_ros.core.scenario import Lane
 

@@ -17,16 +17,20 @@ on both sides of it.
 """
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.signal import savgol_filter
 
-from advperc_ros.core.rules.inputs import RuleInputs
+if TYPE_CHECKING:  # the rollout's at-fault test reads this module, and the rules' inputs read the rollout
+    from advperc_ros.core.rules.inputs import RuleInputs
 
 ACCELERATION_WINDOW = 8  # samples: extract_ego_acceleration's window_length
 JERK_WINDOW = 15  # samples: extract_ego_jerk's window_length
 YAW_WINDOW = 5  # samples: approximate_derivatives' window_length, which extract_ego_yaw_rate keeps
 DECIMALS = 8  # nuPlan's rounding of every extracted quantity
+MIN_LON_ACCELERATION = -4.05  # m/s^2, nuPlan's ego_lon_acceleration min_lon_accel: the hardest comfortable braking
+MIN_LON_ACCELERATION_SOURCE = "nuPlan ego_lon_acceleration_statistics.yaml: min_lon_accel (m/s^2)"
 
 
 def savgol(values: np.ndarray, window: int, order: int, deriv: int, dt: float) -> np.ndarray:
@@ -42,9 +46,14 @@ def savgol(values: np.ndarray, window: int, order: int, deriv: int, dt: float) -
     return np.round(smoothed[centred], DECIMALS)
 
 
-def longitudinal_acceleration(inputs: RuleInputs) -> np.ndarray:
+def speed_acceleration(speeds: np.ndarray, dt: float) -> np.ndarray:
+    """(K,) m/s^2: the first derivative of speeds `speeds` sampled every `dt` s, as nuPlan smooths it."""
+    return savgol(speeds, ACCELERATION_WINDOW, 2, 1, dt)
+
+
+def longitudinal_acceleration(inputs: "RuleInputs") -> np.ndarray:
     """(K,) m/s^2 along the ego's heading, at every frame."""
-    return savgol(inputs.ego[:, 3], ACCELERATION_WINDOW, 2, 1, inputs.dt)
+    return speed_acceleration(inputs.ego[:, 3], inputs.dt)
 
 
 @dataclass(frozen=True)
@@ -59,7 +68,7 @@ class EgoMotion:
     jerk_magnitude: np.ndarray  # m/s^3, the derivative of the acceleration's magnitude (as nuPlan's)
 
 
-def ego_motion(inputs: RuleInputs) -> EgoMotion:
+def ego_motion(inputs: "RuleInputs") -> EgoMotion:
     """The executed drive's dynamics, differentiated as nuPlan differentiates them."""
     dt = inputs.dt
     heading = np.unwrap(inputs.ego[:, 2])

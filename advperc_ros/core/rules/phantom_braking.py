@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.ndimage import minimum_filter1d
 
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
 from advperc_ros.core.rules.hard_braking import BRAKING_BOUNDS
 from advperc_ros.core.rules.inputs import RuleInputs, held
 from advperc_ros.core.rules.motion import longitudinal_acceleration

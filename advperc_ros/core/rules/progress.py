@@ -15,7 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
 from advperc_ros.core.rules.inputs import RuleInputs, held
 
 

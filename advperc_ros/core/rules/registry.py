@@ -21,6 +21,7 @@ RULES = {
     "driving_direction": "advperc_ros.core.rules.driving_direction:DrivingDirection",
     "progress": "advperc_ros.core.rules.progress:Progress",
     "planner_failure": "advperc_ros.core.rules.planner_failure:PlannerFailure",
+    "forced_braking": "advperc_ros.core.rules.forced_braking:ForcedBraking",
 }
 
 

@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.geometry import box_corners, signed_box_distance_pairs, wrap_angle
-from advperc_ros.core.rules.base import Bounds, ParameterisedRule, parameter
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.rules.base import ParameterisedRule
 from advperc_ros.core.rules.contact import excusable
 from advperc_ros.core.rules.inputs import RuleInputs
 from advperc_ros.core.rules.lanes import ROUTE_WIDTH, containing_lane, road

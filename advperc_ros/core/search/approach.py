@@ -33,6 +33,7 @@ from functools import cmp_to_key
 import numpy as np
 
 from advperc_ros.core.perception_errors import ErrorSpace, MoveContext, PerceptionErrors, kind_named
+from advperc_ros.core.rollout import true_agents
 from advperc_ros.core.search.heuristic import bisect
 from advperc_ros.core.search.joint import relevance
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase, PhaseLabel
@@ -177,7 +178,8 @@ def approach(problem: AttackProblem, seen: list[Evaluation], rng: np.random.Gene
             elif move == 2:
                 candidate = hide(current.errors, rng, where)
             else:
-                context = MoveContext(problem.scenario.agents, current.rollout.ego, space, problem.scenario.dt, where)
+                context = MoveContext(true_agents(current.rollout, problem.scenario), current.rollout.ego, space,
+                                      problem.scenario.dt, where)
                 candidate = extended[move - 3](current.errors, frames, rng, context)
                 if candidate is None:  # that move had nothing to act on (a ghost to take away): another draw
                     continue

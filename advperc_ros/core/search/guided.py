@@ -33,6 +33,7 @@ import numpy as np
 from advperc_ros.core.metrics.nds import DIST_THRESHOLDS
 from advperc_ros.core.perception_errors import ErrorSpace, MoveContext, PerceptionErrors, registry
 from advperc_ros.core.perception_errors.runs import attacked_runs, run_edge
+from advperc_ros.core.rollout import true_agents
 from advperc_ros.core.search import refine
 from advperc_ros.core.search.config import GuidedConfig, SearchConfig, after_failure_bound
 from advperc_ros.core.search.problem import AttackProblem, Evaluation, LogRow, Phase, PhaseLabel
@@ -348,7 +349,7 @@ def guided_search(
             c = merge(parent.errors, sibling, grandparent) if grandparent is not None else None
             if c is not None and _key(c) not in tried:
                 pool.setdefault(_key(c), (names.index("merge"), c))
-        context = MoveContext(problem.scenario.agents, parent.rollout.ego, space, problem.scenario.dt)
+        context = MoveContext(true_agents(parent.rollout, problem.scenario), parent.rollout.ego, space, problem.scenario.dt)
         for _ in range(cfg.candidates):  # distinct candidates never rolled out, in the order drawn
             move, c = candidate(parent.errors, frames, rng, cfg, yaw, names, context)
             if c is not None and _key(c) not in tried:

@@ -6,10 +6,11 @@ from enum import Enum
 
 import numpy as np
 
+from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.metrics.scores import PerceptionScores, score
 from advperc_ros.core.pem import default_pem, features
 from advperc_ros.core.perception_errors import PAPER_KINDS, PerceptionErrors, inject
-from advperc_ros.core.rollout import RolloutResult
+from advperc_ros.core.rollout import RolloutResult, true_agents
 from advperc_ros.core.rules.verdict import AttackedRule
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.exceptions import BudgetSpent
@@ -86,13 +87,13 @@ class LogRow:
     rule_value: float | None = None  # the attacked rule's value r when it is not a contact rule (`verdict`), else None
 
 
-def perception_scores(scenario: Scenario, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray,
+def perception_scores(agents: BoxSequence, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray,
                       phi: np.ndarray | None = None, kinds: tuple[str, ...] = PAPER_KINDS) -> PerceptionScores:
-    """m(I(y, e), y) over the first `frames` frames of a rollout of `scenario` whose ego was at ego_xy;
+    """m(I(y, e), y) over the first `frames` frames of a rollout whose true agents were `agents` (a scenario's
+    recording, or its rollout's simulation under reactive traffic: `rollout.true_agents`) and whose ego was at ego_xy;
     PEM LL under the shipped model for the error `kinds` the search may use (and any `errors` has): a
     search beyond the paper's kinds is judged by the model whose terms cover ghosts, flips,
     velocities, sizes and latency, whichever kinds its attack ends up using (a pure drop included)."""
-    agents = scenario.agents
     # inject over the whole scenario first: a detection's confidence depends on its frame and
     # agent only, never on where this rollout stopped
     return score(agents.frames(frames), inject(agents, errors).frames(frames), ego_xy,
@@ -105,7 +106,8 @@ def kind_costs(scenario: Scenario, evaluation: Evaluation, objective: str,
     with that kind's errors taken out, less the attack's own (a drop taken out shows the car, perfectly
     unless another kind's error is on it); `kinds`: the search's, as `perception_scores` takes them."""
     rollout = evaluation.rollout
-    return {kind: getattr(perception_scores(scenario, evaluation.errors.without(kind), rollout.num_frames,
+    agents = true_agents(rollout, scenario)
+    return {kind: getattr(perception_scores(agents, evaluation.errors.without(kind), rollout.num_frames,
                                             rollout.ego_xy, kinds=kinds), objective) - evaluation.metric
             for kind in evaluation.errors.used_kinds(rollout.num_frames)}
 
@@ -149,16 +151,18 @@ class AttackProblem:
         if self.objective not in OBJECTIVES:
             raise ValueError(f"unknown objective '{self.objective}' (known: {', '.join(OBJECTIVES)})")
 
-    def scores(self, errors: PerceptionErrors, frames: int, ego_xy: np.ndarray, phi=None) -> PerceptionScores:
-        """m(I(y, e), y) over the first `frames` frames of a rollout whose ego was at ego_xy."""
-        return perception_scores(self.scenario, errors, frames, ego_xy, phi, self.kinds)
+    def scores(self, errors: PerceptionErrors, rollout: RolloutResult, phi=None) -> PerceptionScores:
+        """m(I(y, e), y) over the frames of `rollout`, on its true agents (`rollout.true_agents`)."""
+        return perception_scores(true_agents(rollout, self.scenario), errors, rollout.num_frames, rollout.ego_xy, phi,
+                                 self.kinds)
 
     def metric(self, errors: PerceptionErrors, reference: RolloutResult) -> float:
         """The objective of errors judged on a previous rollout's ground truth (Algorithm 2)."""
         if self._reference is not reference:  # proposals of one step share the rollout: and its PEM features
             self._reference = reference
-            self._reference_phi = features(self.scenario.agents.frames(reference.num_frames), reference.ego_xy)
-        scores = self.scores(errors, reference.num_frames, reference.ego_xy, self._reference_phi)
+            self._reference_phi = features(true_agents(reference, self.scenario).frames(reference.num_frames),
+                                           reference.ego_xy)
+        scores = self.scores(errors, reference, self._reference_phi)
         return getattr(scores, self.objective)
 
     def evaluate(self, errors: PerceptionErrors, phase: Phase, agent: int = -1) -> Evaluation:
@@ -180,7 +184,7 @@ class AttackProblem:
     def _record(self, errors: PerceptionErrors, result: RolloutResult, phase: Phase, agent: int) -> Evaluation:
         if self.attacked_rule is not None:
             result = self.attacked_rule.judge(result, None if self.truth is None else self.truth.rollout)
-        scores = self.scores(errors, result.num_frames, result.ego_xy)
+        scores = self.scores(errors, result)
         evaluation = Evaluation(errors, result, scores, getattr(scores, self.objective))
         if phase == Phase.GROUND_TRUTH and self.truth is None:
             self.truth = evaluation

@@ -85,7 +85,7 @@ def test_judged_from_ego_and_distances_alone():
     """A result rebuilt from what any backend records (ego states, distances) gets the same verdict."""
     for ego_speed, agent, yaw, at_fault in CASES.values():
         result, scenario = run(ego_speed, agent, at_fault_only=True, yaw=yaw)
-        rebuilt = judge(RolloutResult(ego=result.ego, distances=result.distances), scenario.agents,
+        rebuilt = judge(RolloutResult(ego=result.ego, distances=result.distances), scenario,
                         RolloutConfig(at_fault_only=True))
         np.testing.assert_array_equal(rebuilt.excused, result.excused)
         assert rebuilt.collided is at_fault

@@ -11,10 +11,11 @@ from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.geometry import Polyline
+from advperc_ros.core.parameters import parameter_info
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import PlannerStats, Trajectory
 from advperc_ros.core.rollout import RolloutConfig, rollout
-from advperc_ros.core.rules.base import evaluate, parameter_info
+from advperc_ros.core.rules.base import evaluate
 from advperc_ros.core.rules.contact import CollisionRule
 from advperc_ros.core.rules.inputs import RuleInputs, rule_inputs
 from advperc_ros.core.rules.registry import RULES, rule_class

@@ -7,7 +7,8 @@ displacing the lead (collision, time to collision) or showing a ghost it brakes 
 planner that may brake at 6 m/s², harder than the bundled 3.0, hard braking, comfort and a stop for nothing).
 The IDM planner never leaves its route, so leaving the road, driving the wrong way and a planner's fallback are
 attacked on small two-lane roads with a plug-in planner that swerves away from what it sees ahead
-(`rule_planners.Evader`)."""
+(`rule_planners.Evader`). A follower forced to brake hard needs traffic that reacts (`traffic.reactive`): a car
+close behind the ego on a one-lane road, and an IDM that may brake at 6 m/s²."""
 
 import math
 from dataclasses import dataclass, field
@@ -39,6 +40,15 @@ TWO_WAY_SPEC = {
         {"id": 7, "lane": "west", "start_s": 510.0, "speed": SPEED, "size": [4.4, 1.8, 1.5]},  # passed, going away
     ],
 }
+# The ego at 12 m/s, a car 20 m behind it (centre to centre) at the same speed, and one far ahead: under reactive
+# traffic the follower keeps its gap, until the ego brakes for a ghost harder than it can answer comfortably.
+TAILGATED_SPEC = {
+    "name": "tailgated", "dt": 0.1, "duration": 6.0,
+    "lanes": [SWERVE_SPEC["lanes"][0]],
+    "ego": {"route": ["east"], "start_s": 100.0, "speed": 12.0},
+    "agents": [{"id": 5, "lane": "east", "start_s": 80.0, "speed": 12.0, "size": [4.6, 1.9, 1.6]},  # behind
+               {"id": 9, "lane": "east", "start_s": 300.0, "speed": 12.0, "size": [4.6, 1.9, 1.6]}],  # far ahead
+}
 
 
 @dataclass(frozen=True)
@@ -51,6 +61,7 @@ class Case:
     spec: dict | None = None
     planner: str = "idm"
     planner_params: dict = field(default_factory=lambda: {"target_speed": 14.0})
+    reactive: bool = False  # traffic.reactive
 
 
 CASES = (
@@ -67,6 +78,9 @@ CASES = (
     Case("driving_direction", 0.99, bag=None, spec=TWO_WAY_SPEC, planner=EVADER, planner_params={"offset": 3.5}),
     # a ghost ahead, and the car beside it where it would swerve to: boxed in, it falls back to braking
     Case("planner_failure", 0.99, bag=None, spec=SWERVE_SPEC, planner=EVADER, planner_params={"offset": 3.5}),
+    # a ghost ahead: the ego brakes at 6 m/s², and the car behind it must brake harder than 4.05 m/s²
+    Case("forced_braking", 0.98, bag=None, spec=TAILGATED_SPEC,
+         planner_params={"target_speed": 12.0, "max_decel": 6.0}, reactive=True),
 )
 
 
@@ -75,7 +89,7 @@ def attack(case: Case, planner: str | None = None):
     scenario = read_scenario(REPO / "bags" / case.bag) if case.bag else build_scenario(case.spec)
     params = load_params(REPO / "config" / "idm_lane_following.yaml").with_values(**{
         "rule.name": case.rule, "errors.kinds": "all", "search.budget": BUDGET, "planner": planner or case.planner,
-        "planner_params": {} if planner else case.planner_params})
+        "planner_params": {} if planner else case.planner_params, "traffic.reactive": case.reactive})
     return run_attack(scenario, params, progress=False)
 
 

@@ -1,0 +1,239 @@
+"""Traffic that reacts to the ego (`traffic.reactive`): recorded paths, speeds from IDM.
+
+Replayed traffic, the default and the paper's, moves every agent as it was recorded whatever the ego
+does. Reactive traffic keeps each agent's recorded path (the positions it was recorded at, and the
+frames it appears and leaves) and simulates only its progress along that path, as nuPlan's IDM
+agents follow their recorded paths:
+
+- an agent on its recording replays it exactly while IDM toward its leader would not brake (the gap
+  at least IDM's desired gap s*);
+- otherwise it moves at IDM's speed: it brakes behind its leader, and once free catches up on its
+  recording at most at `accel_max`, never passing it (an agent is never ahead of where it was recorded).
+
+Its leader is the nearest vehicle ahead on its path among the ego and the agents that have left their
+recording. An agent that replays is not a leader: the recording already answers it (recorded
+headways are often below IDM's desired 1.5 s, and IDM toward them would change traffic the ego never
+touched), so an agent the ego never comes near replays its recording to the bit. Longitudinal only:
+no agent changes lane or leaves its path. The frames of a rollout are a function of the recording
+and the ego's states alone (`simulate`), so every backend moves the agents alike.
+"""
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from advperc_ros.core.boxes import BoxSequence
+from advperc_ros.core.geometry import Polyline, wrap_angle
+from advperc_ros.core.parameters import Bounds, parameter
+from advperc_ros.core.scenario import EgoState
+
+REPLAYED, REACTIVE = "replayed", "reactive"  # what a report says of its traffic
+NUPLAN_IDM = "nuPlan idm_agents_observation.yaml"
+DEVIATION = 0.01  # m: an agent this far from its recorded position has deviated (the report lists it)
+
+
+@dataclass(frozen=True)
+class IDMParameters:
+    """The reactive agents' driver model: nuPlan's IDM agents' parameters, and how hard they may brake.
+
+    nuPlan's `target_velocity` (10 m/s) has no counterpart: an agent's free motion is its recording.
+    nuPlan clips an agent's deceleration at `decel_max`, so its agents cannot brake harder than 2 m/s^2
+    and run into anything that does; here IDM's demand is followed up to a careful driver's full
+    braking (`braking_max`), so a follower that had room stops and one that had not shows it."""
+
+    min_gap: float = parameter(1.0, f"{NUPLAN_IDM}: min_gap_to_lead_agent (m)", Bounds(low=0.0, high=50.0))
+    headway_time: float = parameter(1.5, f"{NUPLAN_IDM}: headway_time (s)", Bounds(low=0.0, high=10.0))
+    accel_max: float = parameter(1.0, f"{NUPLAN_IDM}: accel_max (m/s^2)", Bounds(positive=True, high=10.0))
+    decel_max: float = parameter(2.0, f"{NUPLAN_IDM}: decel_max, IDM's comfortable deceleration b (m/s^2)",
+                                 Bounds(positive=True, high=15.0))
+    braking_max: float = parameter(
+        7.59, "UN Regulation No. 157 (ALKS), Annex 4 Appendix 3: the careful and competent driver's full "
+              "braking, 0.774 g (m/s^2)", Bounds(positive=True, high=15.0))
+
+    def desired_gap(self, speed: np.ndarray, closing: np.ndarray) -> np.ndarray:
+        """IDM's desired gap s*(v, dv) (m) at `speed` closing on the leader at `closing` (v - v_lead); the
+        dynamic part held at 0 or above as Treiber's IDM does (nuPlan's form lets a fast leader make it negative)."""
+        dynamic = speed * self.headway_time + speed * closing / (2.0 * math.sqrt(self.accel_max * self.decel_max))
+        return self.min_gap + np.maximum(dynamic, 0.0)
+
+    def acceleration(self, speed: np.ndarray, closing: np.ndarray, gap: np.ndarray) -> np.ndarray:
+        """IDM's acceleration with no desired speed of its own (the recording sets the free motion): accel_max
+        on a free road, below 0 once the gap (clamped at `min_gap`, as nuPlan's) is under the desired one."""
+        ratio = self.desired_gap(speed, closing) / np.maximum(gap, self.min_gap)
+        return self.accel_max * (1.0 - ratio**2)
+
+
+class RecordedPaths:
+    """What reactive traffic reads of a scenario's recording, computed once per scenario: each agent's
+    arc length along its recorded path at every frame (restarting where it appears), its recorded
+    speed, and its path as a polyline for finding the leader on it (None for an agent that never moves)."""
+
+    def __init__(self, agents: BoxSequence) -> None:
+        self.agents = agents
+        valid = agents.valid
+        steps = np.hypot(np.diff(agents.x, axis=0), np.diff(agents.y, axis=0))
+        arc = np.zeros(valid.shape)
+        for k in range(1, valid.shape[0]):  # the arc restarts at each appearance
+            arc[k] = np.where(valid[k - 1] & valid[k], arc[k - 1] + steps[k - 1], 0.0)
+        self.arc = arc
+        self.speed = np.hypot(agents.vx, agents.vy)
+        self._paths: dict[int, Polyline | None] = {}
+
+    def path(self, slot: int) -> Polyline | None:
+        """The polyline of agent `slot`'s recorded positions; None when they hold fewer than two points."""
+        if slot not in self._paths:
+            rows = self.agents.valid[:, slot]
+            points = np.column_stack([self.agents.x[rows, slot], self.agents.y[rows, slot]])
+            try:
+                self._paths[slot] = Polyline(points)
+            except ValueError:  # parked: it has no path to follow
+                self._paths[slot] = None
+        return self._paths[slot]
+
+
+_last_paths: list[RecordedPaths] = []  # the paths of the last recording asked for: a search asks for one
+
+
+def recorded_paths(agents: BoxSequence) -> RecordedPaths:
+    """The `RecordedPaths` of the recording `agents`, computed once for the rollouts of one scenario."""
+    if not _last_paths or _last_paths[0].agents is not agents:
+        _last_paths[:] = [RecordedPaths(agents)]
+    return _last_paths[0]
+
+
+class ReactiveTraffic:
+    """The agents of one rollout under reactive traffic, a frame at a time: `agents` holds the frames
+    so far (frames not reached yet hold the recording), `advance(k, ego)` writes frame k+1 from frame k
+    and the ego's state at frame k. Deterministic in the recording, the parameters and the ego's states."""
+
+    def __init__(self, paths: RecordedPaths, parameters: IDMParameters, dt: float, ego_size: tuple[float, float]) -> None:
+        recorded = paths.agents
+        self.paths, self.parameters, self.dt, self.ego_size = paths, parameters, dt, ego_size
+        self.agents = replace(recorded, **{name: getattr(recorded, name).copy()
+                                           for name in ("x", "y", "yaw", "vx", "vy")})
+        self._progress = paths.arc[0].copy()  # m along each agent's path at the current frame
+        self._speed = paths.speed[0].copy()  # m/s
+        self._behind = np.zeros(recorded.shape[1], dtype=bool)  # behind its recording at the current frame
+        self._start = np.zeros(recorded.shape[1], dtype=int)  # the frame its present appearance began
+
+    def advance(self, k: int, ego: EgoState) -> None:
+        """Frame k+1 of the agents: each moves on from frame k as the module's docstring says."""
+        paths, dt, nxt = self.paths, self.dt, k + 1
+        valid = paths.agents.valid
+        moving_on = valid[k] & valid[nxt]
+        self._start[valid[nxt] & ~valid[k]] = nxt
+        acceleration = self._idm_accelerations(k, ego, moving_on)
+        reacting = moving_on & (self._behind | (acceleration < 0.0))
+        replayed_speed = (paths.arc[nxt] - self._progress) / dt  # the speed that lands on the recording
+        idm_speed = np.maximum(self._speed + np.maximum(acceleration, -self.parameters.braking_max) * dt, 0.0)
+        held_back = reacting & (idm_speed < replayed_speed)
+        progress, speed = paths.arc[nxt].copy(), paths.speed[nxt].copy()
+        progress[held_back] = self._progress[held_back] + idm_speed[held_back] * dt
+        speed[held_back] = idm_speed[held_back]
+        self._progress, self._speed, self._behind = progress, speed, held_back
+        for slot in np.flatnonzero(held_back).tolist():
+            self._place(nxt, slot)
+
+    def _place(self, frame: int, slot: int) -> None:
+        """Agent `slot` at frame `frame` where its simulated progress puts it on its recorded path,
+        between the two recorded frames around it, moving along its heading there at its simulated speed."""
+        paths, agents = self.paths, self.agents
+        arc = paths.arc[self._start[slot] : frame + 1, slot]
+        s = self._progress[slot]
+        before = min(int(np.searchsorted(arc, s, side="right")) - 1, arc.size - 2) + self._start[slot]
+        span = paths.arc[before + 1, slot] - paths.arc[before, slot]
+        share = (s - paths.arc[before, slot]) / span if span > 0.0 else 0.0
+        recorded = paths.agents
+        for name in ("x", "y"):
+            values = getattr(recorded, name)[:, slot]
+            getattr(agents, name)[frame, slot] = values[before] + share * (values[before + 1] - values[before])
+        yaw = recorded.yaw[before, slot] + share * wrap_angle(recorded.yaw[before + 1, slot] - recorded.yaw[before, slot])
+        agents.yaw[frame, slot] = wrap_angle(yaw)
+        agents.vx[frame, slot] = self._speed[slot] * math.cos(yaw)
+        agents.vy[frame, slot] = self._speed[slot] * math.sin(yaw)
+
+    def _idm_accelerations(self, k: int, ego: EgoState, moving_on: np.ndarray) -> np.ndarray:
+        """(N,) IDM's acceleration of each agent moving on from frame k toward its leader (module
+        docstring), accel_max for one without a leader; a leader counts once its box is on the agent's
+        path (its centre within both half widths of it) and ahead of the agent's centre."""
+        parameters, agents = self.parameters, self.agents
+        out = np.full(moving_on.shape, parameters.accel_max)
+        ego_length, ego_width = self.ego_size
+        leaders = [(ego.x, ego.y, ego.yaw, ego.v, ego_length, ego_width, -1)]
+        for slot in np.flatnonzero(self._behind & moving_on).tolist():
+            leaders.append((agents.x[k, slot], agents.y[k, slot], agents.yaw[k, slot], self._speed[slot],
+                            agents.length[k, slot], agents.width[k, slot], slot))
+        lead = np.array([row[:6] for row in leaders])  # (L, 6)
+        # no leader farther than IDM's desired gap behind a stopped leader can make an agent brake
+        reach = parameters.desired_gap(self._speed, self._speed) + agents.length[k] + lead[:, 4:5].max()
+        near = np.hypot(agents.x[k][None, :] - lead[:, :1], agents.y[k][None, :] - lead[:, 1:2]) <= reach
+        for slot in np.flatnonzero(moving_on & near.any(axis=0)).tolist():
+            path = self.paths.path(slot)
+            if path is None:
+                continue
+            others = [i for i in np.flatnonzero(near[:, slot]).tolist() if leaders[i][6] != slot]
+            if not others:
+                continue
+            points = np.vstack([[agents.x[k, slot], agents.y[k, slot]], lead[others, :2]])
+            stations, lateral = path.project(points)
+            ahead = stations[1:] - stations[0]
+            on_path = (ahead > 0.0) & (np.abs(lateral[1:]) < 0.5 * (agents.width[k, slot] + lead[others, 5]))
+            if not on_path.any():
+                continue
+            gaps = ahead - 0.5 * (agents.length[k, slot] + lead[others, 4])
+            nearest = int(np.argmin(np.where(on_path, gaps, np.inf)))
+            row = lead[others[nearest]]
+            lead_speed = row[3] * math.cos(row[2] - float(path.heading(stations[1 + nearest])))
+            speed = self._speed[slot]
+            out[slot] = float(parameters.acceleration(np.asarray(speed), np.asarray(speed - lead_speed),
+                                                      np.asarray(gaps[nearest])))
+        return out
+
+
+def simulate(paths: RecordedPaths, parameters: IDMParameters, dt: float, ego_size: tuple[float, float],
+             ego: np.ndarray) -> BoxSequence:
+    """The agents of a rollout whose ego states were `ego` (K, 4: x, y, yaw, v at frames 0..K-1): the same
+    frames `ReactiveTraffic` wrote as the rollout ran, so a backend that has only the ego's states (the
+    graph's, a checkpoint's) holds the truth its rollout was judged on. Frames from K on hold the recording."""
+    traffic = ReactiveTraffic(paths, parameters, dt, ego_size)
+    for k in range(min(ego.shape[0], paths.agents.shape[0]) - 1):
+        traffic.advance(k, EgoState(*(float(value) for value in ego[k])))
+    return traffic.agents
+
+
+@dataclass(frozen=True)
+class Deviation:
+    """An agent that left its recording in a rollout: how far behind it fell and how hard it braked,
+    so a reviewer sees who reacted to the ego and how much."""
+
+    agent: int  # its id
+    frames: int  # frames it was off its recording by more than DEVIATION
+    max_distance: float  # m, the farthest it was from its recorded position
+    hardest_braking: float  # m/s^2, its largest deceleration (0 when it never slowed)
+
+
+def deviations(recorded: BoxSequence, simulated: BoxSequence, dt: float) -> tuple[Deviation, ...]:
+    """The agents of `simulated` (frames 0..K-1 of a rollout) that left their recording, in slot order."""
+    frames = simulated.shape[0]
+    rec = recorded.frames(frames)
+    off = np.where(rec.valid, np.hypot(simulated.x - rec.x, simulated.y - rec.y), 0.0)
+    braking = agent_decelerations(simulated, dt)
+    out = []
+    for slot in np.flatnonzero((off > DEVIATION).any(axis=0)).tolist():
+        first = int(np.argmax(rec.valid[:, slot]))
+        out.append(Deviation(int(rec.ids[first, slot]), int(np.count_nonzero(off[:, slot] > DEVIATION)),
+                             float(off[:, slot].max()), float(max(braking[:, slot].max(initial=0.0), 0.0))))
+    return tuple(out)
+
+
+def agent_decelerations(agents: BoxSequence, dt: float) -> np.ndarray:
+    """(K, N) each agent's deceleration (m/s^2, > 0 braking) from frame k-1 to frame k, 0 where it is absent at
+    either and at the first frame: the speed's change per frame, as the traffic model steps it, and causal (a
+    rule monitor reads a frame's value on the drive so far)."""
+    speed = np.hypot(agents.vx, agents.vy)
+    out = np.zeros(agents.shape)
+    if agents.shape[0] > 1:
+        present = agents.valid[1:] & agents.valid[:-1]
+        out[1:] = np.where(present, (speed[:-1] - speed[1:]) / dt, 0.0)
+    return out

@@ -139,15 +139,16 @@ def _rule_path(name: str, **style) -> dict:
 
 
 def foxglove_layout(target: tuple[float, float] = (0.0, 0.0), profile: Profile | None = None,
-                    rule: str = DEFAULT_RULE) -> dict:
+                    rule: str = DEFAULT_RULE, reactive: bool = False) -> dict:
     """A Foxglove layout for an attack bag: a top-down 3D panel over `target` (map frame) with each
     layer on its own topic in its own colour (the bag's marker colours), the attacked `rule` over time, every
     rule of the rulebook over time (in Foxglove's palette) and the JSON summary; under a stack's interface
     `profile`, a raw-messages panel for each layer the bag also holds in the stack's own types (Foxglove draws
-    no Autoware or vision_msgs objects in 3D, but reads their schemas from the MCAP file).
+    no Autoware or vision_msgs objects in 3D, but reads their schemas from the MCAP file); under `reactive`
+    traffic, the recording the agents left too.
     config/foxglove_layout.json is this layout over the origin, for our own types and the collision rule."""
-    markers = {topics.GROUND_TRUTH: "ground_truth", topics.RECORDED_AGENTS: "recorded", topics.PERCEPTION: "perception",
-               topics.TRACKING: "tracking", topics.LANES: "lanes"}
+    markers = {topics.GROUND_TRUTH: "ground_truth", **({topics.RECORDED_AGENTS: "recorded"} if reactive else {}),
+               topics.PERCEPTION: "perception", topics.TRACKING: "tracking", topics.LANES: "lanes"}
     layers = {topic: {"visible": True, "color": _hex(cdr.COLORS[kind]), "showOutlines": True}
               for topic, kind in markers.items()}
     layers[topics.ODOMETRY] = {"visible": True, "type": "arrow", "arrowScale": [4.0, 0.8, 0.8], "color": _hex(EGO_COLOR),
@@ -266,7 +267,8 @@ def write_results(output: Path, outcome: AttackOutcome, bag_path: Path) -> dict:
             write_attack_bag(staging / BAG_DIR, outcome, text)
             watched = tuple(outcome.attack_rollout.ego[outcome.violation_frame, :2])
             write_foxglove_layout(staging / FOXGLOVE_LAYOUT, foxglove_layout(
-                watched, load_profile(outcome.params.graph.interface), outcome.attacked_rule))
+                watched, load_profile(outcome.params.graph.interface), outcome.attacked_rule,
+                outcome.attack_rollout.agents is not None))
             plots.birds_eye_view(staging / BEV_PLOT, outcome)
             plots.attack_animation(staging / ANIMATION, outcome)
     return report

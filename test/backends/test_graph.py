@@ -233,12 +233,15 @@ def test_each_node_gets_exactly_its_parameters(tmp_path):
                                   "graph.interface": "advperc", "graph.drive": "messages", "graph.timeout": 10.0}
     assert by_node["scenario_player"] == {"bag": str(BAG), "stop_at_collision": True, "graph.timeout": 10.0,
                                           "graph.interface": "advperc", "graph.drive": "messages", "ego.length": 4.6,
-                                          "ego.width": 1.9}
+                                          "ego.width": 1.9, "traffic.reactive": False, "traffic.min_gap": 1.0,
+                                          "traffic.headway_time": 1.5, "traffic.accel_max": 1.0,
+                                          "traffic.decel_max": 2.0, "traffic.braking_max": 7.59}
     assert by_node["planner"]["planner_params.target_speed"] == 14.0
     from advperc_ros.params import RULE_THRESHOLDS
 
     assert by_node["planner"]["planner"] == "idm" and by_node["rule_monitor"] == {
-        "ego.length": 4.6, "ego.width": 1.9, **{name: params.get(name) for name in RULE_THRESHOLDS}}
+        "bag": str(BAG), "ego.length": 4.6, "ego.width": 1.9, "traffic.reactive": False,
+        **{name: params.get(name) for name in RULE_THRESHOLDS}}
     for spec in SPECS:  # what the launch file hands a node is what the node accepts, unchanged
         values, planner_params = node_values(by_node[spec.name], spec.params, spec.name, spec.planner_params)
         assert values == {name: by_node[spec.name][name] for name in spec.params}

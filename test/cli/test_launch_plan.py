@@ -77,7 +77,8 @@ def test_external_nodes_are_left_out_and_graph_arguments_override_the_params_fil
 
 @pytest.mark.parametrize("words, line", [
     ([f"params:={PARAMS}", "planer:=external"],
-     "unknown launch argument 'planer' (arguments: params, planner, tracker, output, resume, interface, drive, rule)"),
+     "unknown launch argument 'planer' (arguments: params, planner, tracker, output, resume, interface, drive, rule, "
+     "traffic)"),
     ([], "launch argument 'params' is required: params:=PARAMS.yaml (as for `advperc attack`)"),
     ([f"params:={PARAMS}", "tracker:=theirs"], "launch argument 'tracker' must be ours or external, got 'theirs'"),
     ([f"params:={PARAMS}", "resume:=yes"], "launch argument 'resume' must be true or false, got 'yes'"),
@@ -102,3 +103,12 @@ def test_a_rule_argument_is_the_orchestrator_s_rule_and_is_checked():
     assert plan({"params": PARAMS, "rule": "phantom_braking"}).overrides["rule.name"] == "phantom_braking"
     with pytest.raises(ParamsError, match="launch argument 'rule' must be one of collision, at_fault_collision"):
         plan({"params": PARAMS, "rule": "speeding"})
+
+
+def test_a_traffic_argument_reaches_the_orchestrator_and_the_nodes_that_move_and_judge_the_agents():
+    launched = plan({"params": PARAMS, "traffic": "reactive"})
+    assert launched.overrides["traffic.reactive"] is True
+    parameters = {name: node_parameters for name, node_parameters, _ in launched.nodes}
+    assert parameters["scenario_player"]["traffic.reactive"] is True and parameters["rule_monitor"]["traffic.reactive"]
+    assert plan({"params": PARAMS}).overrides.get("traffic.reactive") is None  # the params file's, when not given
+    assert main([f"params:={PARAMS}", "traffic:=ractive"]) == 2  # one line: must be reactive or replayed

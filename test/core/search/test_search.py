@@ -376,7 +376,7 @@ def test_random_search_best_metric_non_decreasing(random_runs, initial_mode):
 def test_random_search_metric_is_the_objective(random_runs):
     problem, recorder, _ = random_runs[0]
     for (errors, result), row in zip(recorder.calls, problem.log):
-        scores = problem.scores(errors, result.num_frames, result.ego_xy)
+        scores = problem.scores(errors, result)
         assert row.metric == scores.nds_t
         assert row.nds == scores.nds
 

@@ -145,3 +145,22 @@ def test_an_attack_killed_among_its_phantom_obstacles_resumes_to_the_uninterrupt
     _, err = resumed.communicate(timeout=600)
     assert resumed.returncode == 0, err
     assert _report(output) == _report(tmp_path / "whole")
+
+
+def test_a_reactive_attack_killed_mid_search_resumes_to_the_uninterrupted_report(tmp_path):
+    """Under reactive traffic the checkpoint holds the ego's states only; the resumed rollouts' agents are rebuilt
+    from them (`traffic.simulate`), so the report is the uninterrupted one, agents that reacted and all."""
+    params = write_params(tmp_path / "p.yaml", REPO)
+    whole = _attack(params, "--reactive", "--output", str(tmp_path / "whole"))
+    _, err = whole.communicate(timeout=600)
+    assert whole.returncode == 0, err
+    output = tmp_path / "out"
+    run = _attack(params, "--reactive", "--output", str(output))
+    _kill_at(run, output, 6)
+    if output.exists():
+        pytest.skip("the attack finished before the kill")
+    resumed = _attack(params, "--reactive", "--resume", str(output))
+    _, err = resumed.communicate(timeout=600)
+    assert resumed.returncode == 0, err
+    expected = _report(tmp_path / "whole")
+    assert _report(output) == expected and expected["traffic"] == "reactive"

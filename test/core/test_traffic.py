@@ -132,3 +132,20 @@ def test_a_contact_from_behind_is_the_ego_s_fault_only_when_it_braked_harder_tha
     assert np.array_equal(reactive[:, 0], ~braked)  # reactive: only where the ego did not brake too hard
     gentle = np.maximum(12.0 - 2.0 * dt * np.arange(frames), 0.0)
     assert not braked_too_hard(gentle, dt).any()
+
+
+def test_the_batched_projection_is_polyline_project_to_the_bit():
+    """RecordedPaths.project does every agent's Polyline.project (and Polyline.heading's segment) at once."""
+    rng = np.random.default_rng(7)
+    scenario = scene([{"id": 1, "start_s": 60.0, "speed": 12.0}, {"id": 2, "start_s": 10.0, "speed": 0.0},
+                      {"id": 3, "start_s": 20.0, "speed": [[0.0, 6.0], [4.0, 15.0]]}], lane=CURVED, ego_s=85.0)
+    paths = RecordedPaths(scenario.agents)
+    assert not paths.moves(1) and paths.moves(0) and paths.moves(2)  # agent 2 is parked
+    slots = rng.choice([0, 2], size=200)
+    points = rng.uniform([-120.0, -20.0], [90.0, 220.0], size=(200, 2))
+    stations, lateral, directions = paths.project(slots, points)
+    for i, slot in enumerate(slots.tolist()):
+        path = Polyline(np.column_stack([scenario.agents.x[:, slot], scenario.agents.y[:, slot]]))
+        s, off = path.project(points[i : i + 1])
+        assert (stations[i], lateral[i]) == (s[0], off[0])
+        assert np.arctan2(directions[i, 1], directions[i, 0]) == path.heading(s[0])

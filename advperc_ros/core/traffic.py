@@ -7,8 +7,9 @@ agents follow their recorded paths:
 
 - an agent on its recording replays it exactly while IDM toward its leader would not brake (the gap
   at least IDM's desired gap s*);
-- otherwise it moves at IDM's speed: it brakes behind its leader, and once free catches up on its
-  recording at most at `accel_max`, never passing it (an agent is never ahead of where it was recorded).
+- otherwise it moves at IDM's speed: it brakes behind its leader, and once free heads back to its
+  recording (the recording's speed plus its lag over `headway_time`, changing speed at most at
+  `accel_max` and `decel_max`), never passing it: an agent is never ahead of where it was recorded.
 
 Its leader is the nearest vehicle ahead on its path among the ego and the agents that have left their
 recording. An agent that replays is not a leader: the recording already answers it (recorded
@@ -81,7 +82,7 @@ class RecordedPaths:
             arc[k] = np.where(valid[k - 1] & valid[k], arc[k - 1] + steps[k - 1], 0.0)
         self.arc = arc
         self.speed = np.hypot(agents.vx, agents.vy)
-        paths = []
+        paths: list[Polyline | None] = []
         for slot in range(valid.shape[1]):
             rows = valid[:, slot]
             try:
@@ -157,18 +158,23 @@ class ReactiveTraffic:
 
     def advance(self, k: int, ego: EgoState) -> None:
         """Frame k+1 of the agents: each moves on from frame k as the module's docstring says."""
-        paths, dt, nxt = self.paths, self.dt, k + 1
+        paths, dt, nxt, p = self.paths, self.dt, k + 1, self.parameters
         valid = paths.agents.valid
         moving_on = valid[k] & valid[nxt]
         self._start[valid[nxt] & ~valid[k]] = nxt
         acceleration = self._idm_accelerations(k, ego, moving_on)
-        reacting = moving_on & (self._behind | (acceleration < 0.0))
-        replayed_speed = (paths.arc[nxt] - self._progress) / dt  # the speed that lands on the recording
-        idm_speed = np.maximum(self._speed + np.maximum(acceleration, -self.parameters.braking_max) * dt, 0.0)
-        held_back = reacting & (idm_speed < replayed_speed)
-        progress, speed = paths.arc[nxt].copy(), paths.speed[nxt].copy()
-        progress[held_back] = self._progress[held_back] + idm_speed[held_back] * dt
-        speed[held_back] = idm_speed[held_back]
+        recorded_speed = (paths.arc[nxt] - paths.arc[k]) / dt  # the recording's speed over this step
+        landing_speed = (paths.arc[nxt] - self._progress) / dt  # the speed that lands on the recording
+        braking = np.maximum(self._speed + np.maximum(acceleration, -p.braking_max) * dt, 0.0)  # IDM's
+        # behind its recording: back to it over the headway time, at most at the comfortable rates
+        lag = paths.arc[k] - self._progress
+        catching_up = np.clip(recorded_speed + lag / max(p.headway_time, dt), self._speed - p.decel_max * dt,
+                              self._speed + p.accel_max * dt)
+        allowed = np.where(self._behind, np.minimum(catching_up, braking), braking)
+        held_back = moving_on & (self._behind | (acceleration < 0.0)) & (allowed < landing_speed)
+        progress, speed = paths.arc[nxt].copy(), paths.speed[nxt].copy()  # on its recording: its box's speed
+        progress[held_back] = self._progress[held_back] + allowed[held_back] * dt
+        speed[held_back] = allowed[held_back]
         self._progress, self._speed, self._behind = progress, speed, held_back
         for slot in np.flatnonzero(held_back).tolist():
             self._place(nxt, slot)
@@ -262,7 +268,7 @@ def deviations(recorded: BoxSequence, simulated: BoxSequence, dt: float) -> tupl
     frames = simulated.shape[0]
     rec = recorded.frames(frames)
     off = np.where(rec.valid, np.hypot(simulated.x - rec.x, simulated.y - rec.y), 0.0)
-    braking = agent_decelerations(simulated, dt)
+    braking = agent_decelerations(simulated, rec, dt)
     out = []
     for slot in np.flatnonzero((off > DEVIATION).any(axis=0)).tolist():
         first = int(np.argmax(rec.valid[:, slot]))
@@ -271,13 +277,18 @@ def deviations(recorded: BoxSequence, simulated: BoxSequence, dt: float) -> tupl
     return tuple(out)
 
 
-def agent_decelerations(agents: BoxSequence, dt: float) -> np.ndarray:
-    """(K, N) each agent's deceleration (m/s^2, > 0 braking) from frame k-1 to frame k, 0 where it is absent at
-    either and at the first frame: the speed's change per frame, as the traffic model steps it, and causal (a
-    rule monitor reads a frame's value on the drive so far)."""
-    speed = np.hypot(agents.vx, agents.vy)
+def agent_decelerations(agents: BoxSequence, recorded: BoxSequence, dt: float) -> np.ndarray:
+    """(K, N) how hard each agent of `agents` brakes (m/s^2, > 0 braking) at frame k while it is off its recording
+    `recorded` (the traffic model holds it back: frames where it replays, and the frame it lands back on its
+    recording, read 0): the fall of its speed from frame k-1 to k, which off its recording is the model's own
+    (IDM toward its leader, or heading back to its recording), so nothing of a recording's own noise (its box
+    velocities, its positions' jitter) reads as a reaction. Causal: a rule monitor reads a frame's value on the
+    drive so far."""
     out = np.zeros(agents.shape)
     if agents.shape[0] > 1:
-        present = agents.valid[1:] & agents.valid[:-1]
-        out[1:] = np.where(present, (speed[:-1] - speed[1:]) / dt, 0.0)
+        frames = agents.shape[0]
+        rec = recorded.frames(frames)
+        off = agents.valid & (np.hypot(agents.x - rec.x[:frames], agents.y - rec.y[:frames]) > 0.0)
+        speed = np.hypot(agents.vx, agents.vy)
+        out[1:] = np.where(off[1:] & agents.valid[:-1], (speed[:-1] - speed[1:]) / dt, 0.0)
     return out

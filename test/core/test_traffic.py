@@ -46,7 +46,7 @@ def test_a_follower_brakes_for_an_ego_that_stops_where_replay_drives_into_it():
     assert gap.min() >= 0.9 * IDMParameters().min_gap  # it stops behind the ego, about IDM's least gap away
     speed = np.hypot(reacted.agents.vx[:, 0], reacted.agents.vy[:, 0])
     assert speed[-1] < 0.5 and speed[0] == pytest.approx(12.0)  # creeping up to IDM's least gap
-    assert agent_decelerations(reacted.agents, scenario.dt)[:, 0].max() <= IDMParameters().braking_max + 1e-9
+    assert agent_decelerations(reacted.agents, scenario.agents, scenario.dt)[:, 0].max() <= IDMParameters().braking_max + 1e-9
 
 
 def test_an_agent_ahead_of_the_ego_is_unchanged_to_the_bit():
@@ -109,7 +109,7 @@ def test_forced_braking_is_the_hardest_braking_the_ego_forces_on_an_agent():
     scenario = scene([{"id": 1, "start_s": 185.0, "speed": 12.0}])  # 15 m behind: it must brake hard
     hard = drive(scenario, Braking(7.0))
     value = evaluate(ForcedBraking(), rule_inputs(hard, scenario, REACTIVE))
-    forced = agent_decelerations(hard.agents, scenario.dt)[: hard.num_frames, 0].max()
+    forced = agent_decelerations(hard.agents, scenario.agents, scenario.dt)[: hard.num_frames, 0].max()
     assert forced > 4.05 and value.violated and value.value == pytest.approx(4.05 - forced)
     gentle = drive(scenario, Braking(1.5))
     assert not evaluate(ForcedBraking(), rule_inputs(gentle, scenario, REACTIVE)).violated

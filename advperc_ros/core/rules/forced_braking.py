@@ -3,9 +3,10 @@
 The follower's side of phantom braking: under reactive traffic (core.traffic) an agent brakes for the
 ego, and braking beyond nuPlan's hardest comfortable braking (ego_lon_acceleration's min_lon_accel,
 4.05 m/s^2, the bound hard_braking holds the ego to) is a hazard the ego caused, whether or not the
-follower then stops in time. An agent's deceleration counts where it exceeds its recording's at the
-same frame (the braking is the model's answer, not the recorded driver's). r = bound - the hardest
-such deceleration of any agent; +inf at every frame of replayed traffic, where no agent answers the ego.
+follower then stops in time. An agent's braking counts while it is off its recording (`traffic.
+agent_decelerations`): there it is the model's answer to the ego, not the recorded driver's. r = bound
+- the hardest such braking of any agent (the bound itself where none brakes); +inf at every frame of
+replayed traffic, where no agent answers the ego.
 """
 
 from dataclasses import dataclass
@@ -40,7 +41,5 @@ class ForcedBraking(ParameterisedRule):
     def per_frame(self, inputs: RuleInputs, reference: RuleInputs | None = None) -> np.ndarray:
         if inputs.recorded is None:
             return np.full(inputs.num_frames, np.inf)
-        simulated = agent_decelerations(inputs.agents, inputs.dt)
-        recorded = agent_decelerations(inputs.recorded, inputs.dt)
-        forced = np.where(simulated > recorded, simulated, -np.inf).max(axis=1, initial=-np.inf)
-        return self.parameters.max_deceleration - forced
+        braking = agent_decelerations(inputs.agents, inputs.recorded, inputs.dt)
+        return self.parameters.max_deceleration - braking.max(axis=1, initial=0.0)

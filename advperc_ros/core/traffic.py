@@ -99,13 +99,10 @@ class RecordedPaths:
             if path is not None:
                 n = self.segments[slot]
                 self._starts[slot, :n] = path.points[:-1]
-                self._directions[slot, :n] = path._seg_dir
+                segments = np.diff(path.points, axis=0)
+                self._directions[slot, :n] = segments / np.linalg.norm(segments, axis=1)[:, None]  # as Polyline's
                 self._stations[slot, : n + 1] = path.stations
                 self._lengths[slot, :n] = np.diff(path.stations)
-
-    def moves(self, slot: int) -> bool:
-        """Whether agent `slot`'s recording has a path (two distinct positions or more)."""
-        return bool(self.segments[slot] > 0)
 
     def project(self, slots: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(arc length, signed lateral offset, unit direction of the segment it falls on) of each point `xy` (P, 2)

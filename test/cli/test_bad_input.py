@@ -207,6 +207,8 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "`bag` missing", attack(bag=None), "'bag' is required"),
         Case("advperc attack P.yaml", "`rule.name` not a rule of the rulebook", attack(**{"rule.name": "speeding"}), "'rule.name' must be one of"),
         Case("advperc attack P.yaml", "`rule.at_fault_only` with another rule than the collision rule", attack(**{"rule.name": "progress", "rule.at_fault_only": True}), "'rule.at_fault_only' is true, but it is of the collision rule"),
+        Case("advperc attack P.yaml", "`traffic.braking_max` 0 (a traffic parameter out of its bounds)", attack(**{"traffic.braking_max": 0.0}), "'traffic.braking_max' must be positive"),
+        Case("advperc attack P.yaml", "`traffic.reactive` not a boolean", attack(**{"traffic.reactive": "yes"}), "'traffic.reactive' must be of type bool"),
         Case("advperc attack P.yaml", "`bag` names nothing", attack(bag="bags/no_such_bag"), "'bag' names 'bags/no_such_bag'"),
         Case("advperc attack P.yaml", "`bag` a number", attack(bag=3), "'bag' must be of type str"),
         Case("advperc attack P.yaml", "`planner` unknown", attack(planner="fast"), "unknown planner 'fast'", None),

@@ -530,7 +530,9 @@ def _in_workspace(workspace: Path, command: str, domain: int) -> subprocess.Pope
 
 
 @pytest.mark.parametrize("arguments, line", [
-    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, tracker, output, resume, interface, drive, rule)"),
+    ("planer:=external", "unknown launch argument 'planer' (arguments: params, planner, tracker, output, resume, "
+                         "interface, drive, rule, traffic)"),
+    ("traffic:=ractive", "launch argument 'traffic' must be reactive or replayed, got 'ractive'"),
     ("interface:=ros1", "launch argument 'interface' must be one of advperc, autoware, autoware_tracked, vision_msgs, "
                         "got 'ros1'"),
     ("output:=x", "{missing}: no such params file"),

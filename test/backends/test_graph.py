@@ -470,6 +470,17 @@ def test_graph_search_under_reactive_traffic_writes_the_embedded_report(tmp_path
     assert isinstance(reports[0]["deviated_agents"], list)
     markdown = (outputs["graph"] / "report.md").read_text()
     assert "Traffic reacts to the ego" in markdown
+    from advperc_ros.ros.bag import read_objects  # noqa: PLC0415
+    from advperc_ros.ros.topics import GROUND_TRUTH, RECORDED_AGENTS  # noqa: PLC0415
+
+    attack_bag = outputs["embedded"] / "attack"
+    _, recorded = read_objects(attack_bag, RECORDED_AGENTS)  # the recording beside the agents as they drove
+    _, drove = read_objects(attack_bag, GROUND_TRUTH)
+    original = read_scenario(bag).agents
+    assert np.array_equal(recorded.x, original.x[: recorded.shape[0]]) and drove.shape == recorded.shape
+    assert (not np.array_equal(drove.x, recorded.x)) == bool(reports[0]["deviated_agents"])
+    layout = json.loads((outputs["embedded"] / "foxglove_layout.json").read_text())
+    assert RECORDED_AGENTS in layout["configById"]["3D!attack"]["topics"]
 
 
 def test_an_inconclusive_warm_up_is_sent_again_before_the_search_starts(tmp_path, scenario, monkeypatch):

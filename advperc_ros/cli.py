@@ -36,7 +36,7 @@ def cmd_attack(args: argparse.Namespace) -> int:
     params = load_params(args.params)
     overrides = {"seed": args.seed, "rollout_backend": args.backend, "objective": args.objective,
                  "search.method": args.method, "errors.kinds": args.errors, "rule.name": args.rule,
-                 "traffic.reactive": args.reactive}
+                 "traffic.reactive": args.reactive, "fork_memory": args.fork_memory}
     params = params.with_values(**{name: value for name, value in overrides.items() if value is not None})
     if args.resume is not None and args.output is not None and Path(args.resume) != Path(args.output):
         raise ParamsError(f"--resume {args.resume} and --output {args.output}: give the folder once")
@@ -369,6 +369,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "driving rule to attack (docs/rules.md): " + ", ".join(RULES))
     attack.add_argument("--reactive", action="store_const", const=True, help="override the params file's "
                         "traffic.reactive: agents keep their recorded paths but brake for the ego (docs/traffic.md)")
+    attack.add_argument("--fork-memory", type=int, metavar="MB", help="override the params file's fork_memory: MB of "
+                        "snapshots each process keeps to fork rollouts from (0: every rollout from frame 0)")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
     attack.add_argument("--resume", metavar="OUTPUT", type=_path,
                         help="finish the interrupted attack whose results folder was to be "

@@ -43,7 +43,8 @@ SEARCH = {"heuristic_iterations": "search.heuristic.iterations", "joint_max_agen
           "budget": "search.budget"}
 ERRORS = {name: f"errors.{name}" for name in error_bounds()}  # every kind's bounds; and `kinds`, from errors.kinds
 EGO = {"ego_length": "ego.length", "ego_width": "ego.width"}  # of PlanningContext, whose other fields are the scenario's
-EXECUTION = {"backend": "rollout_backend", "workers": "workers", "spawn_nodes": "graph.spawn_nodes",
+EXECUTION = {"backend": "rollout_backend", "workers": "workers", "fork_memory": "fork_memory",
+             "spawn_nodes": "graph.spawn_nodes",
              "drive": "graph.drive", "graph_timeout": "graph.timeout", "domain_id": "dds.domain_id",
              "localhost_only": "dds.localhost_only"}
 TABLES: tuple[tuple[type, Mapping[str, str]], ...] = (
@@ -136,6 +137,7 @@ class ExecutionConfig:
 
     backend: str
     workers: int
+    fork_memory: int  # MB of snapshots per process to fork rollouts from (core.forks); 0: none
     spawn_nodes: bool
     drive: str
     graph_timeout: float

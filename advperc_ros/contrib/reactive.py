@@ -107,6 +107,18 @@ class ReactivePlanner:
     def stats(self) -> PlannerStats:
         return PlannerStats(failures=self._failures, solve_times=tuple(self._solve_times))
 
+    def snapshot(self) -> tuple:
+        """The last plan and its states, the statistics, and what the package's sampler carries from one call to
+        the next: its low-speed mode and desired speed (every other attribute it sets anew in each call)."""
+        sampler = self._sampler
+        return (self._last, self._last_states, self._failures, tuple(self._solve_times), sampler._low_vel_mode,
+                sampler._desired_speed)
+
+    def restore(self, state: tuple) -> None:
+        self._last, self._last_states, self._failures, solve_times, low_speed, desired_speed = state
+        self._solve_times = list(solve_times)
+        self._sampler._low_vel_mode, self._sampler._desired_speed = low_speed, desired_speed
+
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
         if self._last is not None and t - self._last.t[0] < self.config.replan_period - 1e-9:
             return self._last

@@ -26,6 +26,7 @@ import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.ego_motion import follow_plan
+from advperc_ros.core.forks import ROOT, Forks, FrameState, Trunk, next_key
 from advperc_ros.core.perception_errors import PerceptionErrors, inject, inject_frame
 from advperc_ros.core.planners.base import Planner, ReportsStats, Trajectory, planner_stats
 from advperc_ros.core.rules.contact import CollisionRule, excusable
@@ -150,6 +151,20 @@ def judge(result: RolloutResult, scenario: Scenario, config: RolloutConfig) -> R
     return result
 
 
+def identical(a: RolloutResult, b: RolloutResult) -> bool:
+    """Whether two rollouts' results are the same bit for bit, timings aside: what a forked rollout owes a full one."""
+    def same(x: np.ndarray | None, y: np.ndarray | None) -> bool:
+        if x is None or y is None:
+            return x is None and y is None
+        return x.shape == y.shape and x.tobytes() == y.tobytes()
+
+    agents = ("x", "y", "yaw", "vx", "vy", "valid")
+    return (same(a.ego, b.ego) and same(a.distances, b.distances) and same(a.excusable, b.excusable)
+            and a.inconclusive == b.inconclusive and a.planner_failures == b.planner_failures
+            and a.fallback_frames == b.fallback_frames and (a.agents is None) == (b.agents is None)
+            and (a.agents is None or all(same(getattr(a.agents, n), getattr(b.agents, n)) for n in agents)))
+
+
 def true_agents(result: RolloutResult, scenario: Scenario) -> BoxSequence:
     """The true agents of a judged rollout of `scenario`: simulated when traffic reacted, else the recording."""
     return scenario.agents if result.agents is None else result.agents
@@ -227,12 +242,15 @@ def rollout(
     planner: Planner,
     config: RolloutConfig = RolloutConfig(),
     record: bool = False,
+    forks: Forks | None = None,
 ) -> RolloutResult:
     """One run of the stack on the scenario with `errors` injected, agents replaying ground truth and
     only the ego reacting (or, with `config.traffic`, the agents reacting to it too): per frame traffic
     step, rule check, injection, tracking, planning, ego motion.
     Deterministic in its inputs, so an attack found is reproducible and a checkpoint can answer a
-    rollout it already ran. `record` keeps tracks and plans."""
+    rollout it already ran. `record` keeps tracks and plans. With `forks` (and no `record`), it starts
+    from the deepest snapshot of an earlier rollout whose detections it shares up to there (core.forks),
+    and leaves its own snapshots: the same result, bit for bit."""
     clock = time.perf_counter
     stage_times = dict.fromkeys(STAGES, 0.0)
     started = clock()
@@ -240,27 +258,65 @@ def rollout(
         recorded_paths(scenario.agents), config.traffic, scenario.dt, ego_size(config))
     agents = scenario.agents if traffic is None else traffic.agents
     detections = inject(agents, errors).every_frame() if traffic is None else None
-    stage_times["injector"] += clock() - started
+
+    def perceived(k: int, history: BoxSequence) -> dict[str, np.ndarray]:
+        """What the tracker is handed at frame k, the agents of frames 0..k being `history`'s."""
+        frame = detections[k] if detections is not None else inject_frame(history, k, errors)
+        if not config.detection_velocity:
+            frame = {**frame, "vx": np.zeros_like(frame["vx"]), "vy": np.zeros_like(frame["vy"])}
+        return frame
+
     times = scenario.times
     num_frames = scenario.num_frames
-    tracker.reset()
+    cache = forks if forks is not None and forks.enabled and not record else None  # None: no forking
+    fork, key = (None, ROOT) if cache is None else cache.find(
+        lambda k, at: perceived(k, agents if at is None or at.trunk.agents is None else at.trunk.agents), num_frames)
+    stage_times["injector"] += clock() - started
     inconclusive = None
-    try:
-        planner.reset()
-    except (Exception, SystemExit) as exc:  # a plug-in whose reset fails or exits plans nothing: no verdict
-        inconclusive = f"frame 0: planner's reset() raised {type(exc).__name__}: {exc}"
     ego = scenario.ego_start
     ego_states: list[tuple[float, float, float, float]] = []  # x, y, yaw, v at frames 0..k
     distances = np.full((num_frames, agents.shape[1]), np.inf)
-    rule = CollisionRule(agents, config.ego_length, config.ego_width)
     measured = np.zeros(num_frames, dtype=bool)  # frames measured during the drive: they could end it
+    reports_stats = isinstance(planner, ReportsStats)
+    failures_seen, fallback_frames = 0, []
+    if cache is not None and fork is not None and fork.state.frame > 0:
+        try:
+            cache.planner.put(planner, fork.state.planner)
+        except Exception as exc:  # a plug-in's restore() that fails: this and every later rollout from frame 0
+            cache.disable(f"its restore() raised {type(exc).__name__}: {exc}")
+            cache = fork = None
+    first = 0 if fork is None else fork.state.frame
+    if fork is not None and first > 0:
+        state, trunk = fork.state, fork.trunk
+        ego, failures_seen = state.ego, state.failures
+        tracker.restore(state.tracker)
+        if traffic is not None and trunk.agents is not None and state.traffic is not None:
+            traffic.restore(state.traffic, trunk.agents, first)
+        ego_states = [(x, y, yaw, v) for x, y, yaw, v in trunk.ego[:first].tolist()]
+        measured[:first] = trunk.measured[:first]
+        distances[:first][measured[:first]] = trunk.distances[:first][measured[:first]]
+        fallback_frames = list(trunk.fallback_frames[: state.fallbacks])
+    else:
+        tracker.reset()
+        try:
+            planner.reset()
+        except (Exception, SystemExit) as exc:  # a plug-in whose reset fails or exits plans nothing: no verdict
+            inconclusive = f"frame 0: planner's reset() raised {type(exc).__name__}: {exc}"
+            cache = None
+    if forks is not None:
+        forks.last_fork = first if first > 0 else None
+    snapshots: list[tuple[bytes, FrameState]] = []
+    rule = CollisionRule(agents, config.ego_length, config.ego_width)
     tracks_log: list[dict[str, np.ndarray]] = []
     plans_log: list[Trajectory] = []
     last = 0 if inconclusive is not None else num_frames - 1
-    reports_stats = isinstance(planner, ReportsStats)
-    failures_seen, fallback_frames = 0, []
     with plan_alarm(config.plan_timeout) as arm:
-        for k, t in enumerate(times.tolist()):
+        for k in range(first, num_frames):
+            t = float(times[k])
+            if cache is not None and cache.wants(key):
+                snapshots.append((key, FrameState(
+                    k, ego, tracker.snapshot(), cache.planner.take(planner),
+                    None if traffic is None else traffic.snapshot(), failures_seen, len(fallback_frames))))
             ego_states.append((ego.x, ego.y, ego.yaw, ego.v))
             if inconclusive is not None:  # reset() failed
                 break
@@ -268,9 +324,9 @@ def rollout(
             if traffic is not None and k > 0:  # frame k's agents answer the ego at frame k-1
                 traffic.advance(k - 1, EgoState(*ego_states[k - 1]))
                 rule.moved(k)
-            frame = detections[k] if detections is not None else inject_frame(agents, k, errors)
-            if not config.detection_velocity:
-                frame = {**frame, "vx": np.zeros_like(frame["vx"]), "vy": np.zeros_like(frame["vy"])}
+            frame = perceived(k, agents)
+            if cache is not None:
+                key = next_key(key, frame)
             stage_times["injector"] += clock() - started
             started = clock()
             ends = False
@@ -317,6 +373,11 @@ def rollout(
     distances[rest] = rule.distances(ego_path[rest], rest)
     stage_times["rule"] += clock() - started
     stats = planner_stats(planner)
+    if cache is not None:
+        cache.count(first, last + 1)
+        # copies: the result's arrays are the caller's; the agents are read only, as every result's
+        cache.keep(snapshots, Trunk(ego_path.copy(), distances.copy(), measured, tuple(fallback_frames),
+                                    None if traffic is None else traffic.agents))
     return judge(RolloutResult(
         ego=ego_path,
         distances=distances[: last + 1],

@@ -20,7 +20,7 @@ second track while the first coasts on as a phantom until it ages out. Attacks m
 """
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from filterpy.common import Q_discrete_white_noise
@@ -76,6 +76,10 @@ class Tracks:
     def select(self, keep: np.ndarray) -> "Tracks":
         return Tracks(*(np.compress(keep, array, axis=-1) for array in self._arrays()))  # contiguous, as [..., keep] is not
 
+    def copy(self) -> "Tracks":
+        """A copy sharing no array the tracker updates in place."""
+        return Tracks(*(array.copy() for array in self._arrays()))
+
     def extend(self, other: "Tracks") -> "Tracks":
         return Tracks(*(np.concatenate([mine, theirs], axis=-1) for mine, theirs in zip(self._arrays(), other._arrays())))
 
@@ -116,11 +120,16 @@ def _renormalise_heading(heading: np.ndarray) -> None:
 
 
 class ObjectTracker(Protocol):
-    """What a rollout needs of the layer between perception and the planner."""
+    """What a rollout needs of the layer between perception and the planner; `snapshot` and `restore`
+    let a rollout start mid-scenario from the tracker's memory of an earlier one (core.forks)."""
 
     def reset(self) -> None: ...
 
     def step(self, t: float, detections: dict[str, np.ndarray]) -> dict[str, np.ndarray]: ...
+
+    def snapshot(self) -> Any: ...
+
+    def restore(self, state: Any) -> None: ...
 
 
 class NoTracker:
@@ -133,6 +142,12 @@ class NoTracker:
 
     def step(self, t: float, detections: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         return detections
+
+    def snapshot(self) -> None:
+        """No memory to keep."""
+
+    def restore(self, state: None) -> None:
+        """No memory to restore."""
 
 
 def make_tracker(config: TrackerConfig) -> ObjectTracker:
@@ -161,6 +176,15 @@ class Tracker:
                              np.zeros((3, 0)))
         self._t = -np.inf
         self._next_id = 1
+
+    def snapshot(self) -> tuple[Tracks, float, int]:
+        """Every track and the tracker's time and next id: all a later `step` reads of the frames before
+        (the motion models it caches depend on the frame gaps alone)."""
+        return self.tracks.copy(), self._t, self._next_id
+
+    def restore(self, state: tuple[Tracks, float, int]) -> None:
+        tracks, self._t, self._next_id = state
+        self.tracks = tracks.copy()
 
     def _motion_model(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """(F, Q) of one 2x2 block and Q's blocks, for a step of dt, cached: frames come at a fixed

@@ -153,6 +153,17 @@ class ReactiveTraffic:
         self._behind = np.zeros(recorded.shape[1], dtype=bool)  # behind its recording at the current frame
         self._start = np.zeros(recorded.shape[1], dtype=int)  # the frame its present appearance began
 
+    def snapshot(self) -> tuple[np.ndarray, ...]:
+        """The simulation's state at the current frame, beside the frames of `agents` written so far
+        (which a restore takes from a rollout that reached this state: `restore`)."""
+        return self._progress.copy(), self._speed.copy(), self._behind.copy(), self._start.copy()
+
+    def restore(self, state: tuple[np.ndarray, ...], agents: BoxSequence, frames: int) -> None:
+        """The simulation as `snapshot` took it once frames 0..frames-1 of `agents` were written."""
+        self._progress, self._speed, self._behind, self._start = (array.copy() for array in state)
+        for name in ("x", "y", "yaw", "vx", "vy"):
+            getattr(self.agents, name)[:frames] = getattr(agents, name)[:frames]
+
     def advance(self, k: int, ego: EgoState) -> None:
         """Frame k+1 of the agents: each moves on from frame k as the module's docstring says."""
         paths, dt, nxt, p = self.paths, self.dt, k + 1, self.parameters

@@ -303,6 +303,9 @@ class AttackParams:
     search: SearchParams = SearchParams()
     workers: int = _param(1, "embedded backend: processes that run a guided round's rollouts at once; the attack "
                           "is the same whatever the number", low=1, high=256)
+    fork_memory: int = _param(256, "embedded backend: MB of snapshots each process keeps, so that a rollout starts "
+                              "from the frame its detections first differ from an earlier rollout's (0: every rollout "
+                              "from frame 0); the attack is the same whatever the number", low=0, high=1 << 20)
     rollout_backend: str = _param("embedded", "how rollouts run: in this process (embedded) or through the node graph "
                                   "over DDS (graph); both give the same results", choices=("embedded", "graph"))
     dds: DdsParams = DdsParams()
@@ -383,7 +386,8 @@ def _schema(cls: type, prefix: str = "") -> dict[str, Param]:
 
 
 SCHEMA: dict[str, Param] = _schema(AttackParams)
-EXECUTION = ("workers", "rollout_backend", "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes",
+EXECUTION = ("workers", "fork_memory", "rollout_backend",
+             "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes",
              "graph.drive")
 """How rollouts are executed, not what they compute: left out of the report's params and the config
 hash, so the graph and embedded backends give the same report."""

@@ -2,7 +2,8 @@
 
 A team plugs in its own planner as any class with this protocol, named `module:Class` in the
 params file; `registry.load_planner` constructs it as `Class(context, **params)`. A planner may
-also report statistics of the current rollout (`stats()`); one without still works. This module is
+also report statistics of the current rollout (`stats()`) and take and restore snapshots of its state
+(`snapshot()`, `restore()`, so rollouts can fork mid-scenario); one without either still works. This module is
 the interface only: it imports no planner, so any module may import it.
 """
 
@@ -69,6 +70,20 @@ class ReportsStats(Protocol):
 
     def stats(self) -> PlannerStats:
         """Statistics of the current rollout."""
+
+
+@runtime_checkable
+class Snapshots(Protocol):
+    """The optional part of the protocol that lets a rollout start mid-scenario (core.forks): a rollout whose
+    perception matches an earlier one's up to frame k restores the planner as it was at frame k instead of
+    planning frames 0..k-1 again. A planner without it is deep-copied once a forked rollout is checked equal to
+    a full one, or rolled out whole (`forks.PlannerSnapshots.of`)."""
+
+    def snapshot(self) -> object:
+        """All the state a later `plan` reads, as it is now, sharing nothing that `plan` mutates in place."""
+
+    def restore(self, state: object) -> None:
+        """Become the planner that took `state`; `state` stays intact, as it may be restored again."""
 
 
 def planner_stats(planner: Planner) -> PlannerStats | None:

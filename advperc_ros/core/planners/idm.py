@@ -66,6 +66,13 @@ class IDMPlanner:
     def reset(self) -> None:
         self._last: Trajectory | None = None
 
+    def snapshot(self) -> Trajectory | None:
+        """The last plan, its only state (a Trajectory is never changed in place)."""
+        return self._last
+
+    def restore(self, state: Trajectory | None) -> None:
+        self._last = state
+
     def lead(self, s_ego: float, tracks: dict[str, np.ndarray]) -> tuple[float, float] | None:
         """(gap, speed along the route) of the nearest track in the corridor ahead, or None."""
         if len(tracks["x"]) == 0:

@@ -84,6 +84,36 @@ def test_a_rollout_does_not_depend_on_the_rollouts_before_it(stopped_ahead):
     np.testing.assert_array_equal(after.distances, fresh.distances)
 
 
+def test_rollouts_forked_from_its_snapshots_equal_full_ones(stopped_ahead):
+    """Its snapshot() keeps what the package carries from call to call (the low-speed mode among it): rollouts
+    forked from the ground truth's snapshots, where the ego brakes to a crawl behind the car, equal full ones."""
+    from advperc_ros.core.forks import NATIVE, Forks, PlannerSnapshots
+    from advperc_ros.core.rollout import identical
+
+    # the ego sets off at 1 m/s, off the route's centre and heading (where the low-speed mode matters), and
+    # passes 4 m/s on the way: forks early in a rollout start in the low-speed mode, which a sampler whose last
+    # call was fast has left
+    slow = build_scenario({**STOPPED_AHEAD, "duration": 4.0, "ego": {**STOPPED_AHEAD["ego"], "speed": 1.0}})
+    scenario = dataclasses.replace(slow, ego_start=dataclasses.replace(slow.ego_start, y=slow.ego_start.y + 0.5, yaw=0.05))
+    config = RolloutConfig(at_fault_only=True)
+    forked_planner = load_planner(REACTIVE, _context(scenario), {"target_speed": 10.0})
+    full_planner = load_planner(REACTIVE, _context(scenario), {"target_speed": 10.0})
+    forks = Forks(64 << 20, PlannerSnapshots.of(forked_planner))
+    assert forks.planner.how == NATIVE
+    frames, agents = scenario.agents.shape
+    none = PerceptionErrors.none(frames, agents)
+    displaced = none.copy()
+    displaced.dy[25:, 0] = 0.8
+    tensors = [none, none.with_drop(0, 3, frames - 1), none.with_drop(0, 6, 12), displaced, none.with_drop(0, 4, 30)]
+    forked_from, results = [], []
+    for errors in tensors:
+        results.append(rollout(scenario, errors, Tracker(), forked_planner, config, forks=forks))
+        forked_from.append(forks.last_fork)
+        assert identical(results[-1], rollout(scenario, errors, Tracker(), full_planner, config)), forks.last_fork
+    assert all(frame is not None and frame >= 3 for frame in forked_from[1:]), forked_from
+    assert results[0].ego[3, 3] < 4.0 < results[0].ego[-1, 3]  # slow at the first forks, fast at the truth's last call
+
+
 def test_a_standing_ego_drives_off(stopped_ahead):
     """At exactly 0 m/s the package reads its desired speed from a CommonRoad planning problem, which
     the interface does not carry (it raised AttributeError on three Peachtree recordings)."""

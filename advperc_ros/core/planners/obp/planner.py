@@ -40,6 +40,16 @@ class OBPPlanner:
     def stats(self) -> PlannerStats:
         return PlannerStats(failures=self.failures, solve_times=tuple(self._solve_times))
 
+    def snapshot(self) -> tuple:
+        """What `plan` reads and `stats` reports; the plan and the controls are never changed in place, and
+        the solvers keep nothing from one solve to the next."""
+        return (self._last, self._last_controls, self.failures, dict(self.fallbacks), tuple(self._solve_times),
+                self.last_class)
+
+    def restore(self, state: tuple) -> None:
+        self._last, self._last_controls, self.failures, fallbacks, solve_times, self.last_class = state
+        self.fallbacks, self._solve_times = dict(fallbacks), list(solve_times)
+
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
         cfg, setup = self.config, self.setup
         last = self._last

@@ -1,0 +1,121 @@
+"""Forked rollouts against full ones: the default search of each scenario with and without forking, side by
+side in one run (docs/results.md, "Forked rollouts").
+
+Per scenario (a bundled config, or a CommonRoad recording imported into a temporary folder, with each
+`--planners` params file import-commonroad wrote), `advperc attack` twice, with `--fork-memory 0` (every
+rollout from frame 0) and with the params' own fork_memory, the order alternating from one scenario to the
+next as the machine's speed drifts. Prints per attack the wall times, their ratio, the frames the forked
+search drove over the frames of its rollouts, the snapshots' peak memory and each attack's largest resident
+set, and whether the two wrote the same search_log.csv, attack_errors.npz and report.json (wall time aside);
+the last line is the median ratio and whether every pair was identical.
+
+    python benchmarks/fork_bench.py --scenarios obp_overtake
+    python benchmarks/fork_bench.py --scenarios --recordings USA_US101-22_1_T-1 --planners idm obp
+"""
+
+import argparse
+import json
+import os
+import re
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from recordings_bench import params_file
+
+REPO = Path(__file__).resolve().parent.parent
+DATA = REPO.parent / "shared" / "data" / "commonroad"
+BUNDLED = ("idm_lane_following", "idm_overtake_follow", "obp_overtake", "obp_left_turn", "obp_right_turn")
+VOLATILE = {"wall_time_s"}  # of report.json: what two runs of one attack may differ in
+# the CLI, with the embedded backend's summary of what forking saved (a DEBUG line) let through
+CHILD = ("import logging, sys; logging.getLogger('advperc_ros.backends.embedded').setLevel(logging.DEBUG); "
+         "from advperc_ros.cli import main; sys.exit(main(sys.argv[1:]))")
+SUMMARY = re.compile(r"(\d+) of (\d+) rollouts forked from a snapshot; (\d+) of (\d+) frames driven .*at most ([\d.]+) of")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One attack: its wall time, exit code, largest resident set, and what the forked one's log said."""
+
+    wall: float
+    code: int
+    rss_mib: float
+    stderr: str
+
+
+def attack(params: Path, output: Path, fork_memory: int | None) -> Run:
+    """`advperc attack params --output output` in a child process, timed, its own rusage read at its exit."""
+    command = [sys.executable, "-c", CHILD, "attack", str(params), "--quiet", "--output", str(output)]
+    if fork_memory is not None:
+        command += ["--fork-memory", str(fork_memory)]
+    started = time.perf_counter()
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    stderr = child.stderr.read() if child.stderr is not None else ""
+    _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    return Run(time.perf_counter() - started, child.returncode, usage.ru_maxrss / 1024, stderr)
+
+
+def same_results(a: Path, b: Path) -> bool:
+    """Whether two results folders hold the same search log, attack and report (wall time aside)."""
+    for name in ("search_log.csv", "attack_errors.npz"):
+        if (a / name).is_file() != (b / name).is_file():
+            return False
+        if (a / name).is_file() and (a / name).read_bytes() != (b / name).read_bytes():
+            return False
+    reports = [{k: v for k, v in json.loads((f / "report.json").read_text()).items() if k not in VOLATILE}
+               for f in (a, b) if (f / "report.json").is_file()]
+    return len(reports) in (0, 2) and (not reports or reports[0] == reports[1])
+
+
+def measure(name: str, params: Path, scratch: Path, forked_first: bool) -> tuple[float, bool]:
+    """Both attacks of one params file, printed as a table row; (forked/full wall ratio, identical)."""
+    runs: dict[str, Run] = {}
+    for which in (("forked", "full") if forked_first else ("full", "forked")):
+        runs[which] = attack(params, scratch / f"{name}-{which}", None if which == "forked" else 0)
+    forked, full = runs["forked"], runs["full"]
+    identical = forked.code == full.code and same_results(scratch / f"{name}-forked", scratch / f"{name}-full")
+    said = SUMMARY.search(forked.stderr)
+    rollouts, frames, peak = ("?", "?", "?") if said is None else (
+        f"{said[1]}/{said[2]}", f"{int(said[3]) / max(int(said[4]), 1):.2f}", said[5])
+    ratio = forked.wall / full.wall
+    print(f"| {name} | {full.code} | {full.wall:.1f} | {forked.wall:.1f} | {ratio:.2f} | {rollouts} | {frames} | {peak} | "
+          f"{full.rss_mib:.0f} / {forked.rss_mib:.0f} | {'yes' if identical else 'no'} |", flush=True)
+    return ratio, identical
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scenarios", nargs="*", default=BUNDLED, help="bundled configs (config/<name>.yaml)")
+    parser.add_argument("--recordings", nargs="*", default=(), help="CommonRoad recordings (file stems in --data)")
+    parser.add_argument("--planners", nargs="*", default=("idm", "obp"), help="the recordings' params files to attack")
+    parser.add_argument("--data", type=Path, default=DATA)
+    args = parser.parse_args()
+    print("| attack | exit | full (s) | forked (s) | forked / full | rollouts forked | frames driven / full | "
+          "snapshots peak (MiB) | max RSS full / forked (MiB) | identical |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    ratios, identical = [], []
+    with tempfile.TemporaryDirectory(prefix="fork-bench-") as folder:
+        scratch = Path(folder)
+        jobs = [(name, REPO / "config" / f"{name}.yaml") for name in args.scenarios]
+        for name in args.recordings:
+            bag = scratch / name / "bag"
+            done = subprocess.run([sys.executable, "-m", "advperc_ros.cli", "import-commonroad",
+                                   str(args.data / f"{name}.xml"), "--output", str(bag)], capture_output=True, text=True)
+            if done.returncode != 0:
+                print(f"| {name} | import-commonroad exit {done.returncode}: {done.stderr.strip()[-120:]} |")
+                continue
+            jobs += [(f"{name} {planner}", params_file(bag, planner)) for planner in args.planners]
+        for i, (name, params) in enumerate(jobs):
+            ratio, same = measure(name.replace(" ", "-"), params, scratch, forked_first=i % 2 == 0)
+            ratios.append(ratio)
+            identical.append(same)
+    print(f"forked/full wall ratio {statistics.median(ratios):.2f}, identical: {'yes' if all(identical) else 'no'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,11 +1,14 @@
 """The two-stage optimisation-based planner (docs/obp.md) on obp_overtake."""
 
+import math
 from dataclasses import replace
 
 import casadi as ca
 import numpy as np
 import pytest
 import yaml
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
@@ -303,3 +306,89 @@ def test_ellipses_contain_the_inflated_box():
     pts = (corners[:, None, :] + radius * np.stack([np.cos(phi), np.sin(phi)], axis=1)[None]).reshape(-1, 2)
     assert np.all((pts[:, 0] / a[0]) ** 2 + (pts[:, 1] / b[0]) ** 2 <= 1.0 + 1e-9)
     assert b[0] < 3.5 - 0.5  # narrow enough for cars in adjacent lanes to pass each other
+
+
+# ---------------------------------------------------------------- infeasible at once (docs/obp.md)
+
+@pytest.fixture()
+def verdicts(monkeypatch):
+    """The certificate's verdict on every solve, while IPOPT solves each problem anyway."""
+    from advperc_ros.core.planners.obp import stage2
+
+    seen: list[bool] = []
+
+    def recorded(*args):
+        seen.append(stage2_certificate(*args))
+        return False
+
+    stage2_certificate = stage2.certainly_infeasible
+    monkeypatch.setattr(stage2, "certainly_infeasible", recorded)
+    return seen
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(speed=st.floats(0.0, 12.0), cars=st.lists(st.tuples(st.floats(-6.0, 9.0), st.floats(-3.0, 3.0),
+                                                            st.floats(-math.pi, math.pi), st.floats(0.0, 12.0)),
+                                                  min_size=1, max_size=3),
+       replanned=st.booleans())
+def test_a_problem_certified_infeasible_is_one_ipopt_fails(scenario, verdicts, speed, cars, replanned):
+    """Sound: wherever the certificate skips IPOPT, IPOPT, run instead, fails (so the fallback answers
+    exactly as it would have). Cars are put on and around the ego at any heading and speed, with and
+    without the previous plan's controls bounding the first rates."""
+    planner = OBPPlanner(_context(scenario))
+    ego = replace(scenario.ego_start, v=speed)
+    t = 0.0
+    if replanned:
+        ego, t = follow_plan(planner.plan(0.0, ego, _tracks()), 0.1), 0.1
+    verdicts.clear()
+    c, s = math.cos(ego.yaw), math.sin(ego.yaw)
+    rows = [(ego.x + dx * c - dy * s, ego.y + dx * s + dy * c, yaw, v) for dx, dy, yaw, v in cars]
+    planner.plan(t, ego, _tracks(*rows))
+    assert (verdicts == [True] and planner.failures == 1) or verdicts == [False]
+
+
+def test_the_certificate_catches_a_car_on_the_ego_and_passes_a_clear_road(scenario):
+    """Not vacuous: a car on the ego (the attack's usual end) is certified, and solving is skipped;
+    a car well ahead is not."""
+    planner = OBPPlanner(_context(scenario))
+    solver, calls = planner.stage2._solver, []
+
+    class Counted:
+        def __call__(self, **problem):
+            calls.append(1)
+            return solver(**problem)
+
+        def stats(self):
+            return solver.stats()
+
+    planner.stage2._solver = Counted()
+    ego = scenario.ego_start
+    planner.plan(0.0, ego, _tracks((ego.x + 0.5, ego.y + 0.3, 0.0, 0.0)))
+    assert planner.failures == 1 and calls == []
+    planner.plan(0.1, ego, _tracks((ego.x + 40.0, ego.y, 0.0, 0.0)))
+    assert planner.failures == 1 and calls == [1]
+
+
+def test_a_rollout_is_the_same_with_and_without_the_certificate(stack, scenario, ground_truth, monkeypatch):
+    """Bit for bit: a rollout in which an error makes the NLP infeasible over and over (the oncoming car
+    seen 3 m into the ego's lane, for 0.8 s from 1 s before it passes) drives, plans and fails exactly
+    as with IPOPT on every problem."""
+    from advperc_ros.core.planners.obp import stage2
+
+    passing = int(np.argmin(ground_truth[0].distances[:, ONCOMING]))
+    errors = PerceptionErrors.none(*scenario.agents.shape)
+    shifted = errors.dy.copy()
+    shifted[passing - 10:passing - 2, ONCOMING] = -3.0
+    errors = errors.with_arrays(dy=shifted)
+    skipped: list[bool] = []
+    certificate = stage2.certainly_infeasible
+    monkeypatch.setattr(stage2, "certainly_infeasible", lambda *a: skipped.append(certificate(*a)) or skipped[-1])
+    certified = stack.rollout(errors, record=True)
+    failures = stack.planner.failures
+    monkeypatch.setattr(stage2, "certainly_infeasible", lambda *a: False)
+    solved = stack.rollout(errors, record=True)
+    assert failures == stack.planner.failures >= sum(skipped) > 0
+    assert np.array_equal(certified.ego, solved.ego) and np.array_equal(certified.distances, solved.distances)
+    assert certified.fallback_frames == solved.fallback_frames
+    for a, b in zip(certified.plans, solved.plans, strict=True):
+        assert all(np.array_equal(getattr(a, f), getattr(b, f)) for f in ("t", "x", "y", "yaw"))

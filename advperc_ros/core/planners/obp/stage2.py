@@ -94,7 +94,8 @@ class Stage2:
     def solve(self, ego: EgoState, ref: Reference, obstacles: list[Obstacle],
               u_prev: np.ndarray | None) -> tuple[bool, np.ndarray, np.ndarray]:
         """(accepted, states X (4, N+1), controls U (2, N)) of one solve warm-started on `ref`;
-        u_prev, the previous plan's controls now, bounds the first jerk and steering rate."""
+        u_prev, the previous plan's controls now, bounds the first jerk and steering rate. A problem
+        `certainly_infeasible` proves infeasible is not solved: it fails with the warm start."""
         setup = self.setup
         cfg, N, M = setup.config, setup.N, setup.config.max_obstacles
         route = setup.context.route
@@ -125,6 +126,8 @@ class Stage2:
                 shape[:, slot] = [math.cos(ob.yaw), math.sin(ob.yaw), 1.0 / ob.a**2, 1.0 / ob.b**2]
             else:
                 obs[2 * slot], obs[2 * slot + 1] = ego.x + 1e4 + 100.0 * slot, ego.y + 1e4
+        if certainly_infeasible(setup, ego, obs, shape):  # IPOPT would spend its iterations finding that out
+            return False, X0, U0
         frame = np.stack([P[:, 0], P[:, 1], np.cos(heading), np.sin(heading)])
         reference = np.stack([ref.d, ref.v, heading + np.arctan(ref.slope)])
         p = np.concatenate([np.zeros(2) if u_prev is None else u_prev, frame.ravel(order="F"),
@@ -156,6 +159,41 @@ class Stage2:
                   and violation <= CONSTRAINT_TOL)
         n_x = 4 * (N + 1)
         return ok, w[:n_x].reshape(N + 1, 4).T, w[n_x:].reshape(N, 2).T
+
+
+def certainly_infeasible(setup: Setup, ego: EgoState, obs: np.ndarray, shape: np.ndarray) -> bool:
+    """Whether, at some node, an obstacle slot's ellipse (centres `obs` (2M, N+1), shapes `shape` (4, M)
+    as the NLP's parameters hold them) covers every point one of the ego's circles can reach from `ego`
+    within the NLP's bounds, so that no iterate meets the constraints to CONSTRAINT_TOL and IPOPT could
+    only fail, after up to max_iterations iterations (most of an attack's failed solves: the errors put a
+    car onto the ego). Sound by construction, never complete: docs/obp.md, "Infeasible at once"."""
+    cfg, N, h, tol = setup.config, setup.N, setup.h, CONSTRAINT_TOL
+    v0 = max(float(ego.v), 0.0)
+    k = np.arange(1, N + 1)
+    # every speed up to node k: the bounds, the acceleration limit, the dynamics rows' tolerance per step
+    speed = np.minimum(max(cfg.target_speed, v0), v0 + cfg.max_accel * h * k) + tol * k
+    reach = np.cumsum(h * speed)  # longest path to node k
+    turn = np.cumsum(h * speed * math.tan(cfg.max_steer) / cfg.wheelbase) + tol * k  # largest heading change
+    # the positions lie in the sector of radius `reach` and half-angle `turn` ahead of the ego, inside the
+    # disk through its apex and its arc's ends; past a radian, the disk of radius `reach` about the ego
+    sector = turn < 1.0
+    ahead = np.where(sector, reach / 2.0, 0.0)
+    radius = np.where(sector, reach * np.sqrt(1.25 - np.cos(np.minimum(turn, 1.0))), reach) + 2.0 * tol * k
+    c, s = math.cos(ego.yaw), math.sin(ego.yaw)
+    level = 1.0 - 2.0 * tol  # a point with the ellipse row below this violates it by more than tol
+    for offset in setup.circle_offsets:
+        centre_x, centre_y = ego.x + (ahead + offset) * c, ego.y + (ahead + offset) * s
+        spread = radius + abs(offset) * np.minimum(turn, 2.0)  # the circle turns about the ego's centre
+        for j in range(shape.shape[1]):
+            cj, sj, ia, ib = shape[:, j]
+            qx, qy = centre_x - obs[2 * j, 1:], centre_y - obs[2 * j + 1, 1:]
+            lx, ly = cj * qx + sj * qy, -sj * qx + cj * qy
+            # the disk lies in {row < level} if its centre lies in that ellipse scaled by 1 - spread / semi-minor
+            minor = math.sqrt(level) / math.sqrt(max(ia, ib))
+            inside = (spread < minor) & (lx * lx * ia + ly * ly * ib < level * (1.0 - spread / minor) ** 2)
+            if bool(np.any(inside)):
+                return True
+    return False
 
 
 def resample(setup: Setup, t: float, X: np.ndarray, U: np.ndarray) -> Trajectory:

@@ -7,10 +7,13 @@ rollout from frame 0) and with the params' own fork_memory, the order alternatin
 next as the machine's speed drifts. Prints per attack the wall times, their ratio, the frames the forked
 search drove over the frames of its rollouts, the snapshots' peak memory and each attack's largest resident
 set, and whether the two wrote the same search_log.csv, attack_errors.npz and report.json (wall time aside);
-the last line is the median ratio and whether every pair was identical.
+the last line is the median ratio and whether every pair was identical. `--before TREE` also runs each attack
+with the code of TREE, a checkout of an earlier commit (`git worktree add TREE REV`), as it was: the wall time
+before and after, and whether it wrote the same results.
 
     python benchmarks/fork_bench.py --scenarios obp_overtake
     python benchmarks/fork_bench.py --scenarios --recordings USA_US101-22_1_T-1 --planners idm obp
+    python benchmarks/fork_bench.py --scenarios obp_overtake --before ../before
 """
 
 import argparse
@@ -47,13 +50,15 @@ class Run:
     stderr: str
 
 
-def attack(params: Path, output: Path, fork_memory: int | None) -> Run:
-    """`advperc attack params --output output` in a child process, timed, its own rusage read at its exit."""
+def attack(params: Path, output: Path, fork_memory: int | None, tree: Path | None = None) -> Run:
+    """`advperc attack params --output output` in a child process (with the code of `tree` when given), timed,
+    its own rusage read at its exit."""
     command = [sys.executable, "-c", CHILD, "attack", str(params), "--quiet", "--output", str(output)]
     if fork_memory is not None:
         command += ["--fork-memory", str(fork_memory)]
+    env = None if tree is None else {**os.environ, "PYTHONPATH": str(tree.resolve())}
     started = time.perf_counter()
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
     stderr = child.stderr.read() if child.stderr is not None else ""
     _, status, usage = os.wait4(child.pid, 0)
     child.returncode = os.waitstatus_to_exitcode(status)
@@ -72,19 +77,26 @@ def same_results(a: Path, b: Path) -> bool:
     return len(reports) in (0, 2) and (not reports or reports[0] == reports[1])
 
 
-def measure(name: str, params: Path, scratch: Path, forked_first: bool) -> tuple[float, bool]:
-    """Both attacks of one params file, printed as a table row; (forked/full wall ratio, identical)."""
+def measure(name: str, params: Path, scratch: Path, forked_first: bool, before: Path | None) -> tuple[float, bool]:
+    """Both attacks of one params file (and the one of `before`), printed as a table row; (forked/full wall
+    ratio, identical)."""
     runs: dict[str, Run] = {}
-    for which in (("forked", "full") if forked_first else ("full", "forked")):
-        runs[which] = attack(params, scratch / f"{name}-{which}", None if which == "forked" else 0)
+    order = ["forked", "full"] if forked_first else ["full", "forked"]
+    for which in order + (["before"] if before is not None else []):
+        runs[which] = attack(params, scratch / f"{name}-{which}", {"forked": None, "full": 0, "before": None}[which],
+                             before if which == "before" else None)
     forked, full = runs["forked"], runs["full"]
     identical = forked.code == full.code and same_results(scratch / f"{name}-forked", scratch / f"{name}-full")
     said = SUMMARY.search(forked.stderr)
     rollouts, frames, peak = ("?", "?", "?") if said is None else (
         f"{said[1]}/{said[2]}", f"{int(said[3]) / max(int(said[4]), 1):.2f}", said[5])
     ratio = forked.wall / full.wall
+    then = ""
+    if "before" in runs:
+        same = runs["before"].code == full.code and same_results(scratch / f"{name}-before", scratch / f"{name}-full")
+        then = f" {runs['before'].wall:.1f} | {forked.wall / runs['before'].wall:.2f} | {'yes' if same else 'no'} |"
     print(f"| {name} | {full.code} | {full.wall:.1f} | {forked.wall:.1f} | {ratio:.2f} | {rollouts} | {frames} | {peak} | "
-          f"{full.rss_mib:.0f} / {forked.rss_mib:.0f} | {'yes' if identical else 'no'} |", flush=True)
+          f"{full.rss_mib:.0f} / {forked.rss_mib:.0f} | {'yes' if identical else 'no'} |{then}", flush=True)
     return ratio, identical
 
 
@@ -94,10 +106,12 @@ def main() -> None:
     parser.add_argument("--recordings", nargs="*", default=(), help="CommonRoad recordings (file stems in --data)")
     parser.add_argument("--planners", nargs="*", default=("idm", "obp"), help="the recordings' params files to attack")
     parser.add_argument("--data", type=Path, default=DATA)
+    parser.add_argument("--before", type=Path, help="a checkout of an earlier commit: each attack with its code too")
     args = parser.parse_args()
+    then = " before (s) | forked / before | same as before |" if args.before else ""
     print("| attack | exit | full (s) | forked (s) | forked / full | rollouts forked | frames driven / full | "
-          "snapshots peak (MiB) | max RSS full / forked (MiB) | identical |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          f"snapshots peak (MiB) | max RSS full / forked (MiB) | identical |{then}")
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|---|" if args.before else ""))
     ratios, identical = [], []
     with tempfile.TemporaryDirectory(prefix="fork-bench-") as folder:
         scratch = Path(folder)
@@ -111,7 +125,7 @@ def main() -> None:
                 continue
             jobs += [(f"{name} {planner}", params_file(bag, planner)) for planner in args.planners]
         for i, (name, params) in enumerate(jobs):
-            ratio, same = measure(name.replace(" ", "-"), params, scratch, forked_first=i % 2 == 0)
+            ratio, same = measure(name.replace(" ", "-"), params, scratch, i % 2 == 0, args.before)
             ratios.append(ratio)
             identical.append(same)
     print(f"forked/full wall ratio {statistics.median(ratios):.2f}, identical: {'yes' if all(identical) else 'no'}")

@@ -233,6 +233,9 @@ def _cases() -> list[Case]:
         Case("advperc attack P.yaml", "`stop_at_collision` a word", attack(stop_at_collision="yes"), "'stop_at_collision' must be of type bool"),
         Case("advperc attack P.yaml", "`stop_at_collision` 1", attack(stop_at_collision=1), "'stop_at_collision' must be of type bool"),
         Case("advperc attack P.yaml", "`rollout_backend` unknown", attack(rollout_backend="gpu"), "'rollout_backend' must be one of"),
+        Case("advperc attack P.yaml", "`fork_memory` negative", attack(fork_memory=-1), "'fork_memory' must be at least 0"),
+        Case("advperc attack P.yaml --fork-memory", "`--fork-memory` negative",
+             lambda f: ["attack", _params(f), "--fork-memory", "-1", "--output", str(f / "out")], "'fork_memory' must be at least 0"),
     ]
     floats = {"ego.length": 4.6, "ego.width": 1.9, "tracker.gate": 2.0, "tracker.max_age": 1.0,
               "search.random.max_offset": 5.0, "graph.timeout": 10.0}

@@ -56,9 +56,11 @@ def attack(params: Path, output: Path, fork_memory: int | None, tree: Path | Non
     command = [sys.executable, "-c", CHILD, "attack", str(params), "--quiet", "--output", str(output)]
     if fork_memory is not None:
         command += ["--fork-memory", str(fork_memory)]
+    # in the tree, so that `python -c` (which puts the working folder first on sys.path) imports its code
     env = None if tree is None else {**os.environ, "PYTHONPATH": str(tree.resolve())}
     started = time.perf_counter()
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+                             cwd=None if tree is None else tree)
     stderr = child.stderr.read() if child.stderr is not None else ""
     _, status, usage = os.wait4(child.pid, 0)
     child.returncode = os.waitstatus_to_exitcode(status)

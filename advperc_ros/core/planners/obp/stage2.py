@@ -178,7 +178,9 @@ def certainly_infeasible(setup: Setup, ego: EgoState, obs: np.ndarray, shape: np
     # disk through its apex and its arc's ends; past a radian, the disk of radius `reach` about the ego
     sector = turn < 1.0
     ahead = np.where(sector, reach / 2.0, 0.0)
-    radius = np.where(sector, reach * np.sqrt(1.25 - np.cos(np.minimum(turn, 1.0))), reach) + 2.0 * tol * k
+    # plus what the sector leaves out: each node's position row off by up to tol in x and y, and a speed
+    # between nodes as low as -tol (a node's is at least 0, the row to the next off by tol), h * tol backwards
+    radius = np.where(sector, reach * np.sqrt(1.25 - np.cos(np.minimum(turn, 1.0))), reach) + (2.0 + h) * tol * k
     c, s = math.cos(ego.yaw), math.sin(ego.yaw)
     level = 1.0 - 2.0 * tol  # a point with the ellipse row below this violates it by more than tol
     for offset in setup.circle_offsets:

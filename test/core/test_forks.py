@@ -150,8 +150,10 @@ def test_footprint_counts_arrays_once():
     assert footprint((a, a, a[10:])) < 2 * a.nbytes
 
 
-class Wrapped:
-    """A plug-in without snapshot(): an IDM planner inside, its state in its attributes."""
+class Delegating:
+    """A plug-in without snapshot(): an IDM planner inside does the planning (no attributes of its own)."""
+
+    __slots__ = ()
 
     def __init__(self, context, **params):
         self.inner = IDMPlanner(context, **params)
@@ -161,6 +163,10 @@ class Wrapped:
 
     def plan(self, t, ego, tracks):
         return self.inner.plan(t, ego, tracks)
+
+
+class Wrapped(Delegating):
+    """A plug-in without snapshot(): its state (the IDM planner inside) in its attributes."""
 
 
 CALLS = [0]
@@ -179,19 +185,10 @@ class HiddenState(Wrapped):
         return replace(plan, x=plan.x + 0.01 * CALLS[0])  # drifts with the calls since the reset
 
 
-class NoAttributes:
+class NoAttributes(Delegating):
     """A plug-in with slots only: nothing to deep-copy."""
 
     __slots__ = ("inner",)
-
-    def __init__(self, context, **params):
-        self.inner = IDMPlanner(context, **params)
-
-    def reset(self):
-        self.inner.reset()
-
-    def plan(self, t, ego, tracks):
-        return self.inner.plan(t, ego, tracks)
 
 
 class RestoreFails(IDMPlanner):

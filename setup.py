@@ -32,12 +32,16 @@ setup(
         # TUM's sampling-based planner, attacked through advperc_ros.contrib.reactive; it pins commonroad-io<2025
         # (the importer is tested with 2026.1) and Python<3.12, so it too runs in a venv of its own (.ci/run)
         "reactive": ["commonroad-reactive-planner==2025.1"],
+        # fiss-planner's four Frenet planners, attacked through advperc_ros.contrib.fiss: numpy only, so it shares
+        # the main environment (and the test extra, so that its tests run in CI's main suite)
+        "fiss": ["fiss-planner==1.0.0"],
         # the documentation site (docs/conf.py): Sphinx with MyST Markdown, as rosdoc2 on Jazzy builds it
         "docs": ["sphinx>=7.2", "myst-parser>=2.0"],
         # the CI gates on the package's code: pinned, so that a new release's rules cannot fail an unchanged tree
         "lint": ["ruff==0.17.6", "mypy==2.4.1", "types-PyYAML"],
         "test": ["pytest>=7", "pytest-xdist>=3.5", "hypothesis>=6", "shapely>=2.0", "commonroad-io>=2023.1", "colcon-common-extensions>=0.3",
-                 "rosdep>=0.25"],  # test_rosdep resolves package.xml's keys with rosdep itself
+                 "rosdep>=0.25",  # test_rosdep resolves package.xml's keys with rosdep itself
+                 "fiss-planner==1.0.0"],
     },
     zip_safe=True,
     maintainer="advperc_ros developers",

@@ -82,6 +82,7 @@ def cmd_make_bags(args: argparse.Namespace) -> int:
 
 
 REACTIVE_PLUGIN = "advperc_ros.contrib.reactive:ReactivePlanner"
+FISS_PLUGIN = "advperc_ros.contrib.fiss:FissPlanner"
 
 
 def _write_imported(command: str, source: str, scenario: Scenario, params_of: Callable[[str, str], dict],
@@ -120,15 +121,17 @@ def cmd_import_commonroad(args: argparse.Namespace) -> int:
 
     imported = import_commonroad(Path(args.scenario))
     scenario = imported.scenario
-    # one params file per bundled planner and one for the third-party plug-in (extra `reactive`), all with the
-    # goal's target speed, the others beside IDM's
+    # one params file per bundled planner and one per third-party plug-in (extras `reactive` and `fiss`), all
+    # with the goal's target speed, the others beside IDM's
     files = _write_imported("import-commonroad", args.scenario, scenario, imported.params,
-                            {"idm": "", "obp": ".obp", REACTIVE_PLUGIN: ".reactive"}, args.output, args.params)
+                            {"idm": "", "obp": ".obp", REACTIVE_PLUGIN: ".reactive", FISS_PLUGIN: ".fiss"},
+                            args.output, args.params)
     bag = Path(args.output) if args.output else Path("bags") / scenario.name
     print(
         f"{bag}: {scenario.num_frames} frames, {scenario.agents.shape[1]} agents; route: {imported.route_note}\n"
         f"attack it with: advperc attack {files['idm']} (IDM), advperc attack {files['obp']} (ObP) or advperc attack "
-        f"{files[REACTIVE_PLUGIN]} (commonroad-reactive-planner, extra 'reactive')"
+        f"{files[REACTIVE_PLUGIN]} (commonroad-reactive-planner, extra 'reactive') or advperc attack {files[FISS_PLUGIN]} "
+        f"(fiss-planner's FISS+, extra 'fiss'; planner_params.variant: fop, fop_plus, fiss, fiss_plus)"
     )
     return 0
 

@@ -102,8 +102,10 @@ def test_urban_turn_imports_for_both_planners_and_obp_drives_it(tmp_path, common
                  "--params", str(params)]) == 0
     idm, obp = load_params(params), load_params(tmp_path / "lanker.obp.yaml")
     reactive = load_params(tmp_path / "lanker.reactive.yaml")  # loads without the plug-in: it is built at attack
-    assert (idm.planner, obp.planner, reactive.planner) == ("idm", "obp", "advperc_ros.contrib.reactive:ReactivePlanner")
-    assert idm.planner_params == obp.planner_params == reactive.planner_params
+    fiss = load_params(tmp_path / "lanker.fiss.yaml")
+    assert (idm.planner, obp.planner, reactive.planner, fiss.planner) == (
+        "idm", "obp", "advperc_ros.contrib.reactive:ReactivePlanner", "advperc_ros.contrib.fiss:FissPlanner")
+    assert idm.planner_params == obp.planner_params == reactive.planner_params == fiss.planner_params
     assert obp.planner_params["target_speed"] > 1.0
     assert idm.rule.name == obp.rule.name == reactive.rule.name == "at_fault_collision"
     assert idm.bag == obp.bag == reactive.bag == str(bag.resolve())
@@ -179,7 +181,7 @@ def test_unavoidable_recording_is_rejected_and_nothing_written(tmp_path, capsys,
     err = capsys.readouterr().err.strip()
     assert code == 3
     assert "blocked.xml" in err and "rejected" in err and len(err.splitlines()) == 1
-    assert not any(tmp_path / name for name in ("bag", "p.yaml", "p.obp.yaml", "p.reactive.yaml") if (tmp_path / name).exists())
+    assert not any(tmp_path / name for name in ("bag", "p.yaml", "p.obp.yaml", "p.reactive.yaml", "p.fiss.yaml") if (tmp_path / name).exists())
 
 
 def test_feasibility_tells_unavoidable_from_avoidable():

@@ -15,7 +15,8 @@ Config = TypeVar("Config", bound="DataclassInstance")
 
 def config_from_params(config_type: type[Config], params: dict[str, Any]) -> Config:
     """`config_type(**params)` with numbers for number fields (a YAML 10 is a fine 10.0), whole
-    numbers for int fields and true/false for bool fields; its __post_init__ checks the ranges."""
+    numbers for int fields, true/false for bool fields and text for str fields (a variant's name); its
+    __post_init__ checks the ranges."""
     # types, not strings: no config postpones its annotations
     kinds: dict[str, Any] = {field.name: field.type for field in fields(config_type)}
     values = {}
@@ -26,6 +27,9 @@ def config_from_params(config_type: type[Config], params: dict[str, Any]) -> Con
         if kind is bool:
             if not isinstance(value, bool):
                 raise TypeError(f"parameter '{name}' must be true or false, got {value!r}")
+        elif kind is str:
+            if not isinstance(value, str):
+                raise TypeError(f"parameter '{name}' must be text, got {value!r}")
         elif isinstance(value, bool) or not isinstance(value, (int, float)):
             raise TypeError(f"parameter '{name}' must be a number, got {value!r}")
         elif kind is int and not (math.isfinite(value) and float(value).is_integer()):

@@ -14,7 +14,7 @@ from tqdm import tqdm
 
 from advperc_ros.backends.resumed import checkpoint_folder
 from advperc_ros.campaign.execute import CellResult, executor
-from advperc_ros.campaign.spec import Campaign, Cell, plan
+from advperc_ros.campaign.spec import ATTACK, Campaign, Cell, finished_report, plan, transfer_cells
 from advperc_ros.campaign.summary import (
     ERROR,
     FAILURE,
@@ -94,6 +94,19 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
     with exclusive(output / LOCK, f"{output}: another campaign run is using this folder"):  # it would start the same cells
         _clear_staging(output)
         reports = {cell.name: cell.report(output) for cell in cells}
+        attacks = [cell for cell in cells if cell.role == ATTACK]
+
+        def transfers(found: Cell) -> list[Cell]:
+            """The replays of `found`'s attack on the campaign's other planners, once it is known to break its
+            rule; their finished reports read (and refused when finished with other params)."""
+            report = reports[found.name]
+            if found.role != ATTACK or not report or not report.get("collision"):
+                return []
+            replays = transfer_cells(attacks, found, output)
+            reports.update({replay.name: finished_report(campaign, replay) for replay in replays})
+            return replays
+
+        cells += [replay for cell in list(cells) for replay in transfers(cell)]
         for name in (name for name, report in reports.items() if report is not None):
             # a cell killed after its results folder was in place, before its checkpoint went
             shutil.rmtree(checkpoint_folder(output / name), ignore_errors=True)
@@ -136,6 +149,11 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
                 bar.set_postfix_str(f"{len(running)} running", refresh=False)
                 reports[result.name] = by_name[result.name].report(output)
                 results[result.name] = result
+                for replay in transfers(by_name[result.name]):  # its attack, on the other planners
+                    cells.append(replay)
+                    by_name[replay.name] = replay
+                    todo.append(replay)
+                bar.total = len(cells)
                 records = write_summary(campaign, output, statuses())
                 say(f"finished {result.name}: {verdict(status(by_name[result.name]), dict(campaign.thresholds)).text}")
                 bar.update()

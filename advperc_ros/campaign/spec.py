@@ -6,6 +6,11 @@ error is one ParamsError naming the file and the field. Cells are named from wha
 `<scenario>-<objective>-<seed>-<planner>`, then `-<rule>` when the rule attacked is not the default
 collision (a replay: `<attack folder>-on-<planner>`), and a cell is finished when its folder holds its
 report (results are renamed into place when complete).
+
+A campaign of several planners also replays every attack it finds on each of the other planners (its
+transfer cells, `<attack cell>-on-<planner>`, known only once the attack is), and a campaign with a
+`baseline` (an earlier run's output) replays each attack the baseline found on this campaign's version of
+the same cell (`<cell>-baseline`): attacks that travel between planners, and between versions of one.
 """
 
 import json
@@ -64,9 +69,15 @@ FIELDS = {
     "ray_address": "for executor ray: a running cluster's address (default: a local Ray on 127.0.0.1)",
     "thresholds": "per objective, the metric at which an attack found fails its JUnit test case",
     "replay": "a folder of attack results folders (another campaign's output): replay each on the planners",
+    "baseline": "an earlier run's output of this campaign (the last planner version): its attacks replayed on this one",
 }
+# what a cell does: attack; or replay an attack (a replay campaign's, one found on another planner of this
+# campaign, or one the baseline found on this cell's planner)
+ATTACK, REPLAY, TRANSFER, BASELINE = "attack", "replay", "transfer", "baseline"
+BASELINE_SUFFIX = "-baseline"  # a baseline cell's name: the cell whose baseline attack it replays, and this
 ENTRY_FIELDS = ("name", "planner", "planner_params")
 RULE = "rule.name"  # the parameter the `rules` axis sets
+SUMMARY_JSON = "summary.json"  # a campaign's summary, every cell's row: what a baseline is read from
 AXES = ("bag", "objective", "seed", RULE, "planner", PLANNER_PARAMS)  # what cells vary: not for `overrides`
 STACK_AXES = ("objective", "seed", RULE)  # what cells vary that neither reads the bag nor builds the planner
 LABEL = re.compile(r"[A-Za-z0-9_+][A-Za-z0-9_.+-]*")  # a cell name's parts: a folder name, never hidden
@@ -107,6 +118,7 @@ class Campaign:
     ray_address: str | None
     thresholds: Mapping[str, float]
     replay: Path | None
+    baseline: Path | None = None
 
     def fail(self, field: str, text: str) -> ParamsError:
         return _fail(self.source, field, text)
@@ -125,6 +137,13 @@ class Cell:
     values: Mapping[str, Any]  # AttackParams.canonical(): every value that decides the result
     source: Path | None  # the params file, where a relative bag is looked up
     attack: Path | None = None  # a replay cell: the results folder of the attack replayed
+    role: str = ATTACK  # ATTACK, REPLAY, TRANSFER or BASELINE
+    origin: str | None = None  # a transfer or baseline cell: the name of the attack's cell (where it was found)
+
+    @property
+    def key(self) -> tuple[str, str, int, str]:
+        """(scenario, objective, seed, rule): what the cells that attack the same thing on other planners share."""
+        return self.scenario, self.objective, self.seed, self.rule
 
     @property
     def rule(self) -> str:
@@ -243,7 +262,7 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
     unknown = sorted(str(key) for key in set(document) - set(FIELDS))
     if unknown:
         raise _fail(path, unknown[0], f"is not a campaign field (fields: {', '.join(FIELDS)})")
-    for field in ("name", "output", "executor", "ray_address", "replay"):
+    for field in ("name", "output", "executor", "ray_address", "replay", "baseline"):
         if document.get(field) is not None and not isinstance(document[field], str):
             raise _fail(path, field, f"must be a string, got {document[field]!r}")
     name = document.get("name", path.stem)
@@ -269,7 +288,8 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
             raise _fail(path, "overrides",
                         f"sets '{key}': campaign cells roll out embedded, the workers being the parallelism")
     replay = document.get("replay")
-    axes = ("scenarios", "objectives", "seeds", "rules")
+    baseline = document.get("baseline")
+    axes = ("scenarios", "objectives", "seeds", "rules", "baseline")
     if replay is not None:
         given = [field for field in axes if field in document]
         if given:
@@ -292,6 +312,7 @@ def load_campaign(path: str | Path, **changes: Any) -> Campaign:
         ray_address=ray_address,
         thresholds=_thresholds(path, document.get("thresholds", {})),
         replay=_found(path, "replay", replay) if replay is not None else None,
+        baseline=_found(path, "baseline", baseline) if baseline is not None else None,
     )
 
 
@@ -352,8 +373,10 @@ def _planned(campaign: Campaign, base: AttackParams) -> list[tuple[AttackParams,
             for i, entry in enumerate(campaign.planners)]
 
 
-def _cell(name: str, scenario: str, params: AttackParams, planner: str, attack: Path | None = None) -> Cell:
-    return Cell(name, scenario, params.objective, params.seed, planner, params.canonical(), params.source, attack)
+def _cell(name: str, scenario: str, params: AttackParams, planner: str, attack: Path | None = None,
+          role: str = ATTACK, origin: str | None = None) -> Cell:
+    return Cell(name, scenario, params.objective, params.seed, planner, params.canonical(), params.source, attack, role,
+                origin)
 
 
 def _rule_label(rule: str) -> str:
@@ -391,8 +414,39 @@ def _replay_cells(campaign: Campaign, replay: Path) -> list[Cell]:
         base = _checked(campaign, "overrides", attack.params.with_values, **campaign.overrides)
         for params, planner in _planned(campaign, base):
             cells.append(_cell(f"{attack.folder.name}-on-{planner}", attack.report["scenario"], params, planner,
-                               attack.folder))
+                               attack.folder, REPLAY))
     return cells
+
+
+def transfer_cells(cells: list[Cell], found: Cell, output: Path) -> list[Cell]:
+    """The attack of the finished cell `found` (which broke its rule) replayed on each other planner of the
+    campaign: with the params of the cell that attacks the same scenario, objective, seed and rule on that
+    planner, so that a row of the transfer matrix compares the planners exactly as the campaign attacks them."""
+    return [Cell(f"{found.name}-on-{other.planner}", other.scenario, other.objective, other.seed, other.planner,
+                 other.values, other.source, output / found.name, TRANSFER, found.name)
+            for other in cells if other.role == ATTACK and other.key == found.key and other.planner != found.planner]
+
+
+def _baseline_cells(campaign: Campaign, baseline: Path, cells: list[Cell]) -> list[Cell]:
+    """Each attack the baseline run found, replayed on this campaign's cell of the same name (the same
+    scenario, objective, seed, rule and planner name: the planner's next version, or its next params)."""
+    try:
+        rows = json.loads((baseline / SUMMARY_JSON).read_text())["cells"]
+        found = {row["cell"] for row in rows if row.get("collision") and row.get("attack") is None}
+    except (OSError, ValueError, TypeError, KeyError) as exc:
+        raise campaign.fail("baseline", f"names {baseline}, which holds no campaign summary "
+                                        f"({SUMMARY_JSON}: {exc})") from None
+    replays = []
+    for cell in cells:
+        if cell.role != ATTACK or cell.name not in found:
+            continue
+        try:
+            load_attack(baseline / cell.name)
+        except INPUT_ERRORS as exc:
+            raise campaign.fail("baseline", f"cell {cell.name}: {exc}") from None
+        replays.append(Cell(cell.name + BASELINE_SUFFIX, cell.scenario, cell.objective, cell.seed, cell.planner, cell.values,
+                            cell.source, baseline / cell.name, BASELINE, cell.name))
+    return replays
 
 
 def plan(campaign: Campaign) -> list[Cell]:
@@ -404,6 +458,8 @@ def plan(campaign: Campaign) -> list[Cell]:
         except OutputError as exc:
             raise campaign.fail("output", str(exc)) from None
     cells = _replay_cells(campaign, campaign.replay) if campaign.replay is not None else _attack_cells(campaign)
+    if campaign.baseline is not None:
+        cells += _baseline_cells(campaign, campaign.baseline, cells)
     names = [cell.name for cell in cells]
     for cell in cells:
         if not LABEL.fullmatch(cell.name):
@@ -423,9 +479,15 @@ def plan(campaign: Campaign) -> list[Cell]:
                 raise campaign.fail("replay" if campaign.replay else "scenarios", f"cell {cell.name}: {exc}") from None
             checked.add(system)
     for cell in cells:
-        report = cell.report(campaign.output)
-        if report is not None and report["config_hash"] != cell.params.config_hash():
-            raise ParamsError(f"{campaign.output / cell.name}: finished with other params (config hash "
-                              f"{report['config_hash']}, this campaign's {cell.params.config_hash()}): remove it or "
-                              f"choose another output")
+        finished_report(campaign, cell)
     return cells
+
+
+def finished_report(campaign: Campaign, cell: Cell) -> dict | None:
+    """The cell's report when it is finished (None while not), refused when it was finished with other params."""
+    report = cell.report(campaign.output)
+    if report is not None and report["config_hash"] != cell.params.config_hash():
+        raise ParamsError(f"{campaign.output / cell.name}: finished with other params (config hash "
+                          f"{report['config_hash']}, this campaign's {cell.params.config_hash()}): remove it or "
+                          f"choose another output")
+    return report

@@ -20,14 +20,20 @@ from html import escape
 from pathlib import Path
 from urllib.parse import quote
 
-from advperc_ros.campaign.spec import Campaign, Cell
+from advperc_ros.campaign.spec import ATTACK, REPLAY, SUMMARY_JSON, Campaign, Cell
+from advperc_ros.campaign.transfer import (
+    baseline_markdown,
+    baseline_rows,
+    transfer_html,
+    transfer_markdown,
+    transfer_rows,
+)
 from advperc_ros.core.rules.verdict import CONTACT_RULES
 from advperc_ros.replay import BEV_PLOT as REPLAY_BEV
 from advperc_ros.replay import REPLAY_MD
 from advperc_ros.results.folder import ANIMATION, BEV_PLOT, METRIC_PLOT, REPORT_MD
 
-SUMMARY_CSV, SUMMARY_JSON, SUMMARY_MD, SUMMARY_HTML, JUNIT_XML = (
-    "summary.csv", "summary.json", "summary.md", "summary.html", "junit.xml")
+SUMMARY_CSV, SUMMARY_MD, SUMMARY_HTML, JUNIT_XML = ("summary.csv", "summary.md", "summary.html", "junit.xml")
 FAILURE, PASS, ERROR, PENDING = "failure", "pass", "error", "pending"  # a cell's outcome (JUnit's words)
 ATTACK_FIELDS = ("heuristic_fn", "heuristic_tp", "heuristic_nds", "heuristic_nds_t", "fn", "tp", "mpe", "maoe", "nds",
                  "nds_t", "pem_ll", "rollouts", "min_signed_distance", "closest_approach")
@@ -158,13 +164,14 @@ def _thresholds(campaign: Campaign) -> str:
            f"any attack found fails an objective without one)"
 
 
-def markdown(campaign: Campaign, records: list[dict]) -> str:
+def markdown(campaign: Campaign, records: list[dict], transfer: list[dict], baseline: list[dict]) -> str:
     headers, metrics = _columns(campaign, records)
     lines = [f"# Campaign {campaign.name}", "", _counts(records) + ".", "",
              "| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
     lines += ["| " + " | ".join(_cells(campaign, r, metrics)).replace("\n", " ") + " |" for r in records]
     lines += ["", f"- {_thresholds(campaign)}"]
     lines += [f"- {r['cell']}: {r['verdict']}" for r in records if r["outcome"] == ERROR]
+    lines += transfer_markdown(transfer) + baseline_markdown(baseline)
     return "\n".join(lines) + "\n"
 
 
@@ -175,6 +182,8 @@ th, td { border: 1px solid #bbb; padding: 4px 8px; text-align: right; vertical-a
 th { background: #eee; } td.text { text-align: left; }
 tr.failure td.verdict { background: #f8d0d0; } tr.pass td.verdict { background: #d4efd4; }
 tr.error td.verdict { background: #f3e2b3; } tr.pending td.verdict { background: #e4e4e4; }
+td.breaks, td.found, td.still, td.newly { background: #f8d0d0; } td.holds, td.fixed, td.clear { background: #d4efd4; }
+h2 { margin-top: 1.5em; }
 img { display: block; max-width: 640px; }
 """
 
@@ -188,7 +197,7 @@ def _picture(folder: str, names: tuple[str, ...], base: Path) -> str:
     return ""
 
 
-def html_page(campaign: Campaign, records: list[dict], output: Path) -> str:
+def html_page(campaign: Campaign, records: list[dict], output: Path, transfer: list[dict], baseline: list[dict]) -> str:
     headers, metrics = _columns(campaign, records)
     rows = []
     for record in records:
@@ -212,7 +221,8 @@ def html_page(campaign: Campaign, records: list[dict], output: Path) -> str:
         f"<title>advperc campaign {escape(campaign.name)}</title><style>{STYLE}</style></head><body>",
         f"<h1>Campaign {escape(campaign.name)}</h1>", f"<p>{escape(_counts(records))}.</p>",
         f"<p>{escape(_thresholds(campaign))}.</p>",
-        f"<table><thead><tr>{header}</tr></thead><tbody>", *rows, "</tbody></table></body></html>", ""])
+        f"<table><thead><tr>{header}</tr></thead><tbody>", *rows, "</tbody></table>", *transfer_html(transfer, baseline),
+        "</body></html>", ""])
 
 
 def junit(campaign: Campaign, statuses: list[CellStatus], records: list[dict]) -> str:
@@ -258,13 +268,24 @@ def _write(path: Path, text: str) -> None:
     os.replace(staging, path)
 
 
+def _baseline_before(campaign: Campaign) -> dict[str, dict]:
+    """The baseline run's summary rows by cell name (checked readable when the campaign was planned)."""
+    if campaign.baseline is None:
+        return {}
+    return {row["cell"]: row for row in json.loads((campaign.baseline / SUMMARY_JSON).read_text())["cells"]}
+
+
 def write_summary(campaign: Campaign, output: Path, statuses: list[CellStatus]) -> list[dict]:
-    """All five summary files; returns the records."""
-    records = [record(status, dict(campaign.thresholds)) for status in statuses]
-    _write(output / SUMMARY_JSON, json.dumps({"campaign": campaign.name, "source": str(campaign.source.resolve()),
-                                              "thresholds": dict(campaign.thresholds), "cells": records}, indent=2) + "\n")
+    """All five summary files; returns the records of the campaign's own cells (its attacks, or a replay
+    campaign's replays): the transfer and baseline replays are summed up in sections of their own."""
+    own = [status for status in statuses if status.cell.role in (ATTACK, REPLAY)]
+    records = [record(status, dict(campaign.thresholds)) for status in own]
+    transfer, baseline = transfer_rows(statuses), baseline_rows(statuses, _baseline_before(campaign))
+    document = {"campaign": campaign.name, "source": str(campaign.source.resolve()),
+                "thresholds": dict(campaign.thresholds), "cells": records, "transfer": transfer, "baseline": baseline}
+    _write(output / SUMMARY_JSON, json.dumps(document, indent=2) + "\n")
     _write(output / SUMMARY_CSV, _csv(records))
-    _write(output / SUMMARY_MD, markdown(campaign, records))
-    _write(output / SUMMARY_HTML, html_page(campaign, records, output))
-    _write(output / JUNIT_XML, junit(campaign, statuses, records))
+    _write(output / SUMMARY_MD, markdown(campaign, records, transfer, baseline))
+    _write(output / SUMMARY_HTML, html_page(campaign, records, output, transfer, baseline))
+    _write(output / JUNIT_XML, junit(campaign, own, records))
     return records

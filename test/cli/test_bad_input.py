@@ -387,6 +387,9 @@ def _cases() -> list[Case]:
         Case("advperc campaign FILE", "`ray_address` ''", campaign_file(executor="ray", ray_address=""), "field 'ray_address' must be HOST:PORT"),
         Case("advperc campaign FILE", "`ray_address` 127.0.0.1:1, where nothing answers (Ray retried for minutes)", campaign_file(executor="ray", ray_address="127.0.0.1:1"), "field 'ray_address' nothing answers at 127.0.0.1:1"),
         Case("advperc campaign FILE", "`ray_address` with `executor: process` (was ignored)", campaign_file(executor="process", ray_address="127.0.0.1:6379"), "field 'ray_address' is for executor ray"),
+        Case("advperc campaign FILE", "`baseline` a folder that does not exist", campaign_file(baseline="nowhere"), "field 'baseline' names 'nowhere', which does not exist", "c.yaml"),
+        Case("advperc campaign FILE", "`baseline` a folder that is no campaign's output (no summary.json)", lambda f: (f / "old").mkdir() or campaign_file(baseline=str(f / "old"))(f), "field 'baseline' names", "c.yaml"),
+        Case("advperc campaign FILE", "`baseline` whose summary names an attack folder that is gone", lambda f: _baseline_without_folders(f) or campaign_file(baseline=str(f / "old"))(f), "field 'baseline' cell p-nds_t-0-idm", "report.json"),
         Case("advperc campaign FILE --output", "output a symbolic link to nothing", lambda f: _link(f / "out", "nowhere") or ["campaign", str(REPO / "examples" / "campaign.yaml"), "--output", str(f / "out")], "is a symbolic link", "out"),
         Case("advperc pem fit BAG --output", "output under a symbolic link loop", lambda f: _link(f / "loop", "loop") or ["pem", "fit", str(GOOD_BAG), "--output", str(f / "loop" / "m.json")], "symbolic link loop", "loop"),
         Case("advperc make-bags SCENARIO", "scenario file a FIFO (it blocked forever)", lambda f: os.mkfifo(f / "s.yaml") or ["make-bags", str(f / "s.yaml"), "--output-dir", str(f / "bags")], "not a regular file", "s.yaml"),
@@ -453,6 +456,13 @@ def campaign_file(**fields) -> Callable[[Path], list[str]]:
         (folder / "c.yaml").write_text(yaml.safe_dump(document))
         return ["campaign", str(folder / "c.yaml"), "--quiet"]
     return build
+
+
+def _baseline_without_folders(folder: Path) -> None:
+    """An earlier campaign's output whose summary says `p-nds_t-0-idm` (the cell of `campaign_file`) found an
+    attack, with that cell's folder removed."""
+    (folder / "old").mkdir()
+    (folder / "old" / "summary.json").write_text(json.dumps({"cells": [{"cell": "p-nds_t-0-idm", "collision": True}]}))
 
 
 def _disk_with_one_mib_free(monkeypatch: pytest.MonkeyPatch) -> None:

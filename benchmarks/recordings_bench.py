@@ -10,9 +10,10 @@
     python benchmarks/recordings_bench.py --planners idm --reactive   # traffic that brakes for the ego
 
 Per recording: `advperc import-commonroad X.xml --output DIR/bag` once, then `advperc attack
-DIR/bag.yaml` (IDM), `DIR/bag.obp.yaml` (ObP) or `DIR/bag.reactive.yaml` (the third-party
+DIR/bag.yaml` (IDM), `DIR/bag.obp.yaml` (ObP), `DIR/bag.reactive.yaml` (the third-party
 commonroad-reactive-planner: run this script with the python of the venv holding the `reactive`
-extra). With `--rules`, every attack is run once per rule (`advperc attack --rule NAME`), a column per
+extra) or `DIR/bag.fiss.yaml` with one of fiss-planner's variants (`--planners fop fop_plus fiss
+fiss_plus`, extra `fiss`). With `--rules`, every attack is run once per rule (`advperc attack --rule NAME`), a column per
 rule; with `--reactive`, every attack under reactive traffic (`advperc attack --reactive`), each row
 saying whether a reacting agent was made to brake beyond the comfort bound (the `forced_braking`
 rule) and how many agents left their recording; with `--bundled`, the bundled configs (config/*.yaml,
@@ -44,7 +45,8 @@ from advperc_ros.core.search.registry import METHODS
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data" / "commonroad"
-PLANNERS = ("idm", "obp", "reactive")
+FISS_VARIANTS = ("fop", "fop_plus", "fiss", "fiss_plus")  # fiss-planner's four, from import-commonroad's bag.fiss.yaml
+PLANNERS = ("idm", "obp", "reactive", *FISS_VARIANTS)
 BUNDLED = ("idm_lane_following", "idm_overtake_follow", "obp_overtake", "obp_left_turn", "obp_right_turn")
 
 
@@ -86,8 +88,16 @@ def import_recording(xml: Path, folder: Path) -> tuple[Path | None, str]:
 
 
 def params_file(bag: Path, planner: str) -> Path:
-    """The params file import-commonroad wrote beside the bag for `planner`."""
-    return bag.with_name({"idm": "bag.yaml", "obp": "bag.obp.yaml", "reactive": "bag.reactive.yaml"}[planner])
+    """The params file import-commonroad wrote beside the bag for `planner`; for one of fiss-planner's
+    variants, its bag.fiss.yaml with that variant (written beside it once)."""
+    if planner not in FISS_VARIANTS:
+        return bag.with_name({"idm": "bag.yaml", "obp": "bag.obp.yaml", "reactive": "bag.reactive.yaml"}[planner])
+    variant = bag.with_name(f"bag.{planner}.yaml")
+    if not variant.is_file():
+        document = yaml.safe_load(bag.with_name("bag.fiss.yaml").read_text())
+        document["orchestrator"]["ros__parameters"]["planner_params"]["variant"] = planner
+        variant.write_text(yaml.safe_dump(document, sort_keys=False))
+    return variant
 
 
 @dataclass(frozen=True)

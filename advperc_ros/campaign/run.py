@@ -149,10 +149,11 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
                 bar.set_postfix_str(f"{len(running)} running", refresh=False)
                 reports[result.name] = by_name[result.name].report(output)
                 results[result.name] = result
-                for replay in transfers(by_name[result.name]):  # its attack, on the other planners
-                    cells.append(replay)
+                replays = transfers(by_name[result.name])  # its attack, on the other planners: before more attacks,
+                for replay in reversed(replays):  # as they take seconds, and the matrix fills in as the campaign goes
                     by_name[replay.name] = replay
-                    todo.append(replay)
+                    todo.appendleft(replay)
+                cells += replays
                 bar.total = len(cells)
                 records = write_summary(campaign, output, statuses())
                 say(f"finished {result.name}: {verdict(status(by_name[result.name]), dict(campaign.thresholds)).text}")

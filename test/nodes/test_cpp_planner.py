@@ -13,8 +13,11 @@ import time
 from pathlib import Path
 
 import pytest
+import test_ros2
 from conftest import need_program, need_ros
-from test_ros2 import TIMEOUT, _attack_a_timer_planner_to_a_collision, workspace  # noqa: F401 (workspace: the fixture)
+from test_ros2 import TIMEOUT, _attack_a_timer_planner_to_a_collision
+
+workspace = test_ros2.workspace  # the fixture: a colcon workspace of this module's own, our package built into it
 
 PACKAGE = "src/advperc_ros/examples/cpp_planner"  # nested in our package, so colcon's own crawl does not see it
 

@@ -740,22 +740,48 @@ def test_two_graphs_on_one_domain_never_write_a_no_collision_report(workspace, r
 
 # ----- a team's own stack: Autoware's messages, a planner on a timer ---------------------------------------
 
-def _attack_beside(workspace: Path, domain: int, tmp_path: Path, example: str, arguments: str) -> tuple[Path, str]:
-    """`ros2 launch` of a short attack with `arguments` while a team's node (`examples/<example>`) runs
-    beside it; (the results folder, the node's output), the launch having exited 0."""
+def _attack_beside(workspace: Path, domain: int, tmp_path: Path, node: str, arguments: str) -> tuple[Path, str]:
+    """`ros2 launch` of a short attack with `arguments` while a team's node (the command `node`, run in the
+    workspace) runs beside it; (the results folder, the node's output), the launch having exited 0."""
     params = _small_params(tmp_path, REPO / "config" / "idm_lane_following.yaml")
     output = tmp_path / "attack"
-    node = _in_workspace(workspace, f"python3 {REPO / 'examples' / example}", domain)
+    team_node = _in_workspace(workspace, node, domain)
     try:
         attack = _in_workspace(workspace, f"ros2 launch advperc_ros attack.launch.py params:={params} output:={output} "
                                           f"{arguments}", domain)
         code, log = _ended(attack, timeout=2 * TIMEOUT)
     finally:
-        os.killpg(node.pid, signal.SIGINT)
-        node_log = _ended(node, timeout=60)[1]
+        os.killpg(team_node.pid, signal.SIGINT)
+        node_log = _ended(team_node, timeout=60)[1]
     assert code == 0, _orchestrator_lines(log) + node_log[-2000:]
     assert "Traceback" not in node_log, node_log[-3000:]
     return output, node_log
+
+
+def _example(name: str) -> str:
+    """The command that runs `examples/<name>`, a team's node written in Python."""
+    return f"python3 {REPO / 'examples' / name}"
+
+
+def _attack_a_timer_planner_to_a_collision(workspace: Path, domain: int, tmp_path: Path, node: str, name: str,
+                                           version: str) -> None:
+    """A team's Autoware-style planner on a timer (the command `node`; `name` in the ROS graph, announcing
+    `version` on /attack/nodes) attacked with `interface:=autoware drive:=clock` beside a busy process: every
+    rollout conclusive, a collision found and reproduced (the drive delivered each frame before its clock),
+    the report naming the team's node and its version."""
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])  # a loaded machine delays deliveries
+    try:
+        output, _ = _attack_beside(workspace, domain, tmp_path, node, "planner:=external interface:=autoware drive:=clock")
+    finally:
+        busy.kill()
+        busy.wait()
+    report = _report(output)
+    assert report["collision"] is True and report["inconclusive_rollouts"] == 0, report
+    assert report["reproduced"] is True  # the timer-driven node, driven by the clock, replays its attack
+    assert report["planner"] == "external" and report["planner_node"] == name
+    assert report["planner_version"] == version  # announced on /attack/nodes, covered by config_hash
+    assert report["params"]["planner"] == "external" and report["params"]["planner_params"] == {}  # not ours: no IDM
+    assert f"external ({name} version {version}) planner" in (output / "report.md").read_text()
 
 
 def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_through_ros2_launch(
@@ -763,28 +789,17 @@ def test_the_autoware_example_planner_on_a_timer_is_attacked_to_a_collision_thro
     """examples/autoware_planner.py (PredictedObjects in, a distance-sampled Trajectory out, a 10 Hz
     timer under use_sim_time that plans with whatever it holds; nothing of ours imported) attacked with
     `interface:=autoware drive:=clock` beside a busy process: every rollout conclusive, a collision found
-    and reproduced (the drive delivered each frame before its clock), the report naming the team's node."""
-    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])  # a loaded machine delays deliveries
-    try:
-        output, _ = _attack_beside(workspace, ros_domain, tmp_path, "autoware_planner.py",
-                                   "planner:=external interface:=autoware drive:=clock")
-    finally:
-        busy.kill()
-        busy.wait()
-    report = _report(output)
-    assert report["collision"] is True and report["inconclusive_rollouts"] == 0, report
-    assert report["reproduced"] is True  # the timer-driven node, driven by the clock, replays its attack
-    assert report["planner"] == "external" and report["planner_node"] == "/autoware_style_planner"
-    assert report["planner_version"] == "acc-0.4"  # announced on /attack/nodes, covered by config_hash
-    assert report["params"]["planner"] == "external" and report["params"]["planner_params"] == {}  # not ours: no IDM
-    assert "external (/autoware_style_planner version acc-0.4) planner" in (output / "report.md").read_text()
+    and reproduced (the drive delivered each frame before its clock), the report naming the team's node.
+    test_cpp_planner.py attacks its C++ counterpart the same way."""
+    _attack_a_timer_planner_to_a_collision(workspace, ros_domain, tmp_path, _example("autoware_planner.py"),
+                                           "/autoware_style_planner", "acc-0.4")
 
 
 def test_a_team_s_own_tracker_on_vision_msgs_detections_is_attacked_with_our_planner(workspace, ros_domain, tmp_path):
     """examples/vision_tracker.py (Detection3DArray in, our MarkerArray tracks out; nothing of ours
     imported) in place of our tracker with `tracker:=external interface:=vision_msgs`: the errors go
     in at the detector's output and through the team's tracker to our planner; the report names it."""
-    output, _ = _attack_beside(workspace, ros_domain, tmp_path, "vision_tracker.py",
+    output, _ = _attack_beside(workspace, ros_domain, tmp_path, _example("vision_tracker.py"),
                                "tracker:=external interface:=vision_msgs")
     report = _report(output)
     assert report["collision"] is True and report["inconclusive_rollouts"] == 0 and report["reproduced"] is True, report

@@ -104,7 +104,7 @@ def run_attack(scenario: Scenario, params: AttackParams, progress: bool = True,
     rule = attacked_rule(params.rule.name, scenario, configs.rollout, configs.rulebook)
     problem = AttackProblem(scenario, backend.rollout, params.objective,
                             run_rollouts=getattr(backend, "rollout_many", None), kinds=config.errors.kinds,
-                            attacked_rule=rule)
+                            attacked_rule=rule, restriction=params.restriction())
     try:
         result = run_search(problem, config, on_estimate=counter)
     finally:

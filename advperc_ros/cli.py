@@ -9,22 +9,43 @@ import argparse
 import json
 import logging
 import math
+import os
 import shutil
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import NoReturn
 
 import numpy as np
 
+from advperc_ros.arguments import (
+    OneLineParser,
+    count,
+    error_kinds,
+    pathname,
+    radii,
+    strengths,
+)
 from advperc_ros.configs import core_configs
-from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
+from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS
+from advperc_ros.core.perception_errors.restriction import (
+    DEFAULT_ITERATIONS,
+    DEFAULT_RADII,
+)
+from advperc_ros.core.perception_errors.restriction import DEFAULT_KINDS as DEFAULT_REQUIREMENT_KINDS
 from advperc_ros.core.robustness import DEFAULT_STRENGTHS
 from advperc_ros.core.rules.registry import RULES
 from advperc_ros.core.scenario import Scenario
 from advperc_ros.core.search.problem import OBJECTIVES
 from advperc_ros.core.search.registry import METHODS as SEARCH_METHODS
-from advperc_ros.exceptions import BagError, OutputError, ParamsError, ResultsError, ScenarioError, ScenarioRejected
+from advperc_ros.exceptions import (
+    BagError,
+    OutputError,
+    ParamsError,
+    RequirementSearchFailed,
+    ResultsError,
+    ScenarioError,
+    ScenarioRejected,
+)
 from advperc_ros.exits import EXIT_INPUT, EXIT_INTERRUPTED, EXIT_NOTHING_TO_ATTACK, EXIT_OK, EXPECTED_TYPES, expected_failure
 from advperc_ros.heap import keep_freed_heap
 from advperc_ros.params import load_params
@@ -237,6 +258,23 @@ def cmd_campaign(args: argparse.Namespace) -> int:
     return run.exit_code
 
 
+def cmd_requirements(args: argparse.Namespace) -> int:
+    from advperc_ros.requirements import requirements_of
+
+    try:
+        brackets = requirements_of(args.params, Path(args.output), args.kinds, args.bins, args.iterations, args.budget,
+                                   args.executor, args.workers, progress=not args.quiet)
+    except RequirementSearchFailed as failed:
+        print(f"advperc: {failed}", file=sys.stderr)
+        return failed.exit_code if failed.exit_code is not None else 1
+    for b in brackets:
+        breaks = f"breaks at {b.breaks_at:.3g} {b.unit} ({b.attack})" if b.breaks_at is not None else "not broken"
+        print(f"{b.scenario} {b.kind} {b.bin}: tolerated up to {b.tolerated:.3g} {b.unit}, {breaks}", file=sys.stderr)
+    print(json.dumps({"output": args.output, "brackets": len(brackets),
+                      "broken": sum(b.breaks_at is not None for b in brackets)}))
+    return EXIT_OK
+
+
 def cmd_score(args: argparse.Namespace) -> int:
     from advperc_ros.core.metrics.scores import score
     from advperc_ros.core.pem import PEM, default_pem
@@ -292,50 +330,6 @@ def cmd_check_bag(args: argparse.Namespace) -> int:
     return 0
 
 
-class OneLineParser(argparse.ArgumentParser):
-    """argparse's refusals as every other bad input: one line, exit code 2 (`advperc -h` for usage)."""
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(EXIT_INPUT, f"advperc: error: {self.prog}: {message}\n")
-
-
-def _count(text: str) -> int:
-    """A number of samples: a whole number, at least 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a whole number, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"must be at least 1, got {value}")
-    return value
-
-
-def _path(text: str) -> str:
-    """A path argument: an empty one (`--output ''`) names nothing, and was taken for the default."""
-    if not text.strip():
-        raise argparse.ArgumentTypeError("an empty path names nothing; give one or leave the flag out")
-    return text
-
-
-def _error_kinds(text: str) -> tuple[str, ...]:
-    """Error kinds as `errors.kinds` names them (paper, all, or a comma-separated list)."""
-    try:
-        return parse_error_kinds(text)
-    except ValueError as error:
-        raise argparse.ArgumentTypeError(str(error)) from None
-
-
-def _strengths(text: str) -> tuple[float, ...]:
-    """Perturbation strengths: comma-separated probabilities in [0, 1]."""
-    try:
-        values = tuple(float(part) for part in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated numbers, got {text!r}") from None
-    if not all(0.0 <= value <= 1.0 for value in values):
-        raise argparse.ArgumentTypeError(f"each strength is a probability in [0, 1], got {text!r}")
-    return values
-
-
 def _import_bag_epilog() -> str:
     """What import-bag reads, listed from the interface profiles and the importer's own tables, so that
     the help names exactly the types the decoders take."""
@@ -361,7 +355,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     attack = sub.add_parser("attack", help="search for an adversarial perception attack (no ROS needed)")
     attack.add_argument("params", help="params YAML in the ROS layout (orchestrator: ros__parameters: ...)")
-    attack.add_argument("--output", type=_path, help="results folder to create (default results/<params>-seed<N>)")
+    attack.add_argument("--output", type=pathname, help="results folder to create (default results/<params>-seed<N>)")
     attack.add_argument("--seed", type=int, help="override the params file's seed")
     attack.add_argument("--objective", choices=OBJECTIVES, help="override the params file's objective")
     attack.add_argument("--errors", metavar="KINDS", help="override the params file's errors.kinds: paper, all, or a "
@@ -375,7 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
     attack.add_argument("--fork-memory", type=int, metavar="MB", help="override the params file's fork_memory: MB of "
                         "snapshots each process keeps to fork rollouts from (0: every rollout from frame 0)")
     attack.add_argument("--quiet", action="store_true", help="no progress bar")
-    attack.add_argument("--resume", metavar="OUTPUT", type=_path,
+    attack.add_argument("--resume", metavar="OUTPUT", type=pathname,
                         help="finish the interrupted attack whose results folder was to be "
                         "OUTPUT (same params): rollouts already run are not run again, and the report is the one an "
                         "uninterrupted run writes")
@@ -385,14 +379,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     make_bags = sub.add_parser("make-bags", help="write ground-truth bags from scenario descriptions")
     make_bags.add_argument("scenarios", nargs="*", help="scenario YAML files (default scenarios/*.yaml)")
-    make_bags.add_argument("--output-dir", type=_path, default="bags", help="where to write the bags (default bags/)")
+    make_bags.add_argument("--output-dir", type=pathname, default="bags", help="where to write the bags (default bags/)")
     make_bags.add_argument("--force", action="store_true", help="rewrite bags that exist")
     make_bags.set_defaults(func=cmd_make_bags)
 
     importer = sub.add_parser("import-commonroad", help="CommonRoad scenario of recorded traffic -> ground-truth bag")
     importer.add_argument("scenario", help="CommonRoad XML file")
-    importer.add_argument("--output", type=_path, help="bag directory to write (default bags/<scenario id>)")
-    importer.add_argument("--params", type=_path, help="params file to write for attacking it (default <output>.yaml)")
+    importer.add_argument("--output", type=pathname, help="bag directory to write (default bags/<scenario id>)")
+    importer.add_argument("--params", type=pathname, help="params file to write for attacking it (default <output>.yaml)")
     importer.set_defaults(func=cmd_import_commonroad)
 
     drive = sub.add_parser("import-bag", help="a recorded drive (rosbag2 log: objects + odometry) -> ground-truth bag",
@@ -401,41 +395,61 @@ def build_parser() -> argparse.ArgumentParser:
     drive.add_argument("--objects", help="objects topic (default: the only one of a type an interface profile speaks)")
     drive.add_argument("--odometry", help="nav_msgs/Odometry topic of the ego (default: the only one)")
     drive.add_argument("--dt", type=float, default=0.1, help="frame period to resample to, s (default 0.1)")
-    drive.add_argument("--output", type=_path, help="bag directory to write (default bags/<log name>)")
-    drive.add_argument("--params", type=_path, help="params file to write for attacking it (default <output>.yaml)")
+    drive.add_argument("--output", type=pathname, help="bag directory to write (default bags/<log name>)")
+    drive.add_argument("--params", type=pathname, help="params file to write for attacking it (default <output>.yaml)")
     drive.set_defaults(func=cmd_import_bag)
 
     typical = sub.add_parser("check-typical", help="roll out PEM-sampled typical errors; exit 1 on any collision")
     typical.add_argument("params", help="params YAML, as for attack")
-    typical.add_argument("--samples", type=_count, default=100, help="rollouts (paper: 100)")
+    typical.add_argument("--samples", type=count, default=100, help="rollouts (paper: 100)")
     typical.add_argument("--seed", type=int, default=0)
-    typical.add_argument("--model", type=_path, help="PEM JSON (default: the shipped model for the params' errors.kinds: "
+    typical.add_argument("--model", type=pathname, help="PEM JSON (default: the shipped model for the params' errors.kinds: "
                          "the hand-specified one for the paper's kinds, the calibrated one with every term beyond)")
     typical.set_defaults(func=cmd_check_typical)
 
     robust = sub.add_parser("robustness", help="perturb a found attack at growing strength (paper figure 5)")
     robust.add_argument("results", help="results folder of an attack (report.json + attack_errors.npz)")
-    robust.add_argument("--strengths", type=_strengths, default=DEFAULT_STRENGTHS,
+    robust.add_argument("--strengths", type=strengths, default=DEFAULT_STRENGTHS,
                         help="comma-separated strengths in [0, 1]")
-    robust.add_argument("--samples", type=_count, default=10, help="perturbations per strength (paper: 10)")
+    robust.add_argument("--samples", type=count, default=10, help="perturbations per strength (paper: 10)")
     robust.add_argument("--seed", type=int, default=0)
     robust.set_defaults(func=cmd_robustness)
 
     campaign = sub.add_parser("campaign", help="attack scenarios x objectives x seeds x rules x planners (or replay found "
                               "attacks) into one table, JUnit XML included; resumable")
     campaign.add_argument("campaign", help="campaign YAML (see the README's Campaigns)")
-    campaign.add_argument("--output", type=_path, help="override the campaign's output folder")
+    campaign.add_argument("--output", type=pathname, help="override the campaign's output folder")
     campaign.add_argument("--executor", choices=("process", "ray", "serial"), help="override the campaign's executor")
     campaign.add_argument("--workers", type=int, help="override the campaign's workers")
     campaign.add_argument("--quiet", action="store_true", help="no progress bar, no per-cell lines")
     campaign.set_defaults(func=cmd_campaign)
 
+    needs = sub.add_parser("requirements", help="how good perception must be for the planner: per error kind and "
+                           "distance from the ego, the largest error the search cannot break the rule with, and the "
+                           "attack that breaks the next (docs/requirements.md); resumable")
+    needs.add_argument("params", nargs="+", help="params YAML of each scenario, as for attack")
+    needs.add_argument("--output", required=True, type=pathname, help="folder to write (requirements.json, .md, plots, "
+                       "noise.yaml, a results folder per search); the same command resumes it")
+    needs.add_argument("--kinds", default=",".join(DEFAULT_REQUIREMENT_KINDS),
+                       help="comma-separated kinds to bound: drop, position, yaw, velocity, size, latency, or all "
+                       f"(default {','.join(DEFAULT_REQUIREMENT_KINDS)})")
+    needs.add_argument("--bins", type=radii, default=DEFAULT_RADII, help="the distance bins' outer radii in m, "
+                       "increasing, the first bin from the ego (default 20,40,60)")
+    needs.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS,
+                       help=f"halvings of each bracket after its largest magnitude broke (default {DEFAULT_ITERATIONS})")
+    needs.add_argument("--budget", type=count, help="rollouts of each search (search.budget; default the params')")
+    needs.add_argument("--executor", choices=("process", "ray", "serial"), default="process",
+                       help="where the searches of a round run (default process)")
+    needs.add_argument("--workers", type=count, default=os.cpu_count() or 1, help="searches at once (default: CPUs)")
+    needs.add_argument("--quiet", action="store_true", help="no progress bar")
+    needs.set_defaults(func=cmd_requirements)
+
     replay_cmd = sub.add_parser("replay", help="re-run a found attack's errors against another planner or configuration")
     replay_cmd.add_argument("results", help="results folder of an attack that collided (report.json + attack_errors.npz)")
-    replay_cmd.add_argument("--params", type=_path,
+    replay_cmd.add_argument("--params", type=pathname,
                             help="params YAML of the planner or configuration to replay against (same bag); "
                             "default: the attack's own")
-    replay_cmd.add_argument("--output", type=_path,
+    replay_cmd.add_argument("--output", type=pathname,
                             help="replay folder to write (replay.json, replay.md, bev.png); default: none")
     replay_cmd.add_argument("--backend", choices=("embedded", "graph"), help="override rollout_backend")
     replay_cmd.set_defaults(func=cmd_replay)
@@ -448,17 +462,17 @@ def build_parser() -> argparse.ArgumentParser:
     pem_fit.add_argument("--ground-truth", help="one ground-truth bag for all the detection bags")
     pem_fit.add_argument("--nuscenes-gt", help="nuScenes ground-truth boxes JSON (devkit-serialised, with ego_translation)")
     pem_fit.add_argument("--topic", default="/perception/objects", help="detections topic")
-    pem_fit.add_argument("--output", required=True, type=_path, help="model JSON to write")
+    pem_fit.add_argument("--output", required=True, type=pathname, help="model JSON to write")
     pem_fit.set_defaults(func=cmd_pem_fit)
 
     score_cmd = sub.add_parser("score", help="perception metrics of a perceived bag against ground truth, as JSON")
     score_cmd.add_argument("ground_truth", help="ground-truth bag (topic /ground_truth/objects)")
     score_cmd.add_argument("perceived", help="bag with detections (confidence in each CUBE marker's text)")
     score_cmd.add_argument("--topic", default="/perception/objects", help="detections topic in the perceived bag")
-    score_cmd.add_argument("--errors", metavar="KINDS", type=_error_kinds, default=PAPER_KINDS,
+    score_cmd.add_argument("--errors", metavar="KINDS", type=error_kinds, default=PAPER_KINDS,
                            help="score PEM LL with the shipped model for these kinds, as an attack with this "
                            "errors.kinds did (paper: the hand-specified one; any kind beyond: the calibrated one)")
-    score_cmd.add_argument("--model", type=_path, help="PEM JSON to score PEM LL with instead (overrides --errors)")
+    score_cmd.add_argument("--model", type=pathname, help="PEM JSON to score PEM LL with instead (overrides --errors)")
     score_cmd.set_defaults(func=cmd_score)
 
     check_bag = sub.add_parser("check-bag", help="check a ground-truth bag against the bag contract")

@@ -128,3 +128,13 @@ class PlanTimeout(AdvpercError):
 
 class PlanError(AdvpercError, ValueError):
     """A plan the ego cannot follow; the rollout that received it is inconclusive."""
+
+
+class RequirementSearchFailed(AdvpercError, RuntimeError):
+    """A search of `advperc requirements` failed as an attack can (its ground truth breaks the rule, a bag it
+    cannot read): its results folder and line, and the exit code the attack would have ended with, which the
+    command ends with too."""
+
+    def __init__(self, line: str, exit_code: int | None) -> None:
+        super().__init__(line)
+        self.exit_code = exit_code

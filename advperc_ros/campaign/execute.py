@@ -333,8 +333,14 @@ class RayExecutor:
 
 
 def executor(campaign: Campaign, output: Path, progress: bool) -> Executor:
-    if campaign.executor == "serial":
+    return make_executor(campaign.executor, output, progress, campaign.workers, campaign.ray_address)
+
+
+def make_executor(kind: str, output: Path, progress: bool, workers: int, ray_address: str | None = None) -> Executor:
+    """The executor `kind` (serial, process or ray) writing cells into `output`: a campaign's, or any other
+    run of many attacks (`advperc requirements`)."""
+    if kind == "serial":
         return SerialExecutor(output, progress)
-    if campaign.executor == "process":
-        return ProcessExecutor(output, campaign.workers)
-    return RayExecutor(output, campaign.workers, campaign.ray_address)
+    if kind == "process":
+        return ProcessExecutor(output, workers)
+    return RayExecutor(output, workers, ray_address)

@@ -20,6 +20,7 @@ from typing import Any, cast
 from advperc_ros.core.parameters import parameter_info
 from advperc_ros.core.perception_errors import ERROR_KINDS, PAPER_KINDS, parse_error_kinds
 from advperc_ros.core.perception_errors.registry import bounds as error_bounds
+from advperc_ros.core.perception_errors.restriction import MAGNITUDES, Restriction
 from advperc_ros.core.rules.registry import RULES, rule_class
 from advperc_ros.core.rules.verdict import CONTACT_RULES, DEFAULT_RULE
 from advperc_ros.core.search.registry import METHODS
@@ -238,6 +239,23 @@ ERRORS_DEFAULTS = ErrorsParams()
 
 
 @dataclass(frozen=True)
+class RequirementParams:
+    """The error space of one perception requirement, which `advperc requirements` sets per search: one error
+    kind, at one range of distances from the ego, bounded by one magnitude (`core.perception_errors.restriction`).
+    Off (`kind` empty) in an ordinary attack, whose report and config hash then do not mention it."""
+
+    kind: str = _param("", "requirement search: the one error kind the search may use, each error tensor projected "
+                       "onto it (docs/requirements.md); empty: off. " + "; ".join(
+                           f"{name}: {m.description} ({m.unit})" for name, m in MAGNITUDES.items()),
+                       choices=("", *MAGNITUDES))
+    magnitude: float = _param(0.0, "requirement search: the largest error of that kind, in its unit", low=0.0,
+                              high=1e6)
+    near: float = _param(0.0, "requirement search: errors only on cars at least this far from the ego (m)", low=0.0,
+                         high=1e6)
+    far: float = _param(0.0, "requirement search: and less far than this (m); 0: no limit", low=0.0, high=1e6)
+
+
+@dataclass(frozen=True)
 class SearchParams:
     """The search: its method, its rollout budget and each phase's settings, grouped as the file nests them."""
 
@@ -301,6 +319,7 @@ class AttackParams:
     traffic: Any = TRAFFIC_DEFAULTS
     errors: ErrorKindsChoice = ERRORS_DEFAULTS
     search: SearchParams = SearchParams()
+    requirement: RequirementParams = RequirementParams()
     workers: int = _param(1, "embedded backend: processes that run a guided round's rollouts at once; the attack "
                           "is the same whatever the number", low=1, high=256)
     fork_memory: int = _param(256, "embedded backend: MB of snapshots each process keeps, so that a rollout starts "
@@ -325,6 +344,17 @@ class AttackParams:
         if self.search.method == "paper" and parse_error_kinds(self.errors.kinds) != PAPER_KINDS:
             raise ParamsError(f"{where}: parameter 'errors.kinds' must be paper with search.method paper (the "
                               f"paper's search makes the paper's errors only); the guided method searches any kinds")
+        requirement = self.requirement
+        if requirement.kind:
+            if requirement.far and requirement.far <= requirement.near:
+                raise ParamsError(f"{where}: parameter 'requirement.far' must be above requirement.near "
+                                  f"({requirement.near}), or 0 for no limit, got {requirement.far}")
+            if requirement.kind not in parse_error_kinds(self.errors.kinds):
+                raise ParamsError(f"{where}: parameter 'requirement.kind' is {requirement.kind}, which errors.kinds "
+                                  f"({self.errors.kinds}) does not turn on")
+            if self.search.method == "paper":
+                raise ParamsError(f"{where}: parameter 'requirement.kind' needs search.method guided (the paper's "
+                                  f"search makes the paper's errors only, unrestricted)")
         if self.rule.at_fault_only and self.rule.name not in CONTACT_RULES:
             raise ParamsError(f"{where}: parameter 'rule.at_fault_only' is true, but it is of the collision rule and "
                               f"rule.name is {self.rule.name}: set it false (or rule.name at_fault_collision)")
@@ -354,8 +384,17 @@ class AttackParams:
         return {**self.flat(), PLANNER_PARAMS: dict(self.planner_params)}
 
     def canonical(self) -> dict[str, Any]:
-        """What determines the results: every value but the EXECUTION ones, and the planner's."""
-        return {name: value for name, value in self.values().items() if name not in EXECUTION}
+        """What determines the results: every value but the EXECUTION ones, and the planner's; the requirement's
+        only when it is on, so that an ordinary attack's identity is what it was before requirements."""
+        off = () if self.requirement.kind else REQUIREMENT
+        return {name: value for name, value in self.values().items() if name not in EXECUTION and name not in off}
+
+    def restriction(self) -> Restriction | None:
+        """The requirement's error space, None when off."""
+        requirement = self.requirement
+        if not requirement.kind:
+            return None
+        return Restriction(requirement.kind, requirement.magnitude, requirement.near, requirement.far or math.inf)
 
     def config_hash(self, **external_nodes: str | None) -> str:
         """16 hex digits of what determines the results: the canonical params, and the team's nodes that
@@ -386,6 +425,7 @@ def _schema(cls: type, prefix: str = "") -> dict[str, Param]:
 
 
 SCHEMA: dict[str, Param] = _schema(AttackParams)
+REQUIREMENT = tuple(f"requirement.{f.name}" for f in dataclasses.fields(RequirementParams))
 EXECUTION = ("workers", "fork_memory", "rollout_backend",
              "dds.domain_id", "dds.localhost_only", "graph.timeout", "graph.spawn_nodes",
              "graph.drive")

@@ -397,3 +397,33 @@ def robustness(path: Path, points, objective: str) -> None:
     fig.suptitle("Robustness of the attack to random perturbations")
     fig.tight_layout()
     _save(fig, path, dpi=120)
+
+
+def requirements(path: Path, brackets) -> None:
+    """One error kind's perception requirement against distance from the ego: per scenario, a step per
+    distance bin from 0 up to the tolerated magnitude (solid) and on to the one that broke the rule (hatched),
+    an arrow where nothing broke it up to the largest magnitude searched (`advperc requirements`)."""
+    fig, ax = plt.subplots(figsize=(6.5, 3.6))
+    scenarios = list(dict.fromkeys(b.scenario for b in brackets))
+    width = 0.8 / max(len(scenarios), 1)
+    bins = list(dict.fromkeys((b.near, b.far) for b in brackets))
+    for s, scenario in enumerate(scenarios):
+        color = f"C{s % 10}"
+        for b in (b for b in brackets if b.scenario == scenario):
+            x = bins.index((b.near, b.far)) - 0.4 + width * (s + 0.5)
+            ax.bar(x, b.tolerated, width * 0.9, color=color, label=scenario if b is brackets[0] or
+                   (b.near, b.far) == bins[0] else None)
+            if b.breaks_at is not None:
+                ax.bar(x, b.breaks_at - b.tolerated, width * 0.9, bottom=b.tolerated, color="none", edgecolor=color,
+                       hatch="//")
+            else:
+                ax.annotate("", (x, b.tolerated * 1.08 + 1e-3), (x, b.tolerated), arrowprops={"arrowstyle": "->"})
+    kind, unit = brackets[0].kind, brackets[0].unit
+    ax.set_xticks(range(len(bins)), [f"{near:g}-{far:g} m" for near, far in bins])
+    ax.set_xlabel("distance from the ego")
+    ax.set_ylabel(f"{kind} ({unit})")
+    ax.set_title(f"{kind}: tolerated (solid) and broken at (hatched)")
+    ax.grid(alpha=0.3, axis="y")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path, dpi=120)

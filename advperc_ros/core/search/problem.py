@@ -10,6 +10,7 @@ from advperc_ros.core.boxes import BoxSequence
 from advperc_ros.core.metrics.scores import PerceptionScores, score
 from advperc_ros.core.pem import default_pem, features
 from advperc_ros.core.perception_errors import PAPER_KINDS, PerceptionErrors, inject
+from advperc_ros.core.perception_errors.restriction import Restriction, Scene
 from advperc_ros.core.rollout import RolloutResult, true_agents
 from advperc_ros.core.rules.verdict import AttackedRule
 from advperc_ros.core.scenario import Scenario
@@ -130,6 +131,10 @@ class AttackProblem:
     # the rule attacked when it is not a contact rule: every rollout is judged by it here, once, before it is
     # scored and logged (against the ground truth's rollout, the first logged); None: the backends' contact verdict
     attacked_rule: AttackedRule | None = None
+    # a requirement's error space: every tensor projected onto it before it is scored or rolled out, its distance
+    # bin read from the ground truth's rollout; None: the search's whole error space
+    restriction: Restriction | None = None
+    _scene: Scene | None = field(default=None, repr=False)
     _reference: RolloutResult | None = field(default=None, repr=False)
     _reference_phi: np.ndarray | None = field(default=None, repr=False)
 
@@ -156,8 +161,27 @@ class AttackProblem:
         return perception_scores(true_agents(rollout, self.scenario), errors, rollout.num_frames, rollout.ego_xy, phi,
                                  self.kinds)
 
+    def restricted(self, errors: PerceptionErrors) -> PerceptionErrors:
+        """`errors` projected onto the requirement's error space (unchanged without one). Before the ground
+        truth is rolled out there is no distance to go by, and nothing but perfect perception is rolled out."""
+        if self.restriction is None:
+            return errors
+        if self.truth is None:
+            blank = PerceptionErrors.none(*errors.shape, errors.kinds, errors.ghost_slots).arrays()
+            if any(not np.array_equal(array, blank[name]) for name, array in errors.arrays().items()):
+                raise RuntimeError("a requirement search rolled out errors before the ground truth, whose rollout "
+                                   "its distance bin is measured on")
+            return errors
+        if self._scene is None:
+            rollout, restriction = self.truth.rollout, self.restriction
+            truth = true_agents(rollout, self.scenario)
+            self._scene = Scene.of(truth.x, truth.y, truth.yaw, self.scenario.agents.valid, rollout.ego_xy,
+                                   self.scenario.dt, restriction.near, restriction.far)
+        return self.restriction.project(errors, self._scene)
+
     def metric(self, errors: PerceptionErrors, reference: RolloutResult) -> float:
         """The objective of errors judged on a previous rollout's ground truth (Algorithm 2)."""
+        errors = self.restricted(errors)
         if self._reference is not reference:  # proposals of one step share the rollout: and its PEM features
             self._reference = reference
             self._reference_phi = features(true_agents(reference, self.scenario).frames(reference.num_frames),
@@ -174,6 +198,10 @@ class AttackProblem:
         (`run_rollouts`)."""
         if self.budget is not None and len(self.log) + len(batch) > self.budget:
             raise BudgetSpent(f"{len(self.log)} of {self.budget} rollouts run; {len(batch)} more asked for")
+        if self.restriction is not None and self.truth is None and len(batch) > 1 and batch[0][1] == Phase.GROUND_TRUTH:
+            # the rest of the batch is projected by distances measured on the ground truth's rollout
+            return self.evaluate_many(batch[:1]) + self.evaluate_many(batch[1:])
+        batch = [(self.restricted(e), phase, agent) for e, phase, agent in batch]
         errors = [item[0] for item in batch]
         if self.run_rollouts is not None and len(batch) > 1:
             results = self.run_rollouts(errors)

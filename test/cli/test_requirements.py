@@ -1,0 +1,152 @@
+"""`advperc requirements`: the bracket of a case whose tolerance is known in closed form holds it, every
+broken bound names an attack that breaks the rule inside the requirement's space, the outputs, resuming, the
+executors, and refusals before any search.
+
+The closed-form case: the ego stands 1 m (IDM's min_gap, its equilibrium at rest) behind a parked car, and the
+tracker drops a track at its first missed frame. While the car is missed, IDM sees a free road and accelerates
+at max_accel a; once the car is seen again it brakes at max_decel b (its clip, far below what IDM asks for that
+close). After a miss of t s it has covered a t^2 / 2 and needs (a t)^2 / (2 b) more to stop, so it hits the car
+when a t^2 / 2 + (a t)^2 / (2 b) > 1 m: with a = 1 and b = 3 m/s^2, for t > sqrt(1.5) = 1.22 s, 12 frames of
+0.1 s tolerated and 13 not. Misses spread over the scenario add up (a frame seen between them only brakes), so
+a requirement on the total time missed has the same tolerance."""
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from toy_scenarios import FOLLOW_SPEC
+
+from advperc_ros.cli import main
+from advperc_ros.core.perception_errors.restriction import DEFAULT_ITERATIONS, MAGNITUDES
+from advperc_ros.core.scenario_spec import build_scenario
+from advperc_ros.results.folder import load_errors
+from advperc_ros.ros.bag import write_ground_truth_bag
+
+GAP, ACCEL, DECEL, DT = 1.0, 1.0, 3.0, 0.1
+TOLERATED = math.sqrt(GAP / (ACCEL / 2 + ACCEL**2 / (2 * DECEL)))  # s: 1.2247
+STANDING = {**FOLLOW_SPEC, "name": "standing", "duration": 6.0,
+            "ego": {"route": ["east"], "start_s": 100.0, "speed": 0.0},
+            "agents": [{"id": 1, "lane": "east", "start_s": 100.0 + 4.6 + GAP, "speed": 0.0, "size": [4.6, 1.9, 1.6]}]}
+
+
+def standing_params(folder: Path) -> Path:
+    write_ground_truth_bag(folder / "bag", build_scenario(STANDING))
+    params = {"bag": str(folder / "bag"), "planner": "idm",
+              "planner_params": {"target_speed": 14.0, "min_gap": GAP, "max_accel": ACCEL, "max_decel": DECEL},
+              "tracker": {"max_age": DT}, "search": {"budget": 30}}
+    (folder / "standing.yaml").write_text(yaml.safe_dump({"orchestrator": {"ros__parameters": params}}))
+    return folder / "standing.yaml"
+
+
+def requirements(params: Path, output: Path, *flags: str, capsys) -> dict:
+    capsys.readouterr()
+    code = main(["requirements", str(params), "--output", str(output), "--quiet", *flags])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    return json.loads(out.out)
+
+
+@pytest.fixture(scope="module")
+def standing(tmp_path_factory) -> tuple[Path, Path]:
+    """(params, output) of the closed-form case's drop requirement in one bin and one beyond: read only."""
+    folder = tmp_path_factory.mktemp("standing")
+    params = standing_params(folder)
+    assert main(["requirements", str(params), "--output", str(folder / "out"), "--kinds", "drop", "--bins", "20,40",
+                 "--executor", "serial", "--quiet"]) == 0
+    return params, folder / "out"
+
+
+def rows(output: Path) -> list[dict]:
+    return json.loads((output / "requirements.json").read_text())
+
+
+def test_the_bracket_holds_the_closed_form_tolerance(standing):
+    near, far = rows(standing[1])
+    assert (near["kind"], near["bin"], near["rule"]) == ("drop", "0-20 m", "collision")
+    frames = math.floor(TOLERATED / DT)  # the longest miss in whole frames that the ego survives: 12
+    # tolerated up to a magnitude that allows the 12 frames (not 13), broken at one that allows 13 or more
+    assert math.floor(near["tolerated"] / DT + 1e-9) == frames, near
+    assert near["breaks_at"] is not None and math.floor(near["breaks_at"] / DT + 1e-9) >= frames + 1, near
+    largest = MAGNITUDES["drop"].largest
+    assert near["breaks_at"] - near["tolerated"] <= largest / 2**DEFAULT_ITERATIONS + 1e-9  # the halvings of [0, largest]
+    # no car is ever 20-40 m away: nothing to miss there, nothing broken up to the kind's largest magnitude
+    assert (far["bin"], far["tolerated"], far["breaks_at"], far["attack"], far["searches"]) == ("20-40 m", largest, None,
+                                                                                             None, 1)
+
+
+def test_the_attack_that_breaks_the_bound_breaks_the_rule_inside_the_requirement(standing):
+    _, output = standing
+    near = rows(output)[0]
+    folder = output / near["attack"]
+    report = json.loads((folder / "report.json").read_text())
+    assert report["collision"] is True and report["reproduced"] is True
+    assert report["params"]["requirement.kind"] == "drop" and report["params"]["requirement.magnitude"] == near["breaks_at"]
+    errors = load_errors(folder / "attack_errors.npz")
+    assert errors.fn.sum() <= math.floor(near["breaks_at"] / DT + 1e-9) and errors.fn.sum() > TOLERATED / DT
+    assert not errors.dx.any() and not errors.dy.any() and not errors.dyaw.any()  # one kind only
+    assert (folder / "attack").is_dir()  # the bag to hand to the planner engineers
+
+
+def test_the_outputs_say_what_a_tolerated_level_is(standing):
+    _, output = standing
+    table = (output / "requirements.md").read_text()
+    assert "an upper bound on what is safe" in table and "| standing | drop | 0-20 m | " in table
+    assert all(row["caveat"].startswith("A tolerated level is") for row in rows(output))
+    assert (output / "requirements-drop.png").stat().st_size > 1000
+    noise = yaml.safe_load((output / "noise.yaml").read_text())
+    assert noise["noise"]["model"]["version"] == 2 and noise["noise"]["v2"]["ellipse_y_radii"] == [20, 40]
+
+
+def test_running_it_again_runs_no_search_and_gives_the_same_rows(standing, tmp_path, capsys):
+    params, output = standing
+    copy = tmp_path / "out"
+    shutil.copytree(output, copy)
+    before = {p.name: p.stat().st_mtime_ns for p in (copy / "searches").iterdir()}
+    requirements(params, copy, "--kinds", "drop", "--bins", "20,40", "--executor", "serial", capsys=capsys)
+    assert {p.name: p.stat().st_mtime_ns for p in (copy / "searches").iterdir()} == before
+    assert rows(copy) == rows(output)
+
+
+def test_a_process_pool_gives_the_serial_rows(standing, tmp_path, capsys):
+    params, output = standing
+    requirements(params, tmp_path / "pool", "--kinds", "drop", "--bins", "20,40", "--executor", "process", "--workers",
+                 "2", capsys=capsys)
+    assert rows(tmp_path / "pool") == rows(output)
+
+
+def test_a_search_that_fails_ends_the_command_with_its_exit_code_and_line(tmp_path, capsys):
+    """An ego rolling at 5 m/s 1 m behind a parked car collides with perfect perception: nothing to bound."""
+    params = standing_params(tmp_path)
+    document = yaml.safe_load(params.read_text())
+    spec = {**STANDING, "ego": {**STANDING["ego"], "speed": 5.0}}
+    write_ground_truth_bag(tmp_path / "moving", build_scenario(spec))
+    document["orchestrator"]["ros__parameters"]["bag"] = str(tmp_path / "moving")
+    params.write_text(yaml.safe_dump(document))
+    capsys.readouterr()
+    assert main(["requirements", str(params), "--output", str(tmp_path / "out"), "--kinds", "drop", "--bins", "20",
+                 "--executor", "serial", "--quiet"]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "standing-drop-0-20m-10" in err[0] and "collides with perfect perception" in err[0], err
+    assert not (tmp_path / "out" / "requirements.json").exists()
+
+
+def test_a_position_requirement_on_a_bundled_scenario_names_attacks_that_collide(repo, tmp_path, capsys):
+    """The issue's command on the bundled IDM scenario, shortened (one halving, 20 rollouts a search): every
+    broken bound's attack collides with position errors alone, none on cars outside its bin."""
+    summary = requirements(repo / "config" / "idm_lane_following.yaml", tmp_path / "out", "--kinds", "position",
+                           "--iterations", "1", "--budget", "20", "--executor", "process", "--workers", "2",
+                           capsys=capsys)
+    found = rows(tmp_path / "out")
+    assert [row["bin"] for row in found] == ["0-20 m", "20-40 m", "40-60 m"] and summary["brackets"] == 3
+    assert summary["broken"] == sum(row["breaks_at"] is not None for row in found) >= 1
+    for row in found:
+        if row["breaks_at"] is None:
+            continue
+        report = json.loads((tmp_path / "out" / row["attack"] / "report.json").read_text())
+        errors = load_errors(tmp_path / "out" / row["attack"] / "attack_errors.npz")
+        assert report["collision"] is True and not errors.fn.any()
+        assert np.hypot(errors.dx, errors.dy).max() <= row["breaks_at"] * (1 + 1e-9)

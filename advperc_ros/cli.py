@@ -263,7 +263,7 @@ def cmd_requirements(args: argparse.Namespace) -> int:
 
     try:
         brackets = requirements_of(args.params, Path(args.output), args.kinds, args.bins, args.iterations, args.budget,
-                                   args.executor, args.workers, progress=not args.quiet)
+                                   args.executor, args.workers, progress=not args.quiet, typical=args.typical)
     except RequirementSearchFailed as failed:
         print(f"advperc: {failed}", file=sys.stderr)
         return failed.exit_code if failed.exit_code is not None else 1
@@ -437,6 +437,7 @@ def build_parser() -> argparse.ArgumentParser:
                        "increasing, the first bin from the ego (default 20,40,60)")
     needs.add_argument("--iterations", type=int, default=DEFAULT_ITERATIONS,
                        help=f"halvings of each bracket after its largest magnitude broke (default {DEFAULT_ITERATIONS})")
+    needs.add_argument("--typical", type=int, default=10, help="PEM samples rolled out at each tolerated level (0: none)")
     needs.add_argument("--budget", type=count, help="rollouts of each search (search.budget; default the params')")
     needs.add_argument("--executor", choices=("process", "ray", "serial"), default="process",
                        help="where the searches of a round run (default process)")

@@ -66,6 +66,8 @@ class Bracket:
     rule: str
     rollouts: int  # of every search of this bracket
     searches: int
+    typical_samples: int = 0  # typical errors (the PEM's samples) within the requirement at the tolerated level
+    typical_collisions: int = 0  # of them, rollouts that broke the rule
 
     @property
     def bin(self) -> str:
@@ -73,8 +75,10 @@ class Bracket:
 
 
 def check_request(params: Sequence[AttackParams], kinds: Sequence[str], radii: Sequence[float], iterations: int,
-                  where: str = "advperc requirements") -> None:
+                  typical: int = 0, where: str = "advperc requirements") -> None:
     """Every argument checked before any search: a ParamsError naming the argument."""
+    if typical < 0:
+        raise ParamsError(f"{where}: --typical must be a number of samples >= 0, got {typical}")
     for kind in kinds:
         if kind not in MAGNITUDES:
             raise ParamsError(f"{where}: --kinds has {kind!r}: a requirement bounds one of {', '.join(MAGNITUDES)}")
@@ -92,19 +96,57 @@ def check_request(params: Sequence[AttackParams], kinds: Sequence[str], radii: S
 
 
 def requirements_of(paths: Sequence[str], output: Path, kinds: str, radii: Sequence[float], iterations: int,
-                    budget: int | None, executor: str, workers: int, progress: bool) -> list[Bracket]:
+                    budget: int | None, executor: str, workers: int, progress: bool, typical: int = 0) -> list[Bracket]:
     """The command's work: every params file and argument checked before any search (`kinds`: a comma-separated
     list, or all), then `run_requirements`."""
     chosen = tuple(MAGNITUDES) if kinds == "all" else tuple(kind.strip() for kind in kinds.split(","))
     params = [load_params(path) for path in paths]
     if budget is not None:
         params = [p.with_values(**{"search.budget": budget}) for p in params]
-    check_request(params, chosen, radii, iterations)
+    check_request(params, chosen, radii, iterations, typical)
     names = [read_scenario(resolve_bag(p)).name for p in params]
     if len(set(names)) != len(names):
         raise ParamsError(f"advperc requirements: two params files are of scenario {names[0]!r}: one each")
     request = Request(tuple(str(Path(path).resolve()) for path in paths), chosen, tuple(radii), iterations)
-    return run_requirements(list(zip(names, params)), output, request, executor, workers, progress)
+    brackets = run_requirements(list(zip(names, params)), output, request, executor, workers, progress)
+    if typical:
+        by_name = dict(zip(names, params))
+        brackets = [with_typical(bracket, by_name[bracket.scenario], typical) for bracket in brackets]
+        write_requirements(output, brackets)
+    return brackets
+
+
+def with_typical(bracket: Bracket, base: AttackParams, samples: int) -> Bracket:
+    """The statistical side of a tolerated level: `samples` typical errors (the shipped perception error model's
+    samples, as `advperc check-typical` rolls them out), each projected onto the requirement at its tolerated
+    level, rolled out: how often a detector with typical errors, bounded as the requirement says, breaks the rule."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from advperc_ros.backends.embedded import Stack
+    from advperc_ros.configs import core_configs
+    from advperc_ros.core.pem import default_pem
+    from advperc_ros.core.perception_errors import PerceptionErrors
+    from advperc_ros.core.perception_errors.restriction import Scene
+    from advperc_ros.core.rollout import true_agents
+    from advperc_ros.core.typical import check_typical
+
+    params = search_params(base, bracket.kind, bracket.near, bracket.far, bracket.tolerated)
+    restriction, configs = params.restriction(), core_configs(params)
+    assert restriction is not None  # search_params sets it
+    scenario = read_scenario(resolve_bag(params))
+    stack = Stack(scenario, configs)
+    try:
+        truth = stack.rollout(PerceptionErrors.none(*scenario.agents.shape))
+        boxes = true_agents(truth, scenario)
+        scene = Scene.of(boxes.x, boxes.y, boxes.yaw, scenario.agents.valid, truth.ego_xy, scenario.dt,
+                         restriction.near, restriction.far)
+        check = check_typical(scenario, lambda errors: stack.rollout(restriction.project(errors, scene)),
+                              default_pem(configs.search.errors.kinds), samples, np.random.default_rng(params.seed))
+    finally:
+        stack.close()
+    return replace(bracket, typical_samples=check.samples, typical_collisions=check.collisions + check.inconclusive)
 
 
 def search_params(base: AttackParams, kind: str, near: float, far: float, magnitude: float) -> AttackParams:
@@ -233,13 +275,14 @@ def _finished(searches: Path, cell: Cell) -> dict | None:
 
 def markdown(brackets: Sequence[Bracket]) -> str:
     lines = ["# Perception requirements", "", CAVEAT, "",
-             "| scenario | kind | bin | tolerated up to | breaks at | rule | searches | rollouts | attack |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| scenario | kind | bin | tolerated up to | breaks at | rule | searches | rollouts | attack | typical errors "
+             "at the tolerated level |", "|---|---|---|---|---|---|---|---|---|---|"]
     for b in brackets:
         breaks = f"{b.breaks_at:.3g} {b.unit}" if b.breaks_at is not None else f"not up to {b.tolerated:.3g} {b.unit}"
         attack = b.attack or ""
+        typical = f"{b.typical_collisions} of {b.typical_samples} break it" if b.typical_samples else ""
         lines.append(f"| {b.scenario} | {b.kind} | {b.bin} | {b.tolerated:.3g} {b.unit} | {breaks} | {b.rule} | "
-                     f"{b.searches} | {b.rollouts} | {attack} |")
+                     f"{b.searches} | {b.rollouts} | {attack} | {typical} |")
     return "\n".join(lines) + "\n"
 
 

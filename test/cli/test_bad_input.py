@@ -353,6 +353,7 @@ def _cases() -> list[Case]:
         Case("advperc requirements P.yaml", "`--kinds` naming a kind twice", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--kinds", "drop,drop"], "--kinds must name each kind once", None),
         Case("advperc requirements P.yaml", "`--bins` not increasing", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--bins", "40,20"], "--bins must be increasing positive radii", None),
         Case("advperc requirements P.yaml", "`--bins` not numbers", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--bins", "near,far"], "expected comma-separated radii", None),
+        Case("advperc requirements P.yaml", "`--typical` -1", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--typical", "-1"], "--typical must be a number of samples", None),
         Case("advperc requirements P.yaml", "`--iterations` 50", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--iterations", "50"], "--iterations must be from 0 to 20", None),
         Case("advperc requirements P.yaml", "a params file that sets `requirement.kind` itself", lambda f: ["requirements", _params(f, **{"requirement.kind": "drop"}), "--output", str(f / "out")], "'requirement.kind' is set", "p.yaml"),
         Case("advperc requirements P.yaml", "`--output` a folder of the user's files", lambda f: (f / "mine").mkdir() or (f / "mine" / "notes.txt").write_text("x") and ["requirements", _params(f), "--output", str(f / "mine")], "no requirements run made", "mine"),

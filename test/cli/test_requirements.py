@@ -76,6 +76,9 @@ def test_the_bracket_holds_the_closed_form_tolerance(standing):
     # no car is ever 20-40 m away: nothing to miss there, nothing broken up to the kind's largest magnitude
     assert (far["bin"], far["tolerated"], far["breaks_at"], far["attack"], far["searches"]) == ("20-40 m", largest, None,
                                                                                              None, 1)
+    # the statistical side: the shipped PEM's typical errors, missed frames bounded by the tolerated total, never
+    # collide (any 12 missed frames are survived, however spread)
+    assert (near["typical_samples"], near["typical_collisions"]) == (10, 0)
 
 
 def test_the_attack_that_breaks_the_bound_breaks_the_rule_inside_the_requirement(standing):

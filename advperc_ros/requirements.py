@@ -67,7 +67,7 @@ class Bracket:
     rollouts: int  # of every search of this bracket
     searches: int
     typical_samples: int = 0  # typical errors (the PEM's samples) within the requirement at the tolerated level
-    typical_collisions: int = 0  # of them, rollouts that broke the rule
+    typical_collisions: int = 0  # of them, rollouts that collided or were inconclusive (whatever the rule)
 
     @property
     def bin(self) -> str:
@@ -280,7 +280,7 @@ def markdown(brackets: Sequence[Bracket]) -> str:
     for b in brackets:
         breaks = f"{b.breaks_at:.3g} {b.unit}" if b.breaks_at is not None else f"not up to {b.tolerated:.3g} {b.unit}"
         attack = b.attack or ""
-        typical = f"{b.typical_collisions} of {b.typical_samples} break it" if b.typical_samples else ""
+        typical = f"{b.typical_collisions} of {b.typical_samples} collide" if b.typical_samples else ""
         lines.append(f"| {b.scenario} | {b.kind} | {b.bin} | {b.tolerated:.3g} {b.unit} | {breaks} | {b.rule} | "
                      f"{b.searches} | {b.rollouts} | {attack} | {typical} |")
     return "\n".join(lines) + "\n"

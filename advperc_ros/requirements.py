@@ -24,17 +24,19 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from advperc_ros.campaign.execute import make_executor
+from advperc_ros.campaign.run import clear_staging
 from advperc_ros.campaign.spec import Cell
 from advperc_ros.core.perception_errors import parse_error_kinds
 from advperc_ros.core.perception_errors.restriction import MAGNITUDES
 from advperc_ros.exceptions import OutputError, ParamsError, RequirementSearchFailed
 from advperc_ros.params import AttackParams, load_params, resolve_bag
-from advperc_ros.results.destination import check_output
+from advperc_ros.results.destination import check_output, exclusive
 from advperc_ros.ros.bag import read_scenario
 
 REQUIREMENTS_JSON, REQUIREMENTS_MD, NOISE_YAML, REQUEST_JSON = (
     "requirements.json", "requirements.md", "noise.yaml", ".requirements-request.json")
 SEARCHES = "searches"  # the folder of the bisection's searches, one results folder each
+LOCK = ".requirements.lock"  # held while a run writes the folder: a second run would start the same searches
 CAVEAT = ("A tolerated level is the largest magnitude at which this search, within its budget, found no violation: "
           "an upper bound on what is safe (a stronger search may break it), not a proof of safety.")
 
@@ -213,7 +215,7 @@ def _own_output(output: Path, request: Request) -> None:
         return
     if not output.is_dir():
         raise OutputError(f"{output}: the output is not a folder")
-    found = sorted(entry.name for entry in output.iterdir())
+    found = sorted(entry.name for entry in output.iterdir() if entry.name != LOCK)
     if not found:
         return
     try:
@@ -230,8 +232,17 @@ def run_requirements(scenarios: Sequence[tuple[str, AttackParams]], output: Path
                      workers: int, progress: bool = False) -> list[Bracket]:
     """Every bracket of every scenario, kind and bin; the searches of one round run at once on the executor."""
     _own_output(output, request)
+    output.mkdir(parents=True, exist_ok=True)
+    with exclusive(output / LOCK, f"{output}: another requirements run is using this folder; let it finish first"):
+        return _bisect(scenarios, output, request, executor, workers, progress)
+
+
+def _bisect(scenarios: Sequence[tuple[str, AttackParams]], output: Path, request: Request, executor: str, workers: int,
+            progress: bool) -> list[Bracket]:
+    """`run_requirements` in its output folder, which it holds."""
     searches = output / SEARCHES
     searches.mkdir(parents=True, exist_ok=True)
+    clear_staging(searches)  # what a killed search left half-written; its checkpoint stays, to resume from
     (output / REQUEST_JSON).write_text(json.dumps(asdict(request), indent=2) + "\n")
     bounds = [0.0, *request.radii]
     states = [Bisection(name, params, kind, near, far, request.iterations) for name, params in scenarios

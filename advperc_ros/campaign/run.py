@@ -48,7 +48,7 @@ class CampaignRun:
                 "failures": outcomes.count(FAILURE), "errors": outcomes.count(ERROR)}
 
 
-def _clear_staging(output: Path) -> None:
+def clear_staging(output: Path) -> None:
     """Hidden staging folders and files (.<name>.partial) are what a killed cell or summary left."""
     for stale in output.glob(".*.partial"):
         shutil.rmtree(stale) if stale.is_dir() else stale.unlink()
@@ -92,7 +92,7 @@ def run_campaign(campaign: Campaign, progress: bool = True) -> CampaignRun:
     output = campaign.output.resolve()
     output.mkdir(parents=True, exist_ok=True)
     with exclusive(output / LOCK, f"{output}: another campaign run is using this folder"):  # it would start the same cells
-        _clear_staging(output)
+        clear_staging(output)
         reports = {cell.name: cell.report(output) for cell in cells}
         attacks = [cell for cell in cells if cell.role == ATTACK]
 

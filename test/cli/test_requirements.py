@@ -12,7 +12,12 @@ a requirement on the total time missed has the same tolerance."""
 
 import json
 import math
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -153,3 +158,22 @@ def test_a_position_requirement_on_a_bundled_scenario_names_attacks_that_collide
         errors = load_errors(tmp_path / "out" / row["attack"] / "attack_errors.npz")
         assert report["collision"] is True and not errors.fn.any()
         assert np.hypot(errors.dx, errors.dy).max() <= row["breaks_at"] * (1 + 1e-9)
+
+
+def test_a_run_killed_midway_resumes_to_the_uninterrupted_rows(standing, tmp_path, capsys):
+    """SIGKILL once two searches are in place (a third may be half-written: its staging folder and checkpoint);
+    the same command again gives the rows of a run never interrupted."""
+    params, output = standing
+    command = [sys.executable, "-m", "advperc_ros.cli", "requirements", str(params), "--output", str(tmp_path / "out"),
+               "--kinds", "drop", "--bins", "20,40", "--executor", "serial", "--quiet"]
+    run = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.monotonic() + 300
+    while run.poll() is None and time.monotonic() < deadline:
+        if len([p for p in (tmp_path / "out" / "searches").glob("*") if not p.name.startswith(".")]) >= 2:
+            break
+        time.sleep(0.2)
+    os.killpg(run.pid, signal.SIGKILL)
+    run.wait()
+    assert not (tmp_path / "out" / "requirements.json").exists() or rows(tmp_path / "out") != rows(output)
+    requirements(params, tmp_path / "out", "--kinds", "drop", "--bins", "20,40", "--executor", "serial", capsys=capsys)
+    assert rows(tmp_path / "out") == rows(output)

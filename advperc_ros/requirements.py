@@ -25,11 +25,11 @@ from pathlib import Path
 
 from advperc_ros.campaign.execute import make_executor
 from advperc_ros.campaign.run import clear_staging
-from advperc_ros.campaign.spec import Cell
+from advperc_ros.campaign.spec import ATTACK, Cell, load_campaign, plan
 from advperc_ros.core.perception_errors import parse_error_kinds
 from advperc_ros.core.perception_errors.restriction import MAGNITUDES
 from advperc_ros.exceptions import OutputError, ParamsError, RequirementSearchFailed
-from advperc_ros.params import AttackParams, load_params, resolve_bag
+from advperc_ros.params import AttackParams, load_params, read_yaml, resolve_bag
 from advperc_ros.results.destination import check_output, exclusive
 from advperc_ros.ros.bag import read_scenario
 
@@ -102,13 +102,15 @@ def requirements_of(paths: Sequence[str], output: Path, kinds: str, radii: Seque
     """The command's work: every params file and argument checked before any search (`kinds`: a comma-separated
     list, or all), then `run_requirements`."""
     chosen = tuple(MAGNITUDES) if kinds == "all" else tuple(kind.strip() for kind in kinds.split(","))
-    params = [load_params(path) for path in paths]
+    named = [entry for path in paths for entry in _systems(Path(path))]
+    names, params = [name for name, _ in named], [p for _, p in named]
     if budget is not None:
         params = [p.with_values(**{"search.budget": budget}) for p in params]
     check_request(params, chosen, radii, iterations, typical)
-    names = [read_scenario(resolve_bag(p)).name for p in params]
     if len(set(names)) != len(names):
-        raise ParamsError(f"advperc requirements: two params files are of scenario {names[0]!r}: one each")
+        twice = next(name for name in names if names.count(name) > 1)
+        raise ParamsError(f"advperc requirements: {twice!r} is named twice (two params files of one scenario, or a "
+                          "campaign cell and a params file): one each")
     request = Request(tuple(str(Path(path).resolve()) for path in paths), chosen, tuple(radii), iterations)
     brackets = run_requirements(list(zip(names, params)), output, request, executor, workers, progress)
     if typical:
@@ -116,6 +118,16 @@ def requirements_of(paths: Sequence[str], output: Path, kinds: str, radii: Seque
         brackets = [with_typical(bracket, by_name[bracket.scenario], typical) for bracket in brackets]
         write_requirements(output, brackets)
     return brackets
+
+
+def _systems(path: Path) -> list[tuple[str, AttackParams]]:
+    """(name, params) of each system a path names: a params file's scenario (named as the scenario), or every
+    attack cell of a campaign file (its scenarios x objectives x seeds x rules x planners, named as its cells)."""
+    document = read_yaml(path, "params or campaign file")
+    if isinstance(document, dict) and "scenarios" in document:
+        return [(cell.name, cell.params) for cell in plan(load_campaign(path)) if cell.role == ATTACK]
+    params = load_params(path)
+    return [(read_scenario(resolve_bag(params)).name, params)]
 
 
 def with_typical(bracket: Bracket, base: AttackParams, samples: int) -> Bracket:

@@ -126,6 +126,29 @@ def test_a_process_pool_gives_the_serial_rows(standing, tmp_path, capsys):
     assert rows(tmp_path / "pool") == rows(output)
 
 
+def tolerance(accel: float) -> float:
+    """The closed form: the longest miss an ego accelerating at `accel` survives (module docstring)."""
+    return math.sqrt(GAP / (accel / 2 + accel**2 / (2 * DECEL)))
+
+
+def test_a_campaign_file_gives_the_rows_of_each_of_its_planners(standing, tmp_path, capsys):
+    """A campaign of the standing scenario with IDM as above and IDM accelerating at half the rate, which survives
+    a longer miss (1.85 s: 18 frames): a row per campaign cell, each bracket holding its own planner's closed form."""
+    params, _ = standing
+    campaign = tmp_path / "c.yaml"
+    campaign.write_text(yaml.safe_dump({"name": "c", "scenarios": [str(params)], "output": str(tmp_path / "campaign"),
+                                        "planners": [{"name": "idm"}, {"name": "gentle",
+                                                                       "planner_params": {"max_accel": 0.5}}]}))
+    requirements(campaign, tmp_path / "out", "--kinds", "drop", "--bins", "20", "--executor", "serial", "--typical", "0",
+                 capsys=capsys)
+    found = {row["scenario"]: row for row in rows(tmp_path / "out")}
+    assert sorted(found) == ["standing-nds_t-0-gentle", "standing-nds_t-0-idm"]
+    for name, accel in (("standing-nds_t-0-idm", ACCEL), ("standing-nds_t-0-gentle", 0.5)):
+        row, frames = found[name], math.floor(tolerance(accel) / DT)
+        assert math.floor(row["tolerated"] / DT + 1e-9) <= frames < math.floor(row["breaks_at"] / DT + 1e-9), row
+    assert not (tmp_path / "campaign").exists()  # the campaign's cells, not the campaign: nothing of it is run
+
+
 def test_a_search_that_fails_ends_the_command_with_its_exit_code_and_line(tmp_path, capsys):
     """An ego rolling at 5 m/s 1 m behind a parked car collides with perfect perception: nothing to bound."""
     params = standing_params(tmp_path)

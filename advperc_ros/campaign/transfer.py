@@ -20,6 +20,7 @@ if TYPE_CHECKING:  # summary.py imports this module for its tables
     from advperc_ros.campaign.summary import CellStatus
 
 FOUND, BREAKS, HOLDS, INCONCLUSIVE, FAILED, PENDING = "found", "breaks", "holds", "inconclusive", "error", "pending"
+UNATTACKED = "n/a"  # a replay on a planner whose own cell of the scenario failed (its ground truth collides)
 # a cell against the baseline: its attack replayed on this version, and this version's own search
 STILL_BROKEN, FIXED, FIXED_OTHER, NEWLY_BROKEN, CLEAR, UNKNOWN = (
     "still broken", "fixed", "fixed, another attack found", "newly broken", "clear", "pending")
@@ -76,6 +77,7 @@ def transfer_rows(statuses: Sequence["CellStatus"]) -> list[dict]:
     if len(planners) < 2:
         return []
     replays = {(s.cell.origin, s.cell.planner): s for s in statuses if s.cell.role == TRANSFER}
+    failed = {(s.cell.key, s.cell.planner) for s in statuses if s.cell.role == ATTACK and s.error is not None}
     rows = []
     for status in statuses:
         cell, report = status.cell, status.report
@@ -86,7 +88,10 @@ def transfer_rows(statuses: Sequence["CellStatus"]) -> list[dict]:
             if planner == cell.planner:
                 entries[planner] = TransferEntry(cell.name, FOUND, attack_margin(report, cell.rule))
             elif (cell.name, planner) in replays:
-                entries[planner] = replay_entry(replays[cell.name, planner])
+                entry = replay_entry(replays[cell.name, planner])
+                # that planner's own cell failed as the replay did: nothing to compare on it, not a fault of the replay
+                entries[planner] = TransferEntry(entry.cell, UNATTACKED, None) if (
+                    entry.outcome == FAILED and (cell.key, planner) in failed) else entry
             else:  # the attack is finished; its replays are not planned yet
                 entries[planner] = TransferEntry(f"{cell.name}-on-{planner}", PENDING, None)
         rows.append({"attack": cell.name, "scenario": cell.scenario, "objective": cell.objective, "seed": cell.seed,

@@ -114,3 +114,23 @@ def test_a_next_version_against_the_baseline_says_what_it_fixed_and_what_it_brok
     changes = {row["cell"]: row["change"] for row in summary(tmp_path / "back")["baseline"]}
     assert changes == dict(zip(CELLS, ["newly broken", "still broken", "newly broken", "still broken"]))
     assert not (tmp_path / "back" / f"{CELLS[0]}-baseline").exists()  # the slow version found nothing to replay
+
+
+def test_a_replay_on_a_planner_that_cannot_be_attacked_there_is_not_applicable():
+    """A replay that failed on a planner whose own cell of the scenario failed too (its ground truth collides)
+    has nothing to compare: `n/a`, not counted; one that failed alone stays an error."""
+    from advperc_ros.campaign.spec import ATTACK, TRANSFER, Cell
+    from advperc_ros.campaign.summary import CellStatus
+    from advperc_ros.campaign.transfer import transfer_counts, transfer_rows
+
+    def cell(name, planner, role=ATTACK, origin=None):
+        return Cell(name, "s", "nds_t", 0, planner, {"rule.name": "collision"}, None, None, role, origin)
+
+    found = {"collision": True, "min_signed_distance": -0.1, "rules": {"collision": {"value": -0.1}}}
+    statuses = [CellStatus(cell("s-a", "a"), found), CellStatus(cell("s-b", "b"), error="collides unattacked"),
+                CellStatus(cell("s-c", "c"), {"collision": False}),
+                CellStatus(cell("s-a-on-b", "b", TRANSFER, "s-a"), error="collides unattacked"),
+                CellStatus(cell("s-a-on-c", "c", TRANSFER, "s-a"), error="a bug")]
+    [row] = transfer_rows(statuses)
+    assert {planner: entry["outcome"] for planner, entry in row["on"].items()} == {"a": "found", "b": "n/a", "c": "error"}
+    assert transfer_counts([row], ["a", "b", "c"])["a"] == {"a": (1, 1), "b": (0, 0), "c": (0, 0)}

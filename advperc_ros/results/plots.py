@@ -400,9 +400,9 @@ def robustness(path: Path, points, objective: str) -> None:
 
 
 def requirements(path: Path, brackets) -> None:
-    """One error kind's perception requirement against distance from the ego: per scenario, a step per
-    distance bin from 0 up to the tolerated magnitude (solid) and on to the one that broke the rule (hatched),
-    an arrow where nothing broke it up to the largest magnitude searched (`advperc requirements`)."""
+    """One error kind's perception requirement against distance from the ego: per scenario, a bar per distance
+    bin from 0 up to the tolerated magnitude (solid) and on to the one that broke the rule (hatched); a pale bar
+    marked "not broken" where nothing broke it up to the largest magnitude searched (`advperc requirements`)."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
     scenarios = list(dict.fromkeys(b.scenario for b in brackets))
     width = 0.8 / max(len(scenarios), 1)
@@ -411,18 +411,21 @@ def requirements(path: Path, brackets) -> None:
         color = f"C{s % 10}"
         for b in (b for b in brackets if b.scenario == scenario):
             x = bins.index((b.near, b.far)) - 0.4 + width * (s + 0.5)
-            ax.bar(x, b.tolerated, width * 0.9, color=color, label=scenario if b is brackets[0] or
-                   (b.near, b.far) == bins[0] else None)
-            if b.breaks_at is not None:
+            first = (b.near, b.far) == bins[0]
+            broken = b.breaks_at is not None
+            ax.bar(x, b.tolerated, width * 0.9, color=color, alpha=1.0 if broken else 0.35,
+                   label=scenario if first else None)
+            if broken:
                 ax.bar(x, b.breaks_at - b.tolerated, width * 0.9, bottom=b.tolerated, color="none", edgecolor=color,
                        hatch="//")
-            else:
-                ax.annotate("", (x, b.tolerated * 1.08 + 1e-3), (x, b.tolerated), arrowprops={"arrowstyle": "->"})
+            else:  # nothing broke it up to the largest magnitude searched: a floor, not a bracket
+                ax.text(x, b.tolerated, "not broken", ha="center", va="bottom", fontsize=7)
     kind, unit = brackets[0].kind, brackets[0].unit
     ax.set_xticks(range(len(bins)), [f"{near:g}-{far:g} m" for near, far in bins])
     ax.set_xlabel("distance from the ego")
     ax.set_ylabel(f"{kind} ({unit})")
     ax.set_title(f"{kind}: tolerated (solid) and broken at (hatched)")
+    ax.set_ylim(0, max(b.breaks_at or b.tolerated for b in brackets) * 1.12 or 1.0)
     ax.grid(alpha=0.3, axis="y")
     ax.legend(fontsize=8)
     fig.tight_layout()

@@ -38,7 +38,9 @@ def random_errors(seed: int, frames: int = 30, agents: int = 4) -> PerceptionErr
 
 
 @settings(max_examples=60, deadline=None)
-@given(seed=st.integers(0, 10_000), kind=st.sampled_from(sorted(MAGNITUDES)), magnitude=st.floats(0.0, 5.0),
+# magnitudes of a requirement: 0, or from a micrometre (a subnormal float's products underflow, which no bound is)
+@given(seed=st.integers(0, 10_000), kind=st.sampled_from(sorted(MAGNITUDES)),
+       magnitude=st.one_of(st.just(0.0), st.floats(1e-6, 5.0)),
        mask_seed=st.integers(0, 10_000))
 def test_a_projection_keeps_one_kind_in_its_bin_and_bound(seed, kind, magnitude, mask_seed):
     errors = random_errors(seed)

@@ -69,7 +69,7 @@ class Bracket:
     rollouts: int  # of every search of this bracket
     searches: int
     typical_samples: int = 0  # typical errors (the PEM's samples) within the requirement at the tolerated level
-    typical_collisions: int = 0  # of them, rollouts that collided or were inconclusive (whatever the rule)
+    typical_violations: int = 0  # of them, rollouts that broke the row's rule or were inconclusive
 
     @property
     def bin(self) -> str:
@@ -143,7 +143,8 @@ def with_typical(bracket: Bracket, base: AttackParams, samples: int) -> Bracket:
     from advperc_ros.core.pem import default_pem
     from advperc_ros.core.perception_errors import PerceptionErrors
     from advperc_ros.core.perception_errors.restriction import Scene
-    from advperc_ros.core.rollout import true_agents
+    from advperc_ros.core.rollout import RolloutResult, true_agents
+    from advperc_ros.core.rules.verdict import attacked_rule
     from advperc_ros.core.typical import check_typical
 
     params = search_params(base, bracket.kind, bracket.near, bracket.far, bracket.tolerated)
@@ -156,11 +157,18 @@ def with_typical(bracket: Bracket, base: AttackParams, samples: int) -> Bracket:
         boxes = true_agents(truth, scenario)
         scene = Scene.of(boxes.x, boxes.y, boxes.yaw, scenario.agents.valid, truth.ego_xy, scenario.dt,
                          restriction.near, restriction.far)
-        check = check_typical(scenario, lambda errors: stack.rollout(restriction.project(errors, scene)),
-                              default_pem(configs.search.errors.kinds), samples, np.random.default_rng(params.seed))
+        rule = attacked_rule(params.rule.name, scenario, configs.rollout, configs.rulebook)
+
+        def judged(errors: PerceptionErrors) -> RolloutResult:
+            """The rollout of `errors` within the requirement, its verdict the row's rule's (as the search's)."""
+            result = stack.rollout(restriction.project(errors, scene))
+            return result if rule is None else rule.judge(result, truth)
+
+        check = check_typical(scenario, judged, default_pem(configs.search.errors.kinds), samples,
+                              np.random.default_rng(params.seed))
     finally:
         stack.close()
-    return replace(bracket, typical_samples=check.samples, typical_collisions=check.collisions + check.inconclusive)
+    return replace(bracket, typical_samples=check.samples, typical_violations=check.collisions + check.inconclusive)
 
 
 def search_params(base: AttackParams, kind: str, near: float, far: float, magnitude: float) -> AttackParams:
@@ -303,7 +311,7 @@ def markdown(brackets: Sequence[Bracket]) -> str:
     for b in brackets:
         breaks = f"{b.breaks_at:.3g} {b.unit}" if b.breaks_at is not None else f"not up to {b.tolerated:.3g} {b.unit}"
         attack = b.attack or ""
-        typical = f"{b.typical_collisions} of {b.typical_samples} collide" if b.typical_samples else ""
+        typical = f"{b.typical_violations} of {b.typical_samples} break it" if b.typical_samples else ""
         lines.append(f"| {b.scenario} | {b.kind} | {b.bin} | {b.tolerated:.3g} {b.unit} | {breaks} | {b.rule} | "
                      f"{b.searches} | {b.rollouts} | {attack} | {typical} |")
     return "\n".join(lines) + "\n"

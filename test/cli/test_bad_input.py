@@ -349,7 +349,7 @@ def _cases() -> list[Case]:
         Case("advperc check-typical P.yaml --model", "model not JSON", model("{not json"), "pem.json", "pem.json"),
         Case("advperc check-typical P.yaml --model", "model JSON a list", model("[1, 2]"), "pem.json", "pem.json"),
         Case("advperc check-typical P.yaml --model", "model missing a field", model('{"source": "x"}'), "pem.json", "pem.json"),
-        Case("advperc requirements P.yaml", "`--kinds` ghost (no magnitude to bound)", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--kinds", "ghost"], "--kinds has 'ghost'", None),
+        Case("advperc requirements P.yaml", "`--kinds` flip (no magnitude to bound)", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--kinds", "flip"], "--kinds has 'flip'", None),
         Case("advperc requirements P.yaml", "`--kinds` naming a kind twice", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--kinds", "drop,drop"], "--kinds must name each kind once", None),
         Case("advperc requirements P.yaml", "`--bins` not increasing", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--bins", "40,20"], "--bins must be increasing positive radii", None),
         Case("advperc requirements P.yaml", "`--bins` not numbers", lambda f: ["requirements", _params(f), "--output", str(f / "out"), "--bins", "near,far"], "expected comma-separated radii", None),

@@ -83,7 +83,7 @@ def test_the_bracket_holds_the_closed_form_tolerance(standing):
                                                                                              None, 1)
     # the statistical side: the shipped PEM's typical errors, missed frames bounded by the tolerated total, never
     # collide (any 12 missed frames are survived, however spread)
-    assert (near["typical_samples"], near["typical_collisions"]) == (10, 0)
+    assert (near["typical_samples"], near["typical_violations"]) == (10, 0)
 
 
 def test_the_attack_that_breaks_the_bound_breaks_the_rule_inside_the_requirement(standing):
@@ -147,6 +147,33 @@ def test_a_campaign_file_gives_the_rows_of_each_of_its_planners(standing, tmp_pa
         row, frames = found[name], math.floor(tolerance(accel) / DT)
         assert math.floor(row["tolerated"] / DT + 1e-9) <= frames < math.floor(row["breaks_at"] / DT + 1e-9), row
     assert not (tmp_path / "campaign").exists()  # the campaign's cells, not the campaign: nothing of it is run
+
+
+CRUISING = {**FOLLOW_SPEC, "name": "cruising", "duration": 6.0, "ego": {"route": ["east"], "start_s": 100.0, "speed": 10.0},
+            "agents": [FOLLOW_SPEC["agents"][1]]}  # the ego alone in its lane at its target speed, a car oncoming
+
+
+def test_a_ghost_requirement_under_phantom_braking_holds_its_closed_form(tmp_path, capsys):
+    """The tracker starts a track at a detection's first frame and keeps it `max_age` (1 s), so a phantom car
+    shown for a single frame in the ego's path within 20 m is a standing car ahead for a second, for which IDM
+    brakes at its limit (6 m/s^2, beyond the 2.94 of phantom braking): no ghost is tolerated, one frame of one
+    breaks the rule. Seven halvings of [0, 10 s] end at [0.078, 0.156] s: 0 whole frames tolerated, 1 broken.
+    The typical errors are judged by the row's rule, and its attack's report violates it."""
+    write_ground_truth_bag(tmp_path / "bag", build_scenario(CRUISING))
+    params = {"bag": str(tmp_path / "bag"), "planner": "idm", "rule": {"name": "phantom_braking"},
+              "planner_params": {"target_speed": 10.0, "max_decel": 6.0}, "search": {"budget": 30}}
+    (tmp_path / "cruising.yaml").write_text(yaml.safe_dump({"orchestrator": {"ros__parameters": params}}))
+    requirements(tmp_path / "cruising.yaml", tmp_path / "out", "--kinds", "ghost", "--bins", "20", "--iterations", "7",
+                 "--typical", "3", "--executor", "serial", capsys=capsys)
+    (row,) = rows(tmp_path / "out")
+    assert (row["kind"], row["bin"], row["rule"], row["unit"]) == ("ghost", "0-20 m", "phantom_braking", "s")
+    assert math.floor(row["tolerated"] / DT + 1e-9) == 0 and math.floor(row["breaks_at"] / DT + 1e-9) == 1, row
+    assert (row["typical_samples"], row["typical_violations"]) == (3, 0)  # no ghost at all at the tolerated level
+    report = json.loads((tmp_path / "out" / row["attack"] / "report.json").read_text())
+    assert report["rule"] == "phantom_braking" and report["rules"]["phantom_braking"]["violated"] is True
+    assert report["reproduced"] is True and not report["rules"]["collision"]["violated"]  # braking, no contact
+    errors = load_errors(tmp_path / "out" / row["attack"] / "attack_errors.npz")
+    assert errors.ghost_on is not None and errors.ghost_on.sum() == 1 and not errors.fn.any()
 
 
 def test_a_search_that_fails_ends_the_command_with_its_exit_code_and_line(tmp_path, capsys):

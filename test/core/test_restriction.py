@@ -23,12 +23,20 @@ def scene(within: np.ndarray, seed: int = 0) -> Scene:
                  rng.uniform(-math.pi, math.pi, within.shape), rng.uniform(-50, 50, (frames, 2)), DT)
 
 
+GHOSTS = 3  # ghost slots per frame
+
+
 def random_errors(seed: int, frames: int = 30, agents: int = 4) -> PerceptionErrors:
-    """Errors of every kind at once, large and everywhere."""
+    """Errors of every kind at once, large and everywhere (ghosts on in half the slot-frames, anywhere)."""
     rng = np.random.default_rng(seed)
-    errors = PerceptionErrors.none(frames, agents, tuple(ERROR_KINDS))
+    errors = PerceptionErrors.none(frames, agents, tuple(ERROR_KINDS), GHOSTS)
     arrays = errors.arrays()
     arrays["fn"][:] = rng.random((frames, agents)) < 0.5
+    arrays["ghost_on"][:] = rng.random((frames, GHOSTS)) < 0.5
+    for name in ("ghost_x", "ghost_y"):
+        arrays[name][:] = rng.uniform(-50, 50, (frames, GHOSTS))
+    for name in ("ghost_yaw", "ghost_vx", "ghost_vy"):
+        arrays[name][:] = rng.normal(0.0, 3.0, (frames, GHOSTS))
     for name in ("dx", "dy", "dyaw", "dvx", "dvy"):
         arrays[name][:] = rng.normal(0.0, 3.0, (frames, agents))
     for name in ("length_scale", "width_scale"):
@@ -45,15 +53,21 @@ def random_errors(seed: int, frames: int = 30, agents: int = 4) -> PerceptionErr
 def test_a_projection_keeps_one_kind_in_its_bin_and_bound(seed, kind, magnitude, mask_seed):
     errors = random_errors(seed)
     within = np.random.default_rng(mask_seed).random(errors.shape) < 0.6
-    out = Restriction(kind, magnitude).project(errors, scene(within, mask_seed))
+    view = scene(within, mask_seed)
+    near, far = 10.0, 60.0  # the bin `within` stands for; a ghost's own distance decides its
+    ghost_within = np.hypot(errors.ghost_x - view.ego_xy[:, :1], errors.ghost_y - view.ego_xy[:, 1:2])
+    ghost_within = (ghost_within >= near) & (ghost_within < far)
+    out = Restriction(kind, magnitude, near, far).project(errors, view)
     blank = PerceptionErrors.none(*errors.shape, errors.kinds, errors.ghost_slots).arrays()
     own = {"drop": ("fn",), "position": ("dx", "dy"), "yaw": ("dyaw",), "velocity": ("dvx", "dvy"),
-           "size": ("length_scale", "width_scale"), "latency": ("latency",)}[kind]
+           "size": ("length_scale", "width_scale"), "latency": ("latency",),
+           "ghost": ("ghost_on", "ghost_x", "ghost_y", "ghost_yaw", "ghost_vx", "ghost_vy")}[kind]
     for name, array in out.arrays().items():
         if name not in own:
             assert np.array_equal(array, blank[name]), name  # every other kind perceived perfectly
         else:
-            assert np.array_equal(array[~within], blank[name][~within]), name  # nothing outside the bin
+            outside = ~ghost_within if kind == "ghost" else ~within
+            assert np.array_equal(array[outside], blank[name][outside]), name  # nothing outside the bin
     frames = math.floor(magnitude / DT + 1e-9)
     arrays = out.arrays()
     if kind == "drop":
@@ -67,9 +81,13 @@ def test_a_projection_keeps_one_kind_in_its_bin_and_bound(seed, kind, magnitude,
     elif kind == "size":
         for name in own:
             assert ((arrays[name] >= 1.0 / (1.0 + magnitude) - 1e-12) & (arrays[name] <= 1.0 + magnitude + 1e-12)).all()
-    else:
+    elif kind == "latency":
         assert (arrays["latency"] <= frames).all()
-    again = Restriction(kind, magnitude).project(out, scene(within, mask_seed))  # inside already: left alone
+    else:
+        assert arrays["ghost_on"].sum() <= frames and not (arrays["ghost_on"] & ~errors.ghost_on).any()
+        for name in own[1:]:  # a ghost kept is the ghost proposed, where it stood
+            assert np.array_equal(arrays[name][arrays["ghost_on"]], getattr(errors, name)[arrays["ghost_on"]])
+    again = Restriction(kind, magnitude, near, far).project(out, view)  # inside already: left alone
     assert all(np.array_equal(x, y) for x, y in zip(again.arrays().values(), arrays.values()))
 
 
@@ -117,7 +135,22 @@ def test_the_distance_bin_is_measured_from_the_ego_s_centre_at_each_frame():
     assert distance_mask(x, y, valid, ego, 20.0, math.inf).tolist() == [[False, True], [False, False], [False, False]]
 
 
-@pytest.mark.parametrize("kind, magnitude, near, far", [("ghost", 1.0, 0.0, 20.0), ("drop", -1.0, 0.0, 20.0),
+def test_ghosts_are_bounded_by_their_time_in_all_and_by_where_they_stand():
+    """Two slots; a ghost 10 m from the ego for frames 0-4 in slot 0, one 30 m away at frames 2-3 in slot 1.
+    Within 20 m and 0.3 s, slot 0's first three frames stay; at 20-40 m, slot 1's two."""
+    errors = PerceptionErrors.none(6, 1, ("ghost",), 2)
+    errors.ghost_on[0:5, 0], errors.ghost_on[2:4, 1] = True, True
+    errors.ghost_x[:, 0], errors.ghost_x[:, 1] = 10.0, 30.0
+    view = scene(np.ones((6, 1), bool))
+    view = Scene(view.within, view.x, view.y, view.yaw, np.zeros((6, 2)), DT)
+    near_by = Restriction("ghost", 0.3, 0.0, 20.0).project(errors, view)
+    assert np.flatnonzero(near_by.ghost_on[:, 0]).tolist() == [0, 1, 2] and not near_by.ghost_on[:, 1].any()
+    assert near_by.ghost_x[:3, 0].tolist() == [10.0] * 3 and near_by.ghost_x[3:, 0].tolist() == [0.0] * 3
+    further = Restriction("ghost", 0.3, 20.0, 40.0).project(errors, view)
+    assert np.flatnonzero(further.ghost_on[:, 1]).tolist() == [2, 3] and not further.ghost_on[:, 0].any()
+
+
+@pytest.mark.parametrize("kind, magnitude, near, far", [("flip", 1.0, 0.0, 20.0), ("drop", -1.0, 0.0, 20.0),
                                                         ("drop", float("nan"), 0.0, 20.0), ("drop", 1.0, 20.0, 20.0)])
 def test_a_restriction_outside_its_space_is_refused(kind, magnitude, near, far):
     with pytest.raises(ValueError):

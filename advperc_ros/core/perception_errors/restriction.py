@@ -16,13 +16,17 @@ than the magnitude:
 - yaw: the heading error at most the magnitude (rad);
 - velocity: the velocity error's length at most the magnitude (m/s), its direction kept;
 - size: the length and width factors within 1 / (1 + m) and 1 + m (m: the relative size error);
-- latency: a detection lags its car by at most the magnitude (s), whole frames.
+- latency: a detection lags its car by at most the magnitude (s), whole frames;
+- ghost: phantom cars (detections no car explains) are shown for at most the magnitude (s) in all, counting
+  every ghost slot's frames, and only where the phantom stands within [near, far) of the ego: a false-positive
+  rate, as ghosts per second, is this over the scenario's duration. Its first ghost-frames are kept, frame by
+  frame and then slot by slot, as a drop keeps a car's first misses.
 
 A missed detection is not one of the other kinds' errors, yet the search's first phase (the paper's
 heuristic) asks which cars matter by hiding each; so under another kind's requirement a missed
 object-frame is shown as that kind's nearest thing to not being there, at the full magnitude: moved
 sideways away from the ego (position), shown pulling away from it (velocity), shrunk (size), or lagging
-(latency). A yaw error has no such counterpart: the miss is simply shown.
+(latency). A yaw error and a ghost have no such counterpart: the miss is simply shown.
 """
 
 import math
@@ -50,6 +54,7 @@ MAGNITUDES = {
     "velocity": KindMagnitude("m/s", 8.0, "largest velocity error"),
     "size": KindMagnitude("relative", 1.0, "largest relative length and width error"),
     "latency": KindMagnitude("s", 1.0, "longest lag of a detection behind its car"),
+    "ghost": KindMagnitude("s", 10.0, "time phantom cars are shown in all"),  # as drop: a miss's mirror image
 }
 """The kinds a requirement bounds, by name: each with the unit of its magnitude."""
 DEFAULT_KINDS = ("drop", "position")  # what `advperc requirements` bounds unless told: the paper's two that attack
@@ -153,7 +158,23 @@ class Restriction:
             for name in ("length_scale", "width_scale"):
                 kept[name][:] = np.where(missed, 1.0 / (1.0 + m),
                                          np.where(within, np.clip(given[name], 1.0 / (1.0 + m), 1.0 + m), 1.0))
-        else:  # latency
+        elif self.kind == "latency":
             kept["latency"][:] = np.where(missed, whole_frames,
                                           np.where(within, np.minimum(given["latency"], whole_frames), 0))
+        else:  # ghost
+            self._keep_ghosts(given, kept, scene, whole_frames)
         return out
+
+    def _keep_ghosts(self, given: dict[str, np.ndarray], kept: dict[str, np.ndarray], scene: Scene,
+                     whole_frames: int) -> None:
+        """Into `kept`: the ghost-frames of `given` in the distance bin (each phantom's own distance from the
+        ego), the first `whole_frames` of them in all (frame by frame, slot by slot), each with its box."""
+        on = given.get("ghost_on")
+        if on is None or on.size == 0:
+            return
+        distance = np.hypot(given["ghost_x"] - scene.ego_xy[:, :1], given["ghost_y"] - scene.ego_xy[:, 1:2])
+        shown = on & (distance >= self.near) & (distance < self.far)
+        shown &= (np.cumsum(shown.ravel()) <= whole_frames).reshape(shown.shape)
+        kept["ghost_on"][:] = shown
+        for name in ("ghost_x", "ghost_y", "ghost_yaw", "ghost_vx", "ghost_vy"):
+            kept[name][:] = np.where(shown, given[name], kept[name])

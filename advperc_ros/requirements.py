@@ -29,6 +29,7 @@ from advperc_ros.campaign.spec import ATTACK, Cell, load_campaign, plan
 from advperc_ros.core.perception_errors import parse_error_kinds
 from advperc_ros.core.perception_errors.restriction import MAGNITUDES
 from advperc_ros.exceptions import OutputError, ParamsError, RequirementSearchFailed
+from advperc_ros.exits import EXIT_NOTHING_TO_ATTACK
 from advperc_ros.params import AttackParams, load_params, read_yaml, resolve_bag
 from advperc_ros.results.destination import check_output, exclusive
 from advperc_ros.ros.bag import read_scenario
@@ -70,10 +71,20 @@ class Bracket:
     searches: int
     typical_samples: int = 0  # typical errors (the PEM's samples) within the requirement at the tolerated level
     typical_violations: int = 0  # of them, rollouts that broke the row's rule or were inconclusive
+    # the search's refusal when perfect perception already breaks the rule: nothing is tolerated (tolerated and
+    # breaks_at 0, no attack); the scenario's other rows say the same, the other scenarios' are bracketed
+    ground_truth_breaks: str | None = None
 
     @property
     def bin(self) -> str:
         return f"{self.near:g}-{self.far:g} m"
+
+    def line(self) -> str:
+        """The row in a line, as the command prints it."""
+        if self.ground_truth_breaks is not None:
+            return f"{self.scenario} {self.kind} {self.bin}: nothing tolerated, {self.ground_truth_breaks}"
+        breaks = "not broken" if self.breaks_at is None else f"breaks at {self.breaks_at:.3g} {self.unit} ({self.attack})"
+        return f"{self.scenario} {self.kind} {self.bin}: tolerated up to {self.tolerated:.3g} {self.unit}, {breaks}"
 
 
 def check_request(params: Sequence[AttackParams], kinds: Sequence[str], radii: Sequence[float], iterations: int,
@@ -115,7 +126,8 @@ def requirements_of(paths: Sequence[str], output: Path, kinds: str, radii: Seque
     brackets = run_requirements(list(zip(names, params)), output, request, executor, workers, progress)
     if typical:
         by_name = dict(zip(names, params))
-        brackets = [with_typical(bracket, by_name[bracket.scenario], typical) for bracket in brackets]
+        brackets = [bracket if bracket.ground_truth_breaks else with_typical(bracket, by_name[bracket.scenario], typical)
+                    for bracket in brackets]
         write_requirements(output, brackets)
     return brackets
 
@@ -198,12 +210,13 @@ class Bisection:
     attack: str | None = None
     rollouts: int = 0
     searches: int = 0
+    refusal: str | None = None  # the search's line when the ground truth already breaks the rule
 
     def next_magnitude(self) -> float | None:
         """The magnitude to search next, None when the bracket is done."""
         if self.searches == 0:
             return MAGNITUDES[self.kind].largest
-        if self.high is None or self.searches > self.iterations:
+        if self.refusal is not None or self.high is None or self.searches > self.iterations:
             return None
         return (self.low + self.high) / 2.0
 
@@ -222,10 +235,15 @@ class Bisection:
         else:
             self.low = magnitude
 
+    def refuse(self, line: str) -> None:
+        """The search was refused: perfect perception already breaks the rule, so no magnitude is tolerated."""
+        self.searches += 1
+        self.low, self.high, self.refusal = 0.0, 0.0, line
+
     def bracket(self) -> Bracket:
         unit = MAGNITUDES[self.kind].unit
         return Bracket(self.scenario, self.kind, unit, self.near, self.far, self.low, self.high, self.attack,
-                       self.base.rule.name, self.rollouts, self.searches)
+                       self.base.rule.name, self.rollouts, self.searches, ground_truth_breaks=self.refusal)
 
 
 def _own_output(output: Path, request: Request) -> None:
@@ -277,15 +295,21 @@ def _bisect(scenarios: Sequence[tuple[str, AttackParams]], output: Path, request
             for cell in todo:
                 pool.submit(cell)
             failed: list[tuple[str, str, int | None]] = []
+            refused: dict[str, str] = {}  # by search: its line, where perfect perception already breaks the rule
             for _ in todo:
                 result = pool.next_done()
-                if result.error is not None:
+                if result.error is not None and result.exit_code == EXIT_NOTHING_TO_ATTACK:
+                    refused[result.name] = result.error.strip().splitlines()[-1]
+                elif result.error is not None:
                     failed.append((result.name, result.error, result.exit_code))
             if failed:
                 name, error, exit_code = min(failed)  # the same one whichever finished first
                 raise RequirementSearchFailed(f"{searches / name}: {error.strip().splitlines()[-1]}", exit_code)
             for state, magnitude, cell in round_:
-                state.take(magnitude, cell.report(searches) or {}, searches / cell.name)
+                if cell.name in refused:
+                    state.refuse(refused[cell.name])
+                else:
+                    state.take(magnitude, cell.report(searches) or {}, searches / cell.name)
             write_requirements(output, [state.bracket() for state in states])
     finally:
         pool.close()
@@ -310,6 +334,8 @@ def markdown(brackets: Sequence[Bracket]) -> str:
              "at the tolerated level |", "|---|---|---|---|---|---|---|---|---|---|"]
     for b in brackets:
         breaks = f"{b.breaks_at:.3g} {b.unit}" if b.breaks_at is not None else f"not up to {b.tolerated:.3g} {b.unit}"
+        if b.ground_truth_breaks is not None:
+            breaks = f"0 {b.unit}: perfect perception already breaks it"
         attack = b.attack or ""
         typical = f"{b.typical_violations} of {b.typical_samples} break it" if b.typical_samples else ""
         lines.append(f"| {b.scenario} | {b.kind} | {b.bin} | {b.tolerated:.3g} {b.unit} | {breaks} | {b.rule} | "
@@ -321,10 +347,11 @@ def noise_parameters(brackets: Sequence[Bracket]) -> str:
     """A scenario_simulator_v2 detection noise (model version 2) file at the tolerated levels, the tightest
     over the scenarios: per bin (`ellipse_y_radii`, circular: `ellipse_normalized_x_radius` 1), a position
     and a heading error whose standard deviation puts three of them at the tolerated level. The other kinds
-    have no parameter of that model."""
+    have no parameter of that model, and a scenario whose ground truth already breaks the rule says nothing of
+    perception's."""
     radii = sorted({b.far for b in brackets})
     def tightest(kind: str) -> list[float] | None:
-        rows = [b for b in brackets if b.kind == kind]
+        rows = [b for b in brackets if b.kind == kind and b.ground_truth_breaks is None]
         if not rows:
             return None
         return [min(b.tolerated for b in rows if b.far == far) / 3.0 for far in radii]

@@ -176,20 +176,34 @@ def test_a_ghost_requirement_under_phantom_braking_holds_its_closed_form(tmp_pat
     assert errors.ghost_on is not None and errors.ghost_on.sum() == 1 and not errors.fn.any()
 
 
-def test_a_search_that_fails_ends_the_command_with_its_exit_code_and_line(tmp_path, capsys):
-    """An ego rolling at 5 m/s 1 m behind a parked car collides with perfect perception: nothing to bound."""
-    params = standing_params(tmp_path)
-    document = yaml.safe_load(params.read_text())
-    spec = {**STANDING, "ego": {**STANDING["ego"], "speed": 5.0}}
+def test_a_scenario_whose_ground_truth_breaks_the_rule_is_said_so_and_the_others_are_bracketed(tmp_path, capsys):
+    """An ego rolling at 5 m/s 1 m behind a parked car collides with perfect perception: nothing is tolerated
+    there, which its rows say (and the exit code, 1, as `advperc attack`'s refusal), while the closed-form
+    case beside it is bracketed as alone; its position bound stays out of the noise file."""
+    moving_params = standing_params(tmp_path)
+    document = yaml.safe_load(moving_params.read_text())
+    spec = {**STANDING, "name": "moving", "ego": {**STANDING["ego"], "speed": 5.0}}
     write_ground_truth_bag(tmp_path / "moving", build_scenario(spec))
     document["orchestrator"]["ros__parameters"]["bag"] = str(tmp_path / "moving")
-    params.write_text(yaml.safe_dump(document))
+    (tmp_path / "moving.yaml").write_text(yaml.safe_dump(document))
+    alone = tmp_path / "alone"
+    alone.mkdir()
     capsys.readouterr()
-    assert main(["requirements", str(params), "--output", str(tmp_path / "out"), "--kinds", "drop", "--bins", "20",
-                 "--executor", "serial", "--quiet"]) == 1
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "standing-drop-0-20m-10" in err[0] and "collides with perfect perception" in err[0], err
-    assert not (tmp_path / "out" / "requirements.json").exists()
+    assert main(["requirements", str(standing_params(alone)), str(tmp_path / "moving.yaml"), "--output",
+                 str(tmp_path / "out"), "--kinds", "drop,position", "--bins", "20", "--executor", "serial",
+                 "--typical", "2", "--quiet"]) == 1
+    out = capsys.readouterr()
+    assert json.loads(out.out)["ground_truth_breaks_rule"] == ["moving"]
+    standing_drop, standing_position, moving_drop, moving_position = rows(tmp_path / "out")
+    for row in (moving_drop, moving_position):
+        assert (row["scenario"], row["tolerated"], row["breaks_at"], row["attack"]) == ("moving", 0.0, 0.0, None)
+        assert "collides with perfect perception" in row["ground_truth_breaks"] and row["typical_samples"] == 0
+    assert standing_drop["ground_truth_breaks"] is None and math.floor(standing_drop["tolerated"] / DT + 1e-9) == 12
+    lines = out.err.strip().splitlines()
+    assert len(lines) == 4 and lines[2].startswith("moving drop 0-20 m: nothing tolerated, ") and "collides" in lines[2]
+    assert "perfect perception already breaks it" in (tmp_path / "out" / "requirements.md").read_text()
+    noise = yaml.safe_load((tmp_path / "out" / "noise.yaml").read_text())["noise"]["v2"]
+    assert noise["distance"]["standard_deviation"]["values"] == [pytest.approx(standing_position["tolerated"] / 3, rel=1e-3)]
 
 
 def test_a_position_requirement_on_a_bundled_scenario_names_attacks_that_collide(repo, tmp_path, capsys):

@@ -9,11 +9,14 @@ search drove over the frames of its rollouts, the snapshots' peak memory and eac
 set, and whether the two wrote the same search_log.csv, attack_errors.npz and report.json (wall time aside);
 the last line is the median ratio and whether every pair was identical. `--before TREE` also runs each attack
 with the code of TREE, a checkout of an earlier commit (`git worktree add TREE REV`), as it was: the wall time
-before and after, and whether it wrote the same results.
+before and after, and whether it wrote the same results. `--virtual-machine` also runs each forked attack with
+ObP's NLP on CasADi's virtual machine (`ADVPERC_COMPILE_NLP=0`) instead of its compiled library
+(docs/obp.md, "Compiled NLP"): the wall time of each, and whether they wrote the same results.
 
     python benchmarks/fork_bench.py --scenarios obp_overtake
     python benchmarks/fork_bench.py --scenarios --recordings USA_US101-22_1_T-1 --planners idm obp
     python benchmarks/fork_bench.py --scenarios obp_overtake --before ../before
+    python benchmarks/fork_bench.py --scenarios obp_overtake obp_left_turn obp_right_turn --virtual-machine
 """
 
 import argparse
@@ -29,6 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from recordings_bench import params_file
+
+from advperc_ros.core.planners.obp.compiled import SWITCH_ENV
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data" / "commonroad"
@@ -50,14 +55,15 @@ class Run:
     stderr: str
 
 
-def attack(params: Path, output: Path, fork_memory: int | None, tree: Path | None = None) -> Run:
-    """`advperc attack params --output output` in a child process (with the code of `tree` when given), timed,
-    its own rusage read at its exit."""
+def attack(params: Path, output: Path, fork_memory: int | None, tree: Path | None = None,
+           env_extra: dict[str, str] | None = None) -> Run:
+    """`advperc attack params --output output` in a child process (with the code of `tree` when given, and the
+    environment's variables `env_extra` set), timed, its own rusage read at its exit."""
     command = [sys.executable, "-c", CHILD, "attack", str(params), "--quiet", "--output", str(output)]
     if fork_memory is not None:
         command += ["--fork-memory", str(fork_memory)]
     # in the tree, so that `python -c` (which puts the working folder first on sys.path) imports its code
-    env = None if tree is None else {**os.environ, "PYTHONPATH": str(tree.resolve())}
+    env = {**os.environ, **(env_extra or {}), **({} if tree is None else {"PYTHONPATH": str(tree.resolve())})}
     started = time.perf_counter()
     child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
                              cwd=None if tree is None else tree)
@@ -79,14 +85,15 @@ def same_results(a: Path, b: Path) -> bool:
     return len(reports) in (0, 2) and (not reports or reports[0] == reports[1])
 
 
-def measure(name: str, params: Path, scratch: Path, forked_first: bool, before: Path | None) -> tuple[float, bool]:
-    """Both attacks of one params file (and the one of `before`), printed as a table row; (forked/full wall
-    ratio, identical)."""
+def measure(name: str, params: Path, scratch: Path, forked_first: bool, before: Path | None,
+            virtual_machine: bool = False) -> tuple[float, bool]:
+    """Both attacks of one params file (and the one of `before`, and the forked one on the virtual machine),
+    printed as a table row; (forked/full wall ratio, identical)."""
     runs: dict[str, Run] = {}
     order = ["forked", "full"] if forked_first else ["full", "forked"]
-    for which in order + (["before"] if before is not None else []):
-        runs[which] = attack(params, scratch / f"{name}-{which}", {"forked": None, "full": 0, "before": None}[which],
-                             before if which == "before" else None)
+    for which in order + (["before"] if before is not None else []) + (["vm"] if virtual_machine else []):
+        runs[which] = attack(params, scratch / f"{name}-{which}", 0 if which == "full" else None,
+                             before if which == "before" else None, {SWITCH_ENV: "0"} if which == "vm" else None)
     forked, full = runs["forked"], runs["full"]
     identical = forked.code == full.code and same_results(scratch / f"{name}-forked", scratch / f"{name}-full")
     said = SUMMARY.search(forked.stderr)
@@ -97,6 +104,9 @@ def measure(name: str, params: Path, scratch: Path, forked_first: bool, before: 
     if "before" in runs:
         same = runs["before"].code == full.code and same_results(scratch / f"{name}-before", scratch / f"{name}-full")
         then = f" {runs['before'].wall:.1f} | {forked.wall / runs['before'].wall:.2f} | {'yes' if same else 'no'} |"
+    if "vm" in runs:
+        same = runs["vm"].code == forked.code and same_results(scratch / f"{name}-vm", scratch / f"{name}-forked")
+        then += f" {runs['vm'].wall:.1f} | {forked.wall / runs['vm'].wall:.2f} | {'yes' if same else 'no'} |"
     print(f"| {name} | {full.code} | {full.wall:.1f} | {forked.wall:.1f} | {ratio:.2f} | {rollouts} | {frames} | {peak} | "
           f"{full.rss_mib:.0f} / {forked.rss_mib:.0f} | {'yes' if identical else 'no'} |{then}", flush=True)
     return ratio, identical
@@ -109,11 +119,15 @@ def main() -> None:
     parser.add_argument("--planners", nargs="*", default=("idm", "obp"), help="the recordings' params files to attack")
     parser.add_argument("--data", type=Path, default=DATA)
     parser.add_argument("--before", type=Path, help="a checkout of an earlier commit: each attack with its code too")
+    parser.add_argument("--virtual-machine", action="store_true",
+                        help="each forked attack also with ObP's NLP on CasADi's virtual machine, not compiled")
     args = parser.parse_args()
     then = " before (s) | forked / before | same as before |" if args.before else ""
+    then += " forked, VM (s) | compiled / VM | same on the VM |" if args.virtual_machine else ""
     print("| attack | exit | full (s) | forked (s) | forked / full | rollouts forked | frames driven / full | "
           f"snapshots peak (MiB) | max RSS full / forked (MiB) | identical |{then}")
-    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|---|" if args.before else ""))
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|---|" if args.before else "")
+          + ("---|---|---|" if args.virtual_machine else ""))
     ratios, identical = [], []
     with tempfile.TemporaryDirectory(prefix="fork-bench-") as folder:
         scratch = Path(folder)
@@ -127,7 +141,7 @@ def main() -> None:
                 continue
             jobs += [(f"{name} {planner}", params_file(bag, planner)) for planner in args.planners]
         for i, (name, params) in enumerate(jobs):
-            ratio, same = measure(name.replace(" ", "-"), params, scratch, i % 2 == 0, args.before)
+            ratio, same = measure(name.replace(" ", "-"), params, scratch, i % 2 == 0, args.before, args.virtual_machine)
             ratios.append(ratio)
             identical.append(same)
     print(f"forked/full wall ratio {statistics.median(ratios):.2f}, identical: {'yes' if all(identical) else 'no'}")

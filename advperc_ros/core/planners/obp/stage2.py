@@ -11,6 +11,7 @@ import numpy as np
 
 from advperc_ros.core.geometry import wrap_angle
 from advperc_ros.core.planners.base import Trajectory
+from advperc_ros.core.planners.obp.compiled import compiled_solver
 from advperc_ros.core.planners.obp.config import (
     CONSTRAINT_TOL,
     FEASIBLE_ENOUGH,
@@ -87,7 +88,7 @@ class Stage2:
         nlp: dict[str, ca.SX | float] = {"x": variables, "p": params, "f": cost * h, "g": ca.vertcat(*g)}
         ipopt = {**IPOPT_OPTIONS, "max_iter": int(cfg.max_iterations), "max_cpu_time": float(cfg.max_cpu_time)}
         opts: dict[str, Any] = {"print_time": False, "ipopt": ipopt}
-        self._solver = ca.nlpsol("obp", "ipopt", nlp, opts)
+        self._solver = compiled_solver("obp", ca.nlpsol("obp", "ipopt", nlp, opts), opts)
         self._kinds = np.array(kinds)
         self.size = {"variables": int(variables.numel()), "constraints": len(kinds), "parameters": int(params.numel())}
 

@@ -84,7 +84,9 @@ class Bracket:
         if self.ground_truth_breaks is not None:
             return f"{self.scenario} {self.kind} {self.bin}: nothing tolerated, {self.ground_truth_breaks}"
         breaks = "not broken" if self.breaks_at is None else f"breaks at {self.breaks_at:.3g} {self.unit} ({self.attack})"
-        return f"{self.scenario} {self.kind} {self.bin}: tolerated up to {self.tolerated:.3g} {self.unit}, {breaks}"
+        missed = (f"; yet {self.typical_violations} of {self.typical_samples} typical errors within it break the rule"
+                  if self.typical_violations else "")
+        return f"{self.scenario} {self.kind} {self.bin}: tolerated up to {self.tolerated:.3g} {self.unit}, {breaks}{missed}"
 
 
 def check_request(params: Sequence[AttackParams], kinds: Sequence[str], radii: Sequence[float], iterations: int,
@@ -338,6 +340,8 @@ def markdown(brackets: Sequence[Bracket]) -> str:
             breaks = f"0 {b.unit}: perfect perception already breaks it"
         attack = b.attack or ""
         typical = f"{b.typical_violations} of {b.typical_samples} break it" if b.typical_samples else ""
+        if b.typical_violations:  # errors inside the level that break the rule: the level is not tolerated
+            typical += " (the search missed them: not tolerated)"
         lines.append(f"| {b.scenario} | {b.kind} | {b.bin} | {b.tolerated:.3g} {b.unit} | {breaks} | {b.rule} | "
                      f"{b.searches} | {b.rollouts} | {attack} | {typical} |")
     return "\n".join(lines) + "\n"

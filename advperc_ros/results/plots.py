@@ -1,6 +1,7 @@
 """Plots of an attack: best metric against rollouts (the paper's figure 3), a bird's-eye view of the
 last seconds and an animation of the whole attack rollout. Headless (Agg)."""
 
+from collections import Counter
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -399,14 +400,38 @@ def robustness(path: Path, points, objective: str) -> None:
     _save(fig, path, dpi=120)
 
 
+BAR_SCENARIOS = 6  # up to this many scenarios a requirements plot draws bars; beyond, one point per scenario
+NAMED_PER_BIN = 4  # broken brackets of one bin named on the plot, at most
+
+
 def requirements(path: Path, brackets) -> None:
-    """One error kind's perception requirement against distance from the ego: per scenario, a bar per distance
-    bin from 0 up to the tolerated magnitude (solid) and on to the one that broke the rule (hatched); a pale bar
-    marked "not broken" where nothing broke it up to the largest magnitude searched (`advperc requirements`)."""
+    """One error kind's perception requirement against distance from the ego (`advperc requirements`). For a few
+    scenarios, a bar each per distance bin, from 0 up to the tolerated magnitude (solid) and on to the one that
+    broke the rule (hatched), pale and marked "not broken" where nothing broke it up to the largest magnitude
+    searched. For many (a run across recordings), one mark each per bin, spread across it: the bracket as a
+    line from the tolerated magnitude to the broken one, a triangle where nothing broke it, a cross at 0 where
+    the ground truth already breaks the rule; the broken ones named where a bin has few."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6))
     scenarios = list(dict.fromkeys(b.scenario for b in brackets))
-    width = 0.8 / max(len(scenarios), 1)
     bins = list(dict.fromkeys((b.near, b.far) for b in brackets))
+    if len(scenarios) <= BAR_SCENARIOS:
+        _requirement_bars(ax, brackets, scenarios, bins)
+    else:
+        _requirement_marks(ax, brackets, scenarios, bins)
+    kind, unit = brackets[0].kind, brackets[0].unit
+    ax.set_xticks(range(len(bins)), [f"{near:g}-{far:g} m" for near, far in bins])
+    ax.set_xlabel("distance from the ego")
+    ax.set_ylabel(f"{kind} ({unit})")
+    ax.set_ylim(0, max(b.breaks_at or b.tolerated for b in brackets) * 1.15 or 1.0)
+    ax.grid(alpha=0.3, axis="y")
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    _save(fig, path, dpi=120)
+
+
+def _requirement_bars(ax, brackets, scenarios: list[str], bins: list[tuple[float, float]]) -> None:
+    width = 0.8 / max(len(scenarios), 1)
     for s, scenario in enumerate(scenarios):
         color = f"C{s % 10}"
         for b in (b for b in brackets if b.scenario == scenario):
@@ -415,18 +440,32 @@ def requirements(path: Path, brackets) -> None:
             broken = b.breaks_at is not None
             ax.bar(x, b.tolerated, width * 0.9, color=color, alpha=1.0 if broken else 0.35,
                    label=scenario if first else None)
-            if broken:
+            if b.ground_truth_breaks is not None:
+                ax.text(x, 0.0, "collides unattacked", ha="center", va="bottom", fontsize=7, rotation=90)
+            elif broken:
                 ax.bar(x, b.breaks_at - b.tolerated, width * 0.9, bottom=b.tolerated, color="none", edgecolor=color,
                        hatch="//")
             else:  # nothing broke it up to the largest magnitude searched: a floor, not a bracket
                 ax.text(x, b.tolerated, "not broken", ha="center", va="bottom", fontsize=7)
-    kind, unit = brackets[0].kind, brackets[0].unit
-    ax.set_xticks(range(len(bins)), [f"{near:g}-{far:g} m" for near, far in bins])
-    ax.set_xlabel("distance from the ego")
-    ax.set_ylabel(f"{kind} ({unit})")
-    ax.set_title(f"{kind}: tolerated (solid) and broken at (hatched)")
-    ax.set_ylim(0, max(b.breaks_at or b.tolerated for b in brackets) * 1.12 or 1.0)
-    ax.grid(alpha=0.3, axis="y")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    _save(fig, path, dpi=120)
+    ax.set_title(f"{brackets[0].kind}: tolerated (solid) and broken at (hatched)")
+
+
+def _requirement_marks(ax, brackets, scenarios: list[str], bins: list[tuple[float, float]]) -> None:
+    spread = np.linspace(-0.35, 0.35, len(scenarios))
+    said: set[str] = set()
+    broken = Counter((b.near, b.far) for b in brackets if b.breaks_at is not None and b.ground_truth_breaks is None)
+    for b in brackets:
+        x = bins.index((b.near, b.far)) + spread[scenarios.index(b.scenario)]
+        if b.ground_truth_breaks is not None:
+            style, label = {"marker": "x", "color": "C3"}, "ground truth breaks the rule"
+        elif b.breaks_at is None:
+            style, label = {"marker": "^", "color": "0.6"}, "not broken up to this"
+        else:
+            style, label = {"marker": "o", "color": "C0"}, "tolerated, line to broken at"
+            ax.plot([x, x], [b.tolerated, b.breaks_at], color="C0", lw=2)
+            if broken[(b.near, b.far)] <= NAMED_PER_BIN:  # more would overlap: the table names them
+                ax.annotate(b.scenario, (x, b.breaks_at), fontsize=6, rotation=90, ha="center", va="bottom",
+                            xytext=(0, 2), textcoords="offset points")
+        ax.plot([x], [b.tolerated], linestyle="none", markersize=5, label=None if label in said else label, **style)
+        said.add(label)
+    ax.set_title(f"{brackets[0].kind}: tolerated per scenario ({len(scenarios)} scenarios)")

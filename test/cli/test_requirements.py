@@ -241,3 +241,35 @@ def test_a_run_killed_midway_resumes_to_the_uninterrupted_rows(standing, tmp_pat
     assert not (tmp_path / "out" / "requirements.json").exists() or rows(tmp_path / "out") != rows(output)
     requirements(params, tmp_path / "out", "--kinds", "drop", "--bins", "20,40", "--executor", "serial", capsys=capsys)
     assert rows(tmp_path / "out") == rows(output)
+
+
+def test_typical_errors_that_break_the_rule_within_a_tolerated_level_are_called_out():
+    """The search tolerated 10 s of ghosts 20-40 m away, yet 3 of 10 typical samples within that level break the
+    rule (ghosts coming towards the ego, which the search's moves never propose): the row must not read as safe."""
+    from advperc_ros.requirements import Bracket, markdown
+
+    row = Bracket("rec", "ghost", "s", 20.0, 40.0, 10.0, None, None, "phantom_braking", 45, 1, 10, 3)
+    assert "3 of 10 break it (the search missed them: not tolerated)" in markdown([row])
+    assert row.line().endswith("not broken; yet 3 of 10 typical errors within it break the rule")
+    fine = Bracket("rec", "ghost", "s", 20.0, 40.0, 10.0, None, None, "phantom_braking", 45, 1, 10, 0)
+    assert "| 0 of 10 break it |" in markdown([fine]) and fine.line().endswith("not broken")
+
+
+@pytest.mark.parametrize("scenarios", [2, 22])
+def test_the_plot_draws_a_few_scenarios_as_bars_and_many_as_marks(scenarios, tmp_path, monkeypatch):
+    """A run across 22 recordings drew 66 bars with their labels on top of one another: past a handful of
+    scenarios each bracket is a mark. Either way, one of them whose ground truth breaks the rule is drawn."""
+    from advperc_ros.requirements import Bracket
+    from advperc_ros.results import plots
+
+    drawn: list[str] = []
+    monkeypatch.setattr(plots, "_requirement_bars", lambda ax, *rest: drawn.append("bars"))
+    monkeypatch.setattr(plots, "_requirement_marks", lambda ax, *rest: drawn.append("marks"))
+    rows = [Bracket(f"s{i}", "drop", "s", near, near + 20.0, t, b, None, "collision", 1, 1, ground_truth_breaks=gt)
+            for i in range(scenarios) for near in (0.0, 20.0)
+            for t, b, gt in [(10.0, None, None) if i % 3 else (0.0, 0.0, "collides") if i == 0 else (1.25, 1.5625, None)]]
+    plots.requirements(tmp_path / "stubbed.png", rows)
+    assert drawn == ["bars" if scenarios <= plots.BAR_SCENARIOS else "marks"]
+    monkeypatch.undo()
+    plots.requirements(tmp_path / "drop.png", rows)
+    assert (tmp_path / "drop.png").stat().st_size > 1000

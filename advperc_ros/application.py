@@ -215,20 +215,27 @@ def _checkpointed_attack(params: AttackParams, scenario: Scenario, bag_path: Pat
     return report
 
 
+# whose INFO lines an attack shows: the backends' and the bundled planners' (ObP compiling its NLP, or why not)
+SHOWN_LOGGERS = ("advperc_ros.backends", "advperc_ros.core.planners")
+
+
 @contextmanager
 def backend_log(handler: logging.Handler) -> Iterator[None]:
-    """The backends' log lines through `handler` while an attack runs, from INFO up: the graph's
-    line naming the planner it attacks (and the version it announced), a rollout it found
-    inconclusive. Python's logging has no handler of its own for them, and drops INFO lines."""
-    logger = logging.getLogger("advperc_ros.backends")
-    level = logger.level
-    logger.addHandler(handler)
-    logger.setLevel(logging.INFO)
+    """The backends' and planners' log lines through `handler` while an attack runs, from INFO up: the graph's
+    line naming the planner it attacks (and the version it announced), a rollout it found inconclusive, ObP
+    compiling its NLP once per machine. Python's logging has no handler of its own for them, and drops INFO
+    lines."""
+    loggers = [logging.getLogger(name) for name in SHOWN_LOGGERS]
+    levels = [logger.level for logger in loggers]
+    for logger in loggers:
+        logger.addHandler(handler)
+        logger.setLevel(logging.INFO)
     try:
         yield
     finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
+        for logger, level in zip(loggers, levels):
+            logger.removeHandler(handler)
+            logger.setLevel(level)
 
 
 def summary(report: dict) -> dict:

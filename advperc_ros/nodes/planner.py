@@ -9,11 +9,13 @@ come from the bag, as in the embedded stack; an external planner may take them f
 /map/lanes and /ego/route instead (docs/graph.md).
 """
 
+import os
 import sys
 from typing import Any
 
 from advperc_ros.configs import planning_context
 from advperc_ros.core.planners.base import EMPTY_PLAN, Planner
+from advperc_ros.core.planners.obp.compiled import CACHED_ONLY, SWITCH_ENV
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.nodes.runtime import Logger, NodeSpec, run_node
 from advperc_ros.ros import messages as msgs
@@ -63,6 +65,9 @@ class PlannerNode:
 
 
 def _build(transport: Transport, values: dict[str, Any], planner_params: dict[str, Any], logger: Logger) -> PlannerNode:
+    # ObP loads a compiled NLP it finds and never compiles one here: the node must be up within the graph's
+    # start-up time, and a compile takes up to half a minute (core.planners.obp.compiled)
+    os.environ.setdefault(SWITCH_ENV, CACHED_ONLY)
     scenario = read_scenario(values["bag"])
     planner = load_planner(values["planner"], planning_context(values, scenario), planner_params)
     return PlannerNode(transport, planner, load_profile(values["graph.interface"]), logger)

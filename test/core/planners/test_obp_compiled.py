@@ -3,6 +3,7 @@
 without a compiler, or a compile that fails, planning on the virtual machine with a line in the log."""
 
 import logging
+import os
 import subprocess
 
 import casadi as ca
@@ -119,3 +120,25 @@ def test_an_attack_shows_the_planner_s_compile_line(tmp_path, monkeypatch):
     with backend_log(logging.StreamHandler(stream)):
         compiled.compiled_solver("toy", toy_solver(), OPTS)
     assert stream.getvalue().count("compiling ObP's NLP into") == 1
+
+
+def test_a_planner_node_loads_a_library_compiled_before_and_never_compiles(tmp_path, monkeypatch, caplog):
+    """A node must be up within the graph's start-up time: under `cached` a missing library means the virtual
+    machine (said), one an attack compiled is loaded. The planner node sets `cached` unless told otherwise."""
+    monkeypatch.setattr(compiled, "_said", set())
+    monkeypatch.setenv(compiled.CACHE_ENV, str(tmp_path))
+    monkeypatch.setenv(compiled.SWITCH_ENV, compiled.CACHED_ONLY)
+    caplog.set_level(logging.INFO, logger=compiled.__name__)
+    solver = toy_solver()
+    assert compiled.compiled_solver("toy", solver, OPTS) is solver and not list(tmp_path.glob("*.so"))
+    assert any("not compiled yet" in r.getMessage() for r in caplog.records)
+    monkeypatch.setenv(compiled.SWITCH_ENV, compiled.COMPILE)
+    compiled.compiled_solver("toy", toy_solver(), OPTS)  # an attack compiles it
+    monkeypatch.setenv(compiled.SWITCH_ENV, compiled.CACHED_ONLY)
+    assert oracle_kind_of(compiled.compiled_solver("toy", toy_solver(), OPTS)) == "External"
+    import advperc_ros.nodes.planner as node
+
+    monkeypatch.delenv(compiled.SWITCH_ENV)
+    with pytest.raises(Exception):  # noqa: B017 (any: the bag does not exist; the policy is set before it is read)
+        node._build(None, {"bag": str(tmp_path / "no-bag")}, {}, None)
+    assert os.environ[compiled.SWITCH_ENV] == compiled.CACHED_ONLY

@@ -15,8 +15,9 @@ the same whether or not a compiler was found.
 
 Where none is (`cc`), the cache folder cannot be written or the compile fails, the planner uses the
 virtual machine and the log says why, once per process. `ADVPERC_NLP_CACHE` names the cache folder
-(default `$XDG_CACHE_HOME/advperc_ros/nlp`, else `~/.cache/advperc_ros/nlp`); `ADVPERC_COMPILE_NLP=0`
-turns compiling off.
+(default `$XDG_CACHE_HOME/advperc_ros/nlp`, else `~/.cache/advperc_ros/nlp`); `ADVPERC_COMPILE_NLP` says what
+to do: `1` (the default) compile what the cache lacks, `cached` load only what it holds (a planner node does
+so: it must be up within the graph's start-up time), `0` neither.
 """
 
 import fcntl
@@ -35,6 +36,7 @@ log = logging.getLogger(__name__)
 
 CACHE_ENV = "ADVPERC_NLP_CACHE"
 SWITCH_ENV = "ADVPERC_COMPILE_NLP"
+COMPILE, CACHED_ONLY, OFF = "1", "cached", "0"  # its values (module docstring)
 # -O1: of the levels tried, the best rollout time for its compile time (-O0 compiles in a quarter of the time
 # and saves a third as much); -ffp-contract=off: no fused multiply-add, so the VM's rounding (module docstring)
 COMPILE_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")
@@ -70,19 +72,21 @@ def nlp_source(solver: ca.Function) -> str:
         return (Path(folder) / "advperc_nlp.c").read_text()
 
 
-def compiled_library(source: str, folder: Path) -> Path:
+def compiled_library(source: str, folder: Path, compile_missing: bool = True) -> Path:
     """The shared library of `source` in `folder`, compiled if the cache does not hold it yet. A process that
     finds another compiling the same source waits for it (a campaign's workers all build one planner at
     their start) rather than compile it again; the library is written beside and moved into place, so a
     compile killed midway leaves nothing a later process would load. Raises OSError or
-    subprocess.SubprocessError when it cannot be built."""
-    compiler = shutil.which("cc") or shutil.which("gcc")
-    if compiler is None:
-        raise OSError("no C compiler (cc) on the PATH")
+    subprocess.SubprocessError when it cannot be built (or, not `compile_missing`, is not built yet)."""
     digest = hashlib.sha256("\0".join((ca.CasadiMeta.version(), *COMPILE_FLAGS, source)).encode()).hexdigest()[:24]
     library = folder / f"obp-{digest}.so"
     if library.exists():
         return library
+    if not compile_missing:
+        raise OSError(f"not compiled yet ({SWITCH_ENV}={CACHED_ONLY}; an attack in this environment compiles it)")
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler is None:
+        raise OSError("no C compiler (cc) on the PATH")
     try:
         folder.mkdir(parents=True, exist_ok=True)
         lock = open(folder / f"obp-{digest}.lock", "w")  # noqa: SIM115 (held over the compile below)
@@ -105,11 +109,12 @@ def compiled_library(source: str, folder: Path) -> Path:
 def compiled_solver(name: str, solver: ca.Function, opts: dict[str, Any]) -> ca.Function:
     """`solver` (IPOPT on an SX NLP, built with `opts`) on its compiled functions, or `solver` itself where
     they cannot be had (the log says why, once)."""
-    if os.environ.get(SWITCH_ENV, "1") == "0":
-        _say_once(f"{SWITCH_ENV}=0")
+    policy = os.environ.get(SWITCH_ENV, COMPILE)
+    if policy == OFF:
+        _say_once(f"{SWITCH_ENV}={OFF}")
         return solver
     try:
-        library = compiled_library(nlp_source(solver), cache_folder())
+        library = compiled_library(nlp_source(solver), cache_folder(), compile_missing=policy != CACHED_ONLY)
         return ca.nlpsol(name, "ipopt", str(library), opts)
     except subprocess.CalledProcessError as failed:
         _say_once(f"the compile failed ({failed.stderr.decode(errors='replace').strip().splitlines()[-1:]})")

@@ -10,7 +10,7 @@ then loaded by every planner, process and run on the machine.
 The compiled functions compute what the virtual machine does, operation for operation: the C evaluates the
 same expression graph in the same order, and `-ffp-contract=off` keeps gcc from fusing a multiply and an
 add (which it does by default where the CPU has FMA, aarch64 among them) and so rounding differently.
-`test/core/test_obp_compiled.py` checks rollouts bit for bit against the virtual machine's, so an attack is
+`test/core/planners/test_obp_compiled.py` checks rollouts bit for bit against the virtual machine's, so an attack is
 the same whether or not a compiler was found.
 
 Where none is (`cc`), the cache folder cannot be written or the compile fails, the planner uses the

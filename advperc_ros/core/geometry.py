@@ -1,6 +1,7 @@
 """Planar geometry shared by scenarios, planners and rules: polylines and oriented boxes."""
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import overload
 
@@ -21,6 +22,12 @@ def wrap_angle(angle: FloatArray | float) -> FloatArray | float:
     return (np.asarray(angle) + np.pi) % (2.0 * np.pi) - np.pi
 
 
+def _norms(vectors: FloatArray) -> FloatArray:
+    """The length of each vector (..., 2): np.linalg.norm's arithmetic along the last axis, to the bit, without
+    its checks (a projection's hottest line)."""
+    return np.sqrt(np.add.reduce(vectors * vectors, axis=-1))
+
+
 @dataclass(frozen=True)
 class Polyline:
     """A 2D path parameterised by arc length; the route and lane centrelines use it."""
@@ -29,6 +36,10 @@ class Polyline:
     # derived in __post_init__: unit direction of each segment (M-1, 2) and arc length of each vertex (M,)
     _seg_dir: FloatArray = field(init=False, repr=False, compare=False)
     _s: FloatArray = field(init=False, repr=False, compare=False)
+    # how far along each segment a point's foot may lie: the end segments extend to infinity so that points past
+    # the ends project onto them
+    _low: FloatArray = field(init=False, repr=False, compare=False)
+    _high: FloatArray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         pts = np.asarray(self.points, dtype=float)
@@ -41,6 +52,10 @@ class Polyline:
         seg_len = np.linalg.norm(seg, axis=1)
         object.__setattr__(self, "_seg_dir", seg / seg_len[:, None])
         object.__setattr__(self, "_s", np.concatenate([[0.0], np.cumsum(seg_len)]))
+        low, high = np.zeros(len(seg_len)), np.diff(self._s)
+        low[0], high[-1] = -np.inf, np.inf
+        object.__setattr__(self, "_low", low)
+        object.__setattr__(self, "_high", high)
 
     @property
     def length(self) -> float:
@@ -68,14 +83,10 @@ class Polyline:
         """Arc length and signed lateral offset (left positive) of points, shape (..., 2)."""
         xy = np.asarray(xy, dtype=float)
         rel = xy[..., None, :] - self.points[:-1]  # (..., S, 2)
-        seg_len = np.diff(self._s)
         along = np.einsum("...sk,sk->...s", rel, self._seg_dir)
-        # the end segments extend to infinity so that points past the ends project onto them
-        lo, hi = np.zeros_like(seg_len), seg_len.copy()
-        lo[0], hi[-1] = -np.inf, np.inf
-        t = np.clip(along, lo, hi)
+        t = np.clip(along, self._low, self._high)
         foot = self.points[:-1] + t[..., None] * self._seg_dir
-        dist = np.linalg.norm(xy[..., None, :] - foot, axis=-1)
+        dist = _norms(xy[..., None, :] - foot)
         best = np.argmin(dist, axis=-1)
         t_best = np.take_along_axis(t, best[..., None], axis=-1)[..., 0]
         s = self._s[best] + t_best
@@ -83,6 +94,77 @@ class Polyline:
         rel_best = np.take_along_axis(rel, best[..., None, None], axis=-2)[..., 0, :]
         lateral = d[..., 0] * rel_best[..., 1] - d[..., 1] * rel_best[..., 0]
         return s, lateral
+
+
+class Polylines:
+    """Several polylines' segments held end to end, so that points project onto any of them in one numpy pass, each
+    with `Polyline.project`'s arithmetic and `Polyline.heading`'s segment, to the bit. A frame that projects
+    every track onto every lane of a recording (a hundred lanes) or every leader onto its follower's recorded
+    path would otherwise pay a hundred small numpy passes; this pays one. `None` stands for a line that is not
+    there (a parked agent's path): no point may be asked of it (`segments` 0)."""
+
+    def __init__(self, lines: Sequence[Polyline | None]) -> None:
+        present = [line for line in lines if line is not None]
+        self.segments = np.array([0 if line is None else line.points.shape[0] - 1 for line in lines], dtype=int)
+        self._first = np.concatenate([[0], np.cumsum(self.segments)[:-1]]).astype(int)  # each line's first segment
+        self._starts = np.concatenate([line.points[:-1] for line in present] or [np.zeros((0, 2))])
+        self._directions = np.concatenate([line._seg_dir for line in present] or [np.zeros((0, 2))])
+        self._stations = np.concatenate([line.stations[:-1] for line in present] or [np.zeros(0)])  # segment starts
+        self._low = np.concatenate([line._low for line in present] or [np.zeros(0)])
+        self._high = np.concatenate([line._high for line in present] or [np.zeros(0)])
+        self._line = np.repeat(np.arange(len(lines)), self.segments)  # each segment's line
+
+    def __len__(self) -> int:
+        return len(self.segments)
+
+    def project(self, which: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(arc length, signed lateral offset, unit direction of the segment `Polyline.heading` reads there) of each
+        point `xy` (P, 2) on line `which` (P,): each the `Polyline.project` of that point on that line."""
+        count = self.segments[which]
+        offsets = np.arange(max(int(count.max(initial=0)), 1))
+        padding = offsets[None, :] >= count[:, None]
+        segment = np.where(padding, 0, self._first[which][:, None] + offsets[None, :])  # (P, S): the line's segments
+        rel = xy[:, None, :] - self._starts[segment]
+        directions = self._directions[segment]
+        along = np.einsum("psk,psk->ps", rel, directions)
+        t = np.clip(along, self._low[segment], self._high[segment])
+        dist = _norms(xy[:, None, :] - (self._starts[segment] + t[..., None] * directions))
+        dist[padding] = np.inf
+        rows = np.arange(len(which))
+        best = np.argmin(dist, axis=-1)
+        return self._answer(rows, segment[rows, best], t[rows, best], rel[rows, best], which)
+
+    def project_all(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`project` of every point `xy` (M, 2) on every line (none of them None): arrays (L, M), and the
+        directions (L, M, 2). Each point meets every segment once, with no padding."""
+        if not self.segments.all():
+            raise ValueError("project_all needs every line: one of them is None")
+        rel = xy[:, None, :] - self._starts  # (M, S, 2)
+        along = np.einsum("msk,sk->ms", rel, self._directions)
+        t = np.clip(along, self._low, self._high)
+        dist = _norms(xy[:, None, :] - (self._starts + t[..., None] * self._directions))
+        nearest = np.minimum.reduceat(dist, self._first, axis=1)  # (M, L)
+        # the first segment of its line at that distance, as argmin takes it
+        candidates = np.where(dist == nearest[:, self._line], np.arange(len(self._line)), len(self._line) - 1)
+        best = np.minimum.reduceat(candidates, self._first, axis=1).T  # (L, M)
+        points = np.broadcast_to(np.arange(len(xy)), best.shape)
+        lines = np.broadcast_to(np.arange(len(self))[:, None], best.shape)
+        return self._answer(points, best, t[points, best], rel[points, best], lines)
+
+    def _answer(self, rows: np.ndarray, best: np.ndarray, t: np.ndarray, rel: np.ndarray,
+                lines: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(arc length, lateral offset, heading's direction) from each point's nearest segment `best` (global), its
+        clipped position `t` along it and the point relative to the segment's start `rel`."""
+        s = self._stations[best] + t
+        d = self._directions[best]
+        lateral = d[..., 0] * rel[..., 1] - d[..., 1] * rel[..., 0]
+        # Polyline.heading's segment: the last whose start lies at or before s, within the line
+        first, count = self._first[lines], self.segments[lines]
+        offsets = np.arange(max(int(self.segments.max(initial=0)), 1))
+        within = first[..., None] + np.minimum(offsets, count[..., None] - 1)
+        at_or_before = (self._stations[within] <= s[..., None]) & (offsets < count[..., None])
+        segment = first + np.clip(np.count_nonzero(at_or_before, axis=-1) - 1, 0, count - 1)
+        return s, lateral, self._directions[segment]
 
 
 TURN_WINDOW = 2.0  # m of path over which a turn is measured: about a car's wheelbase

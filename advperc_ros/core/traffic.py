@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from advperc_ros.core.boxes import BoxSequence
-from advperc_ros.core.geometry import Polyline, wrap_angle
+from advperc_ros.core.geometry import Polyline, Polylines, wrap_angle
 from advperc_ros.core.parameters import Bounds, parameter
 from advperc_ros.core.scenario import EgoState
 
@@ -68,10 +68,9 @@ class IDMParameters:
 class RecordedPaths:
     """What reactive traffic reads of a scenario's recording, computed once per scenario: each agent's
     arc length along its recorded path at every frame (restarting where it appears), its recorded
-    speed, and its path as a polyline (`geometry.Polyline`) for finding the leader on it, the paths of
-    all agents held padded side by side so that a frame projects every leader onto every path in one
-    numpy pass (`project`, Polyline.project's arithmetic on each; a frame of a 44-car freeway recording
-    had cost 28 projections one at a time)."""
+    speed, and its path as a polyline (`geometry.Polyline`) for finding the leader on it, all of them held
+    as `geometry.Polylines` so that a frame projects every leader onto every path in one numpy pass (a
+    frame of a 44-car freeway recording had cost 28 projections one at a time)."""
 
     def __init__(self, agents: BoxSequence) -> None:
         self.agents = agents
@@ -89,43 +88,13 @@ class RecordedPaths:
                 paths.append(Polyline(np.column_stack([agents.x[rows, slot], agents.y[rows, slot]])))
             except ValueError:  # parked: it has no path to follow
                 paths.append(None)
-        self.segments = np.array([0 if path is None else path.points.shape[0] - 1 for path in paths])
-        width = max(int(self.segments.max(initial=0)), 1)
-        self._starts = np.zeros((len(paths), width, 2))  # each segment's first point
-        self._directions = np.tile([1.0, 0.0], (len(paths), width, 1))
-        self._stations = np.full((len(paths), width + 1), np.inf)  # each vertex's arc length; inf beyond the path
-        self._lengths = np.zeros((len(paths), width))
-        for slot, path in enumerate(paths):
-            if path is not None:
-                n = self.segments[slot]
-                self._starts[slot, :n] = path.points[:-1]
-                segments = np.diff(path.points, axis=0)
-                self._directions[slot, :n] = segments / np.linalg.norm(segments, axis=1)[:, None]  # as Polyline's
-                self._stations[slot, : n + 1] = path.stations
-                self._lengths[slot, :n] = np.diff(path.stations)
+        self.lines = Polylines(paths)
+        self.segments = self.lines.segments
 
     def project(self, slots: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(arc length, signed lateral offset, unit direction of the segment it falls on) of each point `xy` (P, 2)
         on the path of the agent in `slots` (P,): Polyline.project's, and its heading's segment, for each."""
-        starts, directions, lengths = self._starts[slots], self._directions[slots], self._lengths[slots]
-        rel = xy[:, None, :] - starts  # (P, S, 2)
-        along = np.einsum("psk,psk->ps", rel, directions)
-        count = self.segments[slots]
-        rows = np.arange(len(slots))
-        low, high = np.zeros_like(lengths), lengths.copy()
-        low[:, 0] = -np.inf  # the end segments extend to infinity, as Polyline's
-        high[rows, count - 1] = np.inf
-        t = np.clip(along, low, high)
-        foot = starts + t[..., None] * directions
-        dist = np.linalg.norm(xy[:, None, :] - foot, axis=-1)
-        dist[np.arange(lengths.shape[1])[None, :] >= count[:, None]] = np.inf  # padding
-        best = np.argmin(dist, axis=-1)
-        stations = self._stations[slots]
-        s = stations[rows, best] + t[rows, best]
-        d, rel_best = directions[rows, best], rel[rows, best]
-        lateral = d[:, 0] * rel_best[:, 1] - d[:, 1] * rel_best[:, 0]
-        segment = np.clip(np.count_nonzero(stations <= s[:, None], axis=1) - 1, 0, count - 1)  # Polyline.heading's
-        return s, lateral, directions[rows, segment]
+        return self.lines.project(slots, xy)
 
 
 _last_paths: list[RecordedPaths] = []  # the paths of the last recording asked for: a search asks for one

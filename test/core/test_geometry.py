@@ -1,14 +1,18 @@
 """Polyline, oriented boxes and the signed box distance, against hand-computed and independent references."""
 
 import functools
+import itertools
 import math
 
 import numpy as np
 import pytest
 import shapely
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from advperc_ros.core.geometry import (
     Polyline,
+    Polylines,
     box_corners,
     round_corners,
     sharpest_turn,
@@ -90,6 +94,51 @@ def test_project_is_inverse_of_position_with_offset():
     assert got_s.shape == (100,)
     np.testing.assert_allclose(got_s, s, atol=1e-9)
     np.testing.assert_allclose(got_d, d, atol=1e-9)
+
+
+# ---------------------------------------------------------------- Polylines
+
+# vertices and points on a coarse grid, so that a point is often as near two segments as each other (a tie that
+# must go to the first, as argmin takes it) or lies on a vertex, beyond an end or on a segment's line
+_GRID = st.integers(-4, 4).map(float)
+_LINE = st.lists(st.tuples(_GRID, _GRID), min_size=2, max_size=6).filter(
+    lambda points: any(a != b for a, b in itertools.pairwise(points)))
+
+
+@settings(max_examples=200, deadline=None)
+@given(lines=st.lists(_LINE, min_size=1, max_size=5),
+       points=st.lists(st.tuples(st.integers(-12, 12).map(lambda v: v / 2.0), st.integers(-12, 12).map(lambda v: v / 2.0)),
+                       min_size=1, max_size=12))
+def test_polylines_project_each_point_as_its_polyline_does_to_the_bit(lines, points):
+    """Polylines.project_all (every point on every line) and Polylines.project (a point on a line of its own) give
+    Polyline.project's arc length and lateral offset and Polyline.heading's direction, the same floats: the ObP
+    planner and reactive traffic read them where one line at a time was read before."""
+    polylines = [Polyline(np.array(line)) for line in lines]
+    xy = np.array(points)
+    bundle = Polylines(polylines)
+    s, lateral, direction = bundle.project_all(xy)
+    assert s.shape == lateral.shape == (len(lines), len(points)) and direction.shape == (len(lines), len(points), 2)
+    which = np.arange(len(points)) % len(lines)
+    s_one, lateral_one, direction_one = bundle.project(which, xy)
+    for i, line in enumerate(polylines):
+        expected_s, expected_lateral = line.project(xy)
+        assert s[i].tolist() == expected_s.tolist()
+        assert lateral[i].tolist() == expected_lateral.tolist()
+        assert np.arctan2(direction[i, :, 1], direction[i, :, 0]).tolist() == line.heading(expected_s).tolist()
+        mine = which == i
+        assert s_one[mine].tolist() == expected_s[mine].tolist()
+        assert lateral_one[mine].tolist() == expected_lateral[mine].tolist()
+        assert direction_one[mine].tolist() == direction[i, mine].tolist()
+
+
+def test_polylines_with_a_missing_line_project_onto_the_others_and_refuse_all():
+    """A parked agent has no path (None): points go to the other lines, and projecting onto every line is refused."""
+    bundle = Polylines([None, L_SHAPE])
+    assert bundle.segments.tolist() == [0, 2]
+    s, lateral, _ = bundle.project(np.array([1]), np.array([[5.0, 1.0]]))
+    assert (s[0], lateral[0]) == (5.0, 1.0)
+    with pytest.raises(ValueError, match="None"):
+        bundle.project_all(np.zeros((1, 2)))
 
 
 # ---------------------------------------------------------------- wrap_angle

@@ -1,5 +1,6 @@
 """The two-stage optimisation-based planner (docs/obp.md) on obp_overtake."""
 
+import itertools
 import math
 from dataclasses import replace
 
@@ -7,17 +8,19 @@ import casadi as ca
 import numpy as np
 import pytest
 import yaml
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
 from advperc_ros.core.ego_motion import follow_plan
+from advperc_ros.core.geometry import Polyline, Polylines
 from advperc_ros.core.perception_errors import PerceptionErrors
 from advperc_ros.core.planners.base import Planner, PlannerStats, PlanningContext, planner_stats
 from advperc_ros.core.planners.obp import OBPPlanner
+from advperc_ros.core.planners.obp.config import LANE_SNAP_ANGLE, STATIC_SPEED
 from advperc_ros.core.planners.obp.dynamics import NUMERIC, SYMBOLIC, bicycle_rk4
-from advperc_ros.core.planners.obp.prediction import ellipse_axes
+from advperc_ros.core.planners.obp.prediction import ellipse_axes, track_velocities
 from advperc_ros.core.planners.registry import load_planner
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.typical import TypicalErrorConfig, sample_typical_errors
@@ -392,3 +395,51 @@ def test_a_rollout_is_the_same_with_and_without_the_certificate(stack, scenario,
     assert certified.fallback_frames == solved.fallback_frames
     for a, b in zip(certified.plans, solved.plans, strict=True):
         assert all(np.array_equal(getattr(a, f), getattr(b, f)) for f in ("t", "x", "y", "yaw"))
+
+
+def _snapped_one_lane_at_a_time(tracks, lanes, widths):
+    """The velocities track_velocities gives, computed as its definition reads: each lane in turn, a track taking
+    the lane's direction where it is inside the lane, moving within LANE_SNAP_ANGLE of it and nearer its centre
+    line than to any lane taken before (so the first of two as near keeps it)."""
+    vx, vy = np.array(tracks["vx"], float), np.array(tracks["vy"], float)
+    speed = np.hypot(vx, vy)
+    slow = speed < STATIC_SPEED
+    vx[slow], vy[slow] = 0.0, 0.0
+    xy = np.stack([tracks["x"], tracks["y"]], axis=1)
+    nearest, out_x, out_y = np.full(len(vx), np.inf), vx.copy(), vy.copy()
+    for line, width in zip(lanes, widths):
+        s, lateral = line.project(xy)
+        heading = line.heading(s)
+        along = vx * np.cos(heading) + vy * np.sin(heading)
+        take = ~slow & (along > math.cos(LANE_SNAP_ANGLE) * speed) & (np.abs(lateral) < width / 2.0)
+        take &= np.abs(lateral) < nearest
+        out_x, out_y = np.where(take, along * np.cos(heading), out_x), np.where(take, along * np.sin(heading), out_y)
+        nearest = np.where(take, np.abs(lateral), nearest)
+    return out_x, out_y
+
+
+_COORDINATE = st.integers(-6, 6).map(float)
+_CENTRE_LINE = st.lists(st.tuples(_COORDINATE, _COORDINATE), min_size=2, max_size=5).filter(
+    lambda points: any(a != b for a, b in itertools.pairwise(points)))
+
+
+@settings(max_examples=300, deadline=None)
+@given(lanes=st.lists(st.tuples(_CENTRE_LINE, st.sampled_from([2.0, 3.5, 6.0])), min_size=1, max_size=6),
+       tracks=st.lists(st.tuples(_COORDINATE, _COORDINATE, _COORDINATE.map(lambda v: 2.0 * v),
+                                 _COORDINATE.map(lambda v: 2.0 * v)), min_size=1, max_size=8))
+@example(lanes=[([(0.0, 0.0), (4.0, 0.0)], 2.0)], tracks=[(1.0, 1.0, 4.0, 0.0)])  # on the lane's edge: not inside
+@example(lanes=[([(0.0, 0.0), (4.0, 1.0)], 6.0), ([(0.0, 2.0), (4.0, 1.0)], 6.0)],  # as near two lanes, both its way
+         tracks=[(2.0, 1.0, 4.0, 0.0)])
+def test_tracks_snap_to_the_lanes_as_one_lane_at_a_time_would(lanes, tracks):
+    """ObP projects every track onto every lane at once (a recording has a hundred lanes): the velocities are
+    those of the definition's lane-by-lane reading, to the bit, ties between lanes and tracks on vertices
+    included (a grid of coordinates and velocities makes them common: a track moving along a lane, on its edge, or
+    as near two lanes that both point its way)."""
+    lines = [Polyline(np.array(points)) for points, _ in lanes]
+    widths = np.array([width for _, width in lanes])
+    table = np.array(tracks)
+    given_tracks = {"x": table[:, 0], "y": table[:, 1], "vx": table[:, 2], "vy": table[:, 3]}
+    setup = type("LanesOnly", (), {"lanes": Polylines(lines), "lane_half_widths": widths / 2.0})()
+    got = track_velocities(given_tracks, setup)
+    expected = _snapped_one_lane_at_a_time(given_tracks, lines, widths)
+    assert got[0].tolist() == expected[0].tolist() and got[1].tolist() == expected[1].tolist()

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from advperc_ros.core.geometry import Polylines
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.planners.obp.road import DrivableBand
 from advperc_ros.core.planners.parameters import check_ranges
@@ -82,6 +83,8 @@ class Setup:
     circle_offsets: np.ndarray  # three circles on the ego's axis cover its box
     circle_radius: float
     road: DrivableBand
+    lanes: Polylines  # the lanes' centre lines, every track projected onto all of them at once (`track_velocities`)
+    lane_half_widths: np.ndarray  # (L,) m
 
     @classmethod
     def build(cls, config: OBPConfig, context: PlanningContext) -> "Setup":
@@ -92,4 +95,6 @@ class Setup:
         return cls(config=config, context=context, substeps=substeps, h=h, N=N, stage_t=h * np.arange(N + 1),
                    circle_offsets=np.array([-length / 3.0, 0.0, length / 3.0]),
                    circle_radius=math.hypot(length / 6.0, width / 2.0),
-                   road=DrivableBand.around(context.route, context.lanes))
+                   road=DrivableBand.around(context.route, context.lanes),
+                   lanes=Polylines([lane.centerline for lane in context.lanes]),
+                   lane_half_widths=np.array([lane.width / 2.0 for lane in context.lanes]))

@@ -33,7 +33,7 @@ def _collides(setup: Setup, plan: Trajectory, t: float, tracks: dict[str, np.nda
     if len(tracks["x"]) == 0:
         return False
     context = setup.context
-    vx, vy = track_velocities(tracks, context.lanes)
+    vx, vy = track_velocities(tracks, setup)
     tau = (plan.t - t)[:, None]
     shape = (len(plan.t), len(vx))
     margin = 2.0 * setup.config.safety_margin

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.planners.obp.config import ELLIPSE_STRETCH, LANE_SNAP_ANGLE, STATIC_SPEED, Setup
-from advperc_ros.core.scenario import Lane
 
 
 @dataclass(frozen=True)
@@ -41,29 +40,32 @@ def ellipse_axes(half_length, half_width, radius: float) -> tuple[np.ndarray, np
     return a, b
 
 
-def track_velocities(tracks: dict[str, np.ndarray], lanes: tuple[Lane, ...]) -> tuple[np.ndarray, np.ndarray]:
+def track_velocities(tracks: dict[str, np.ndarray], setup: Setup) -> tuple[np.ndarray, np.ndarray]:
     """Track velocities for the constant-velocity prediction, cleaned of the tracker's noise:
     slower than STATIC_SPEED is stationary; a track inside a lane and moving within
-    LANE_SNAP_ANGLE of the lane's direction keeps only its velocity along the lane."""
+    LANE_SNAP_ANGLE of the lane's direction keeps only its velocity along the lane (of several such
+    lanes, the one nearest the track's centre, the first of the lanes when two are as near). Every
+    track is projected onto every lane in one pass (`Setup.lanes`): one lane at a time, a recording's
+    hundred lanes had cost a third of an ObP rollout."""
     vx, vy = np.array(tracks["vx"], float), np.array(tracks["vy"], float)
     speed = np.hypot(vx, vy)
     slow = speed < STATIC_SPEED
     vx[slow], vy[slow] = 0.0, 0.0
-    if slow.all():
+    if slow.all() or len(setup.lanes) == 0:
         return vx, vy
     xy = np.stack([np.asarray(tracks["x"], float), np.asarray(tracks["y"], float)], axis=1)
-    nearest = np.full(len(vx), np.inf)
-    out_x, out_y = vx.copy(), vy.copy()
-    for lane in lanes:
-        ls, lat = lane.centerline.project(xy)
-        heading = lane.centerline.heading(ls)
-        tx, ty = np.cos(heading), np.sin(heading)
-        along = vx * tx + vy * ty
-        take = (~slow & (along > math.cos(LANE_SNAP_ANGLE) * speed) & (np.abs(lat) < lane.width / 2.0)
-                & (np.abs(lat) < nearest))
-        out_x, out_y = np.where(take, along * tx, out_x), np.where(take, along * ty, out_y)
-        nearest = np.where(take, np.abs(lat), nearest)
-    return out_x, out_y
+    _, lateral, direction = setup.lanes.project_all(xy)  # (L, M)
+    heading = np.arctan2(direction[..., 1], direction[..., 0])  # Polyline.heading's
+    tx, ty = np.cos(heading), np.sin(heading)
+    along = vx * tx + vy * ty
+    offset = np.abs(lateral)
+    fits = ~slow & (along > math.cos(LANE_SNAP_ANGLE) * speed) & (offset < setup.lane_half_widths[:, None])
+    offset = np.where(fits, offset, np.inf)
+    lane = np.argmin(offset, axis=0)  # the first of the nearest
+    tracks_ = np.arange(len(vx))
+    take = np.isfinite(offset[lane, tracks_])
+    snapped = along[lane, tracks_]
+    return (np.where(take, snapped * tx[lane, tracks_], vx), np.where(take, snapped * ty[lane, tracks_], vy))
 
 
 def predict(setup: Setup, s0: float, tracks: dict[str, np.ndarray]) -> list[Obstacle]:
@@ -73,7 +75,7 @@ def predict(setup: Setup, s0: float, tracks: dict[str, np.ndarray]) -> list[Obst
     if len(tracks["x"]) == 0:
         return []
     route = context.route
-    vx, vy = track_velocities(tracks, context.lanes)
+    vx, vy = track_velocities(tracks, setup)
     cx = np.asarray(tracks["x"], float)[:, None] + vx[:, None] * t
     cy = np.asarray(tracks["y"], float)[:, None] + vy[:, None] * t
     s, d = route.project(np.stack([cx, cy], axis=-1))

@@ -132,11 +132,13 @@ class Polylines:
         dist[padding] = np.inf
         rows = np.arange(len(which))
         best = np.argmin(dist, axis=-1)
-        return self._answer(rows, segment[rows, best], t[rows, best], rel[rows, best], which)
+        s, lateral = self._station_and_offset(segment[rows, best], t[rows, best], rel[rows, best])
+        return s, lateral, self.directions(which, s)
 
-    def project_all(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """`project` of every point `xy` (M, 2) on every line (none of them None): arrays (L, M), and the
-        directions (L, M, 2). Each point meets every segment once, with no padding."""
+    def project_all(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(arc length, lateral offset) of every point `xy` (M, 2) on every line (none of them None), arrays (L, M):
+        `project`'s, each point meeting every segment once, with no padding (`directions` gives the headings,
+        for the pairs that need them)."""
         if not self.segments.all():
             raise ValueError("project_all needs every line: one of them is None")
         rel = xy[:, None, :] - self._starts  # (M, S, 2)
@@ -148,23 +150,22 @@ class Polylines:
         candidates = np.where(dist == nearest[:, self._line], np.arange(len(self._line)), len(self._line) - 1)
         best = np.minimum.reduceat(candidates, self._first, axis=1).T  # (L, M)
         points = np.broadcast_to(np.arange(len(xy)), best.shape)
-        lines = np.broadcast_to(np.arange(len(self))[:, None], best.shape)
-        return self._answer(points, best, t[points, best], rel[points, best], lines)
+        return self._station_and_offset(best, t[points, best], rel[points, best])
 
-    def _answer(self, rows: np.ndarray, best: np.ndarray, t: np.ndarray, rel: np.ndarray,
-                lines: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(arc length, lateral offset, heading's direction) from each point's nearest segment `best` (global), its
-        clipped position `t` along it and the point relative to the segment's start `rel`."""
-        s = self._stations[best] + t
-        d = self._directions[best]
-        lateral = d[..., 0] * rel[..., 1] - d[..., 1] * rel[..., 0]
-        # Polyline.heading's segment: the last whose start lies at or before s, within the line
+    def directions(self, lines: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """The unit direction (..., 2) of the segment `Polyline.heading` reads at arc length `s` on line `lines`
+        (arrays of one shape): the last segment of the line starting at or before s."""
         first, count = self._first[lines], self.segments[lines]
         offsets = np.arange(max(int(self.segments.max(initial=0)), 1))
         within = first[..., None] + np.minimum(offsets, count[..., None] - 1)
         at_or_before = (self._stations[within] <= s[..., None]) & (offsets < count[..., None])
-        segment = first + np.clip(np.count_nonzero(at_or_before, axis=-1) - 1, 0, count - 1)
-        return s, lateral, self._directions[segment]
+        return self._directions[first + np.clip(np.count_nonzero(at_or_before, axis=-1) - 1, 0, count - 1)]
+
+    def _station_and_offset(self, best: np.ndarray, t: np.ndarray, rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(arc length, lateral offset) from each point's nearest segment `best` (of all lines' segments), its
+        clipped position `t` along it and the point relative to the segment's start `rel`."""
+        d = self._directions[best]
+        return self._stations[best] + t, d[..., 0] * rel[..., 1] - d[..., 1] * rel[..., 0]
 
 
 TURN_WINDOW = 2.0  # m of path over which a turn is measured: about a car's wheelbase

@@ -110,14 +110,16 @@ _LINE = st.lists(st.tuples(_GRID, _GRID), min_size=2, max_size=6).filter(
        points=st.lists(st.tuples(st.integers(-12, 12).map(lambda v: v / 2.0), st.integers(-12, 12).map(lambda v: v / 2.0)),
                        min_size=1, max_size=12))
 def test_polylines_project_each_point_as_its_polyline_does_to_the_bit(lines, points):
-    """Polylines.project_all (every point on every line) and Polylines.project (a point on a line of its own) give
-    Polyline.project's arc length and lateral offset and Polyline.heading's direction, the same floats: the ObP
-    planner and reactive traffic read them where one line at a time was read before."""
+    """Polylines.project_all (every point on every line) with Polylines.directions, and Polylines.project (a point
+    on a line of its own) give Polyline.project's arc length and lateral offset and Polyline.heading's direction,
+    the same floats: the ObP planner and reactive traffic read them where one line at a time was read before."""
     polylines = [Polyline(np.array(line)) for line in lines]
     xy = np.array(points)
     bundle = Polylines(polylines)
-    s, lateral, direction = bundle.project_all(xy)
-    assert s.shape == lateral.shape == (len(lines), len(points)) and direction.shape == (len(lines), len(points), 2)
+    s, lateral = bundle.project_all(xy)
+    assert s.shape == lateral.shape == (len(lines), len(points))
+    direction = bundle.directions(np.broadcast_to(np.arange(len(lines))[:, None], s.shape), s)
+    assert direction.shape == (len(lines), len(points), 2)
     which = np.arange(len(points)) % len(lines)
     s_one, lateral_one, direction_one = bundle.project(which, xy)
     for i, line in enumerate(polylines):

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from advperc_ros.core.geometry import Polyline
 from advperc_ros.core.planners.obp.config import ELLIPSE_STRETCH, LANE_SNAP_ANGLE, STATIC_SPEED, Setup
 
 
@@ -54,18 +55,32 @@ def track_velocities(tracks: dict[str, np.ndarray], setup: Setup) -> tuple[np.nd
     if slow.all() or len(setup.lanes) == 0:
         return vx, vy
     xy = np.stack([np.asarray(tracks["x"], float), np.asarray(tracks["y"], float)], axis=1)
-    _, lateral, direction = setup.lanes.project_all(xy)  # (L, M)
-    heading = np.arctan2(direction[..., 1], direction[..., 0])  # Polyline.heading's
-    tx, ty = np.cos(heading), np.sin(heading)
-    along = vx * tx + vy * ty
+    stations, lateral = setup.lanes.project_all(xy)  # (L, M)
     offset = np.abs(lateral)
-    fits = ~slow & (along > math.cos(LANE_SNAP_ANGLE) * speed) & (offset < setup.lane_half_widths[:, None])
-    offset = np.where(fits, offset, np.inf)
-    lane = np.argmin(offset, axis=0)  # the first of the nearest
-    tracks_ = np.arange(len(vx))
-    take = np.isfinite(offset[lane, tracks_])
-    snapped = along[lane, tracks_]
-    return (np.where(take, snapped * tx[lane, tracks_], vx), np.where(take, snapped * ty[lane, tracks_], vy))
+    lane, track = np.nonzero(~slow & (offset < setup.lane_half_widths[:, None]))  # inside a lane, moving
+    heading = np.arctan2(*setup.lanes.directions(lane, stations[lane, track]).T[::-1])  # Polyline.heading's
+    tx, ty = np.cos(heading), np.sin(heading)
+    along = vx[track] * tx + vy[track] * ty
+    its_way = along > math.cos(LANE_SNAP_ANGLE) * speed[track]
+    nearest = np.full(offset.shape, np.inf)
+    nearest[lane[its_way], track[its_way]] = offset[lane[its_way], track[its_way]]
+    chosen = np.argmin(nearest, axis=0)  # per track, the first of the nearest lanes it fits
+    out_x, out_y = vx.copy(), vy.copy()
+    pick = its_way & (lane == chosen[track])
+    out_x[track[pick]], out_y[track[pick]] = along[pick] * tx[pick], along[pick] * ty[pick]
+    return out_x, out_y
+
+
+def _stations(route: Polyline, cx: np.ndarray, cy: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`route.project` of the predicted centres (M, N+1), a standing track's once: its centre stays put at every
+    stage time, and a point's projection does not depend on the others projected with it."""
+    s, d = np.empty(cx.shape), np.empty(cx.shape)
+    if moving.any():
+        s[moving], d[moving] = route.project(np.stack([cx[moving], cy[moving]], axis=-1))
+    if not moving.all():
+        standing_s, standing_d = route.project(np.stack([cx[~moving, 0], cy[~moving, 0]], axis=-1))
+        s[~moving], d[~moving] = standing_s[:, None], standing_d[:, None]
+    return s, d
 
 
 def predict(setup: Setup, s0: float, tracks: dict[str, np.ndarray]) -> list[Obstacle]:
@@ -78,7 +93,7 @@ def predict(setup: Setup, s0: float, tracks: dict[str, np.ndarray]) -> list[Obst
     vx, vy = track_velocities(tracks, setup)
     cx = np.asarray(tracks["x"], float)[:, None] + vx[:, None] * t
     cy = np.asarray(tracks["y"], float)[:, None] + vy[:, None] * t
-    s, d = route.project(np.stack([cx, cy], axis=-1))
+    s, d = _stations(route, cx, cy, (vx != 0.0) | (vy != 0.0))
     heading0 = route.heading(s[:, 0])
     along = vx * np.cos(heading0) + vy * np.sin(heading0)
     a, b = ellipse_axes(np.asarray(tracks["length"]) / 2.0 + cfg.safety_margin,

@@ -95,11 +95,12 @@ class Stage1:
         for n_pass in range(len(passable) + 1):
             passed = passable[:n_pass]
             d_of = _lateral_path(setup, s0, d0, v0, passed)
+            circles = _circle_centres(setup, grid, d_of) if ahead else []  # only an obstacle ahead reads them
             decisions, feasible = [], True
             for ob in ahead:
                 if any(ob is p for p in passed):
                     continue
-                lo, hi = _blocked_stations(setup, grid, d_of, ob)
+                lo, hi = _blocked_stations(setup, grid, circles, ob)
                 blocked = np.isfinite(lo)
                 if not blocked.any():
                     continue
@@ -186,19 +187,26 @@ def _lateral_path(setup: Setup, s0: float, d0: float, v0: float, passed: list[Ob
     return d_of
 
 
-def _blocked_stations(setup: Setup, grid: np.ndarray, d_of, ob: Obstacle) -> tuple[np.ndarray, np.ndarray]:
-    """Per stage time, the hull [lo, hi] of the ego stations (centre) on the class path at which
-    an ego circle lies inside the obstacle's ellipse; nan where there are none."""
+def _circle_centres(setup: Setup, grid: np.ndarray, d_of) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Where each ego circle's centre lies (x, y per grid station) with the ego's centre at the grid's stations
+    on the class path `d_of`: shared by every obstacle the class decides about."""
     route = setup.context.route
     d, slope = d_of(grid)
     heading = route.heading(grid)
     yaw = heading + np.arctan(slope)
     base = route.position(grid) + d[:, None] * np.stack([-np.sin(heading), np.cos(heading)], axis=1)
+    return [(base[:, 0] + off * np.cos(yaw), base[:, 1] + off * np.sin(yaw)) for off in setup.circle_offsets]
+
+
+def _blocked_stations(setup: Setup, grid: np.ndarray, circles: list[tuple[np.ndarray, np.ndarray]],
+                      ob: Obstacle) -> tuple[np.ndarray, np.ndarray]:
+    """Per stage time, the hull [lo, hi] of the ego stations (centre) on the class path at which
+    an ego circle (`_circle_centres`) lies inside the obstacle's ellipse; nan where there are none."""
     cyaw, syaw = math.cos(ob.yaw), math.sin(ob.yaw)
     inside = np.zeros((len(setup.stage_t), len(grid)), bool)
-    for off in setup.circle_offsets:
-        qx = (base[:, 0] + off * np.cos(yaw))[None, :] - ob.cx[:, None]
-        qy = (base[:, 1] + off * np.sin(yaw))[None, :] - ob.cy[:, None]
+    for x, y in circles:
+        qx = x[None, :] - ob.cx[:, None]
+        qy = y[None, :] - ob.cy[:, None]
         lx, ly = cyaw * qx + syaw * qy, -syaw * qx + cyaw * qy
         inside |= (lx / ob.a) ** 2 + (ly / ob.b) ** 2 < 1.0
     hit = inside.any(axis=1)

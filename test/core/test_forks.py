@@ -18,7 +18,10 @@ from advperc_ros.core.perception_errors.registry import kind_named
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.planners.obp import OBPPlanner
+from advperc_ros.core.planners.obp.planner import SolveMemo, solve_key
+from advperc_ros.core.planners.obp.prediction import Obstacle
 from advperc_ros.core.rollout import RolloutConfig, identical, rollout
+from advperc_ros.core.scenario import EgoState
 from advperc_ros.core.scenario_spec import build_scenario
 from advperc_ros.core.tracker import NoTracker, Tracker
 from advperc_ros.core.traffic import IDMParameters
@@ -97,6 +100,65 @@ def assert_forks_equal_full(name: str, config: RolloutConfig, tracker_factory=Tr
 @pytest.mark.parametrize("name", ["idm", "obp"])
 def test_forked_rollouts_equal_full_ones_for_every_planner_and_kind(name):
     assert_forks_equal_full(name, RolloutConfig(), rollouts=2 if name == "idm" else 1)
+
+
+def test_obp_answers_a_call_it_solved_before_as_solving_it_again():
+    """ObP's solve memo: with every error kind, rollouts of a planner that keeps its solves equal those of one that
+    keeps none, to the bit (planner failures and the fallbacks that answered them included), though most of the
+    calls were answered from the memo: a child tensor shares its parent's beginning, and hiding a car the
+    planner has pruned changes its tracks but not its obstacles."""
+    rng = np.random.default_rng(3)
+    remembering, forgetting = planner("obp"), planner("obp")
+    forgetting.memo = SolveMemo(0)
+    tensors = [PerceptionErrors.none(T, N, ERROR_KINDS, GHOSTS)]
+    passed = tensors[0].copy()
+    passed.fn[T // 2 :, 2] = True  # the oncoming car, hidden once it has passed the ego
+    tensors.append(passed)
+    for kind in ERROR_KINDS:
+        e = kind_errors(kind, int(rng.integers(5, T // 2)), rng)
+        tensors += [e, kind_errors(kind, int(rng.integers(T // 2, T - 3)), rng, e)]
+    for errors in tensors:
+        kept = rollout(SCENARIO, errors, Tracker(), remembering, RolloutConfig())
+        solved = rollout(SCENARIO, errors, Tracker(), forgetting, RolloutConfig())
+        assert identical(kept, solved)
+        assert remembering.fallbacks == forgetting.fallbacks
+    assert forgetting.memo.hits == 0
+    assert remembering.memo.hits > remembering.memo.misses  # the comparison is of remembered answers
+
+
+def _obstacle(**changes) -> Obstacle:
+    fields = dict(id=7, cx=np.arange(4.0), cy=np.zeros(4), yaw=0.1, a=5.0, b=2.5, s=np.arange(4.0), d=np.zeros(4),
+                  speed_along=3.0)
+    return Obstacle(**{**fields, **changes})
+
+
+@pytest.mark.parametrize("change", ["t", "ego", "controls", "no controls", "id", "cx", "cy", "yaw", "a", "b", "s", "d",
+                                    "speed_along", "order", "one more"])
+def test_a_solve_is_remembered_by_everything_both_stages_read(change):
+    """A call differing from a remembered one in anything stage 1 or stage 2 reads has another key: the plan
+    time, the ego's state, the previous controls, each field of each obstacle, and the obstacles' order."""
+    ego, controls = EgoState(1.0, 2.0, 0.3, 4.0), np.array([[0.5, 0.2], [0.01, 0.0]])
+    obstacles = [_obstacle(), _obstacle(id=8, cx=np.arange(4.0) + 10.0)]
+    base = solve_key(0.5, ego, obstacles, controls)
+    assert solve_key(0.5, EgoState(1.0, 2.0, 0.3, 4.0), [_obstacle(), _obstacle(id=8, cx=np.arange(4.0) + 10.0)],
+                     controls.copy()) == base
+    t, changed_controls, changed = 0.5, controls, list(obstacles)
+    if change == "t":
+        t = 0.6
+    elif change == "ego":
+        ego = EgoState(1.0, 2.0, 0.3, np.nextafter(4.0, 5.0))
+    elif change == "controls":
+        changed_controls = controls + np.array([[0.0, 1e-12], [0.0, 0.0]])
+    elif change == "no controls":
+        changed_controls = None
+    elif change == "order":
+        changed = obstacles[::-1]
+    elif change == "one more":
+        changed = [*obstacles, _obstacle(id=9)]
+    else:
+        value = getattr(obstacles[0], change)
+        changed[0] = _obstacle(**{change: value + 1 if np.isscalar(value) else value + np.array([0, 0, 0, 1e-9])})
+    assert solve_key(t, ego, changed, changed_controls) != base
 
 
 @pytest.mark.parametrize("variant", ["reactive", "no_velocity", "no_tracker", "at_fault_no_stop"])

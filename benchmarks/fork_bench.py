@@ -2,21 +2,24 @@
 side in one run (docs/results.md, "Forked rollouts").
 
 Per scenario (a bundled config, or a CommonRoad recording imported into a temporary folder, with each
-`--planners` params file import-commonroad wrote), `advperc attack` twice, with `--fork-memory 0` (every
-rollout from frame 0) and with the params' own fork_memory, the order alternating from one scenario to the
-next as the machine's speed drifts. Prints per attack the wall times, their ratio, the frames the forked
-search drove over the frames of its rollouts, the snapshots' peak memory and each attack's largest resident
-set, and whether the two wrote the same search_log.csv, attack_errors.npz and report.json (wall time aside);
-the last line is the median ratio and whether every pair was identical. `--before TREE` also runs each attack
-with the code of TREE, a checkout of an earlier commit (`git worktree add TREE REV`), as it was: the wall time
-before and after, and whether it wrote the same results. `--virtual-machine` also runs each forked attack with
-ObP's NLP on CasADi's virtual machine (`ADVPERC_COMPILE_NLP=0`) instead of its compiled library
-(docs/obp.md, "Compiled NLP"): the wall time of each, and whether they wrote the same results.
+`--planners` params file import-commonroad wrote), `advperc attack` twice: in full, with `--fork-memory 0` and
+ObP's solve memo off (`ADVPERC_OBP_MEMO=0`: every rollout from frame 0, every planning call solved), and as a
+user runs it (the params' own fork_memory, the memo on), the order alternating from one scenario to the next
+as the machine's speed drifts. `--memo-alone` also runs it with the memo and no forks. Prints per attack the
+wall times, their ratio, the frames the forked search drove over the frames of its rollouts, the snapshots'
+peak memory and each attack's largest resident set, and whether the two wrote the same search_log.csv,
+attack_errors.npz and report.json (wall time aside); the last line is the median ratio and whether every pair
+was identical. `--before TREE` also runs each attack with the code of TREE, a checkout of an earlier commit
+(`git worktree add TREE REV`), as it was: the wall time before and after, and whether it wrote the same
+results. `--virtual-machine` also runs each forked attack with ObP's NLP on CasADi's virtual machine
+(`ADVPERC_COMPILE_NLP=0`) instead of its compiled library (docs/obp.md, "Compiled NLP"): the wall time of
+each, and whether they wrote the same results.
 
     python benchmarks/fork_bench.py --scenarios obp_overtake
     python benchmarks/fork_bench.py --scenarios --recordings USA_US101-22_1_T-1 --planners idm obp
     python benchmarks/fork_bench.py --scenarios obp_overtake --before ../before
     python benchmarks/fork_bench.py --scenarios obp_overtake obp_left_turn obp_right_turn --virtual-machine
+    python benchmarks/fork_bench.py --scenarios obp_overtake --memo-alone
 """
 
 import argparse
@@ -34,6 +37,7 @@ from pathlib import Path
 from recordings_bench import params_file
 
 from advperc_ros.core.planners.obp.compiled import SWITCH_ENV
+from advperc_ros.core.planners.obp.planner import MEMO_ENV
 
 REPO = Path(__file__).resolve().parent.parent
 DATA = REPO.parent / "shared" / "data" / "commonroad"
@@ -86,14 +90,17 @@ def same_results(a: Path, b: Path) -> bool:
 
 
 def measure(name: str, params: Path, scratch: Path, forked_first: bool, before: Path | None,
-            virtual_machine: bool = False) -> tuple[float, bool]:
-    """Both attacks of one params file (and the one of `before`, and the forked one on the virtual machine),
-    printed as a table row; (forked/full wall ratio, identical)."""
+            virtual_machine: bool = False, memo_alone: bool = False) -> tuple[float, bool]:
+    """Both attacks of one params file (and the one of `before`, the forked one on the virtual machine, and the
+    one with the solve memo and no forks), printed as a table row; (forked/full wall ratio, identical)."""
     runs: dict[str, Run] = {}
     order = ["forked", "full"] if forked_first else ["full", "forked"]
-    for which in order + (["before"] if before is not None else []) + (["vm"] if virtual_machine else []):
-        runs[which] = attack(params, scratch / f"{name}-{which}", 0 if which == "full" else None,
-                             before if which == "before" else None, {SWITCH_ENV: "0"} if which == "vm" else None)
+    extra = (["before"] if before is not None else []) + (["vm"] if virtual_machine else []) + (
+        ["memo"] if memo_alone else [])
+    environment = {"full": {MEMO_ENV: "0"}, "vm": {SWITCH_ENV: "0"}}
+    for which in order + extra:
+        runs[which] = attack(params, scratch / f"{name}-{which}", 0 if which in ("full", "memo") else None,
+                             before if which == "before" else None, environment.get(which))
     forked, full = runs["forked"], runs["full"]
     identical = forked.code == full.code and same_results(scratch / f"{name}-forked", scratch / f"{name}-full")
     said = SUMMARY.search(forked.stderr)
@@ -107,6 +114,9 @@ def measure(name: str, params: Path, scratch: Path, forked_first: bool, before: 
     if "vm" in runs:
         same = runs["vm"].code == forked.code and same_results(scratch / f"{name}-vm", scratch / f"{name}-forked")
         then += f" {runs['vm'].wall:.1f} | {forked.wall / runs['vm'].wall:.2f} | {'yes' if same else 'no'} |"
+    if "memo" in runs:
+        same = runs["memo"].code == full.code and same_results(scratch / f"{name}-memo", scratch / f"{name}-full")
+        then += f" {runs['memo'].wall:.1f} | {runs['memo'].wall / full.wall:.2f} | {'yes' if same else 'no'} |"
     print(f"| {name} | {full.code} | {full.wall:.1f} | {forked.wall:.1f} | {ratio:.2f} | {rollouts} | {frames} | {peak} | "
           f"{full.rss_mib:.0f} / {forked.rss_mib:.0f} | {'yes' if identical else 'no'} |{then}", flush=True)
     return ratio, identical
@@ -121,13 +131,16 @@ def main() -> None:
     parser.add_argument("--before", type=Path, help="a checkout of an earlier commit: each attack with its code too")
     parser.add_argument("--virtual-machine", action="store_true",
                         help="each forked attack also with ObP's NLP on CasADi's virtual machine, not compiled")
+    parser.add_argument("--memo-alone", action="store_true",
+                        help="each attack also with ObP's solve memo and no forks (what the memo saves alone)")
     args = parser.parse_args()
     then = " before (s) | forked / before | same as before |" if args.before else ""
     then += " forked, VM (s) | compiled / VM | same on the VM |" if args.virtual_machine else ""
+    then += " memo, no forks (s) | memo / full | same with the memo |" if args.memo_alone else ""
     print("| attack | exit | full (s) | forked (s) | forked / full | rollouts forked | frames driven / full | "
           f"snapshots peak (MiB) | max RSS full / forked (MiB) | identical |{then}")
     print("|---|---|---|---|---|---|---|---|---|---|" + ("---|---|---|" if args.before else "")
-          + ("---|---|---|" if args.virtual_machine else ""))
+          + ("---|---|---|" if args.virtual_machine else "") + ("---|---|---|" if args.memo_alone else ""))
     ratios, identical = [], []
     with tempfile.TemporaryDirectory(prefix="fork-bench-") as folder:
         scratch = Path(folder)
@@ -141,7 +154,8 @@ def main() -> None:
                 continue
             jobs += [(f"{name} {planner}", params_file(bag, planner)) for planner in args.planners]
         for i, (name, params) in enumerate(jobs):
-            ratio, same = measure(name.replace(" ", "-"), params, scratch, i % 2 == 0, args.before, args.virtual_machine)
+            ratio, same = measure(name.replace(" ", "-"), params, scratch, i % 2 == 0, args.before, args.virtual_machine,
+                                  args.memo_alone)
             ratios.append(ratio)
             identical.append(same)
     print(f"forked/full wall ratio {statistics.median(ratios):.2f}, identical: {'yes' if all(identical) else 'no'}")

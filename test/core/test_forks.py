@@ -18,7 +18,7 @@ from advperc_ros.core.perception_errors.registry import kind_named
 from advperc_ros.core.planners.base import PlanningContext
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.planners.obp import OBPPlanner
-from advperc_ros.core.planners.obp.planner import SolveMemo, solve_key
+from advperc_ros.core.planners.obp.planner import MEMO_ENV, MEMO_SOLVES, SolveMemo, solve_key
 from advperc_ros.core.planners.obp.prediction import Obstacle
 from advperc_ros.core.rollout import RolloutConfig, identical, rollout
 from advperc_ros.core.scenario import EgoState
@@ -124,6 +124,16 @@ def test_obp_answers_a_call_it_solved_before_as_solving_it_again():
         assert remembering.fallbacks == forgetting.fallbacks
     assert forgetting.memo.hits == 0
     assert remembering.memo.hits > remembering.memo.misses  # the comparison is of remembered answers
+
+
+def test_the_solve_memo_is_on_unless_the_environment_turns_it_off(monkeypatch):
+    """ADVPERC_OBP_MEMO=0 keeps no solves (fork_bench's baseline: every planning call solved)."""
+    assert planner("obp").memo.entries == MEMO_SOLVES
+    monkeypatch.setenv(MEMO_ENV, "0")
+    off = planner("obp")
+    off.plan(0.0, EgoState(0.0, -1.75, 0.0, 5.0), {key: np.zeros(0) for key in
+                                                  ("ids", "x", "y", "yaw", "vx", "vy", "length", "width", "height")})
+    assert off.memo.entries == 0 and off.memo.misses == 1 and not off.memo.get(b"anything")
 
 
 def _obstacle(**changes) -> Obstacle:

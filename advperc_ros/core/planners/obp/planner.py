@@ -6,6 +6,7 @@ and answers a planning call it has solved before without solving again."""
 
 import hashlib
 import math
+import os
 import time
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -22,6 +23,7 @@ from advperc_ros.core.planners.parameters import config_from_params
 from advperc_ros.core.scenario import EgoState
 
 MEMO_SOLVES = 4096  # solves a planner keeps: some 30 rollouts' worth of planning calls, about 16 MB
+MEMO_ENV = "ADVPERC_OBP_MEMO"  # "0": keep no solves (every planning call solved, as benchmarks/fork_bench.py's baseline)
 
 
 @dataclass(frozen=True)
@@ -90,7 +92,7 @@ class OBPPlanner:
         self.setup = Setup.build(self.config, context)
         self.stage1 = Stage1(self.setup)
         self.stage2 = Stage2(self.setup)
-        self.memo = SolveMemo()
+        self.memo = SolveMemo(0 if os.environ.get(MEMO_ENV) == "0" else MEMO_SOLVES)
         self.reset()
 
     def reset(self) -> None:

@@ -127,13 +127,17 @@ def test_obp_answers_a_call_it_solved_before_as_solving_it_again():
 
 
 def test_the_solve_memo_is_on_unless_the_environment_turns_it_off(monkeypatch):
-    """ADVPERC_OBP_MEMO=0 keeps no solves (fork_bench's baseline: every planning call solved)."""
+    """ADVPERC_OBP_MEMO=0 keeps no solves (fork_bench's baseline: every planning call solved); a value that is
+    neither 0 nor 1 is refused, naming the variable, rather than taken for one of them."""
     assert planner("obp").memo.entries == MEMO_SOLVES
     monkeypatch.setenv(MEMO_ENV, "0")
     off = planner("obp")
     off.plan(0.0, EgoState(0.0, -1.75, 0.0, 5.0), {key: np.zeros(0) for key in
                                                   ("ids", "x", "y", "yaw", "vx", "vy", "length", "width", "height")})
     assert off.memo.entries == 0 and off.memo.misses == 1 and not off.memo.get(b"anything")
+    monkeypatch.setenv(MEMO_ENV, "off")
+    with pytest.raises(ValueError, match=r"ADVPERC_OBP_MEMO='off': 0 .* or 1"):
+        planner("obp")
 
 
 def _obstacle(**changes) -> Obstacle:

@@ -82,6 +82,15 @@ class SolveMemo:
             self._solved.popitem(last=False)
 
 
+def memo_entries() -> int:
+    """The solves a planner keeps, as `MEMO_ENV` asks: unset or "1" MEMO_SOLVES, "0" none. Any other value is
+    refused, not taken for either: a benchmark that meant to turn the memo off must not measure it on."""
+    value = os.environ.get(MEMO_ENV, "1")
+    if value not in ("0", "1"):
+        raise ValueError(f"{MEMO_ENV}={value!r}: 0 (keep no solves) or 1 (keep the latest {MEMO_SOLVES})")
+    return MEMO_SOLVES if value == "1" else 0
+
+
 class OBPPlanner:
     """The paper's optimisation-based planner: stage 1 picks a homotopy class and speed profile (LP),
     stage 2 refines it as an NLP, with a fallback when the solve fails; the planner the paper attacks."""
@@ -92,7 +101,7 @@ class OBPPlanner:
         self.setup = Setup.build(self.config, context)
         self.stage1 = Stage1(self.setup)
         self.stage2 = Stage2(self.setup)
-        self.memo = SolveMemo(0 if os.environ.get(MEMO_ENV) == "0" else MEMO_SOLVES)
+        self.memo = SolveMemo(memo_entries())
         self.reset()
 
     def reset(self) -> None:

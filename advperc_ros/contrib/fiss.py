@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.planners.base import PlannerStats, PlanningContext, Trajectory
+from advperc_ros.core.planners.base import PlannerStats, PlanningContext, SolveTimes, Trajectory
 from advperc_ros.core.planners.parameters import check_ranges, config_from_params
 from advperc_ros.core.scenario import EgoState
 
@@ -119,10 +119,10 @@ class FissPlanner:
         # the package keeps its previous plan (stitching, its fallback): none may pass from one rollout to the next
         self._planner.reset()
         self._failures = 0
-        self._solve_times: list[float] = []
+        self._solve_times = SolveTimes()
 
     def stats(self) -> PlannerStats:
-        return PlannerStats(failures=self._failures, solve_times=tuple(self._solve_times))
+        return PlannerStats(failures=self._failures, solve_times=self._solve_times.as_tuple())
 
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
         started = time.perf_counter()
@@ -134,7 +134,7 @@ class FissPlanner:
         ]
         out = self._planner.step(t, fiss_planner.EgoState(ego.x, ego.y, ego.yaw, max(ego.v, 0.0)), obstacles,
                                  self.config.target_speed)
-        self._solve_times.append(time.perf_counter() - started)
+        self._solve_times.add(time.perf_counter() - started)
         if not out.success or out.fallback or out.degraded or out.emergency:
             self._failures += 1
         plan = out.trajectory

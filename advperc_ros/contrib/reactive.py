@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from advperc_ros.core.geometry import Polyline, wrap_angle
-from advperc_ros.core.planners.base import PlannerStats, PlanningContext, Trajectory
+from advperc_ros.core.planners.base import PlannerStats, PlanningContext, SolveTimes, Trajectory
 from advperc_ros.core.planners.parameters import check_ranges, config_from_params
 from advperc_ros.core.scenario import EgoState
 
@@ -102,21 +102,21 @@ class ReactivePlanner:
         self._last: Trajectory | None = None
         self._last_states: list | None = None
         self._failures = 0
-        self._solve_times: list[float] = []
+        self._solve_times = SolveTimes()
 
     def stats(self) -> PlannerStats:
-        return PlannerStats(failures=self._failures, solve_times=tuple(self._solve_times))
+        return PlannerStats(failures=self._failures, solve_times=self._solve_times.as_tuple())
 
     def snapshot(self) -> tuple:
         """The last plan and its states, the statistics, and what the package's sampler carries from one call to
         the next: its low-speed mode and desired speed (every other attribute it sets anew in each call)."""
         sampler = self._sampler
-        return (self._last, self._last_states, self._failures, tuple(self._solve_times), sampler._low_vel_mode,
+        return (self._last, self._last_states, self._failures, self._solve_times.mark(), sampler._low_vel_mode,
                 sampler._desired_speed)
 
     def restore(self, state: tuple) -> None:
         self._last, self._last_states, self._failures, solve_times, low_speed, desired_speed = state
-        self._solve_times = list(solve_times)
+        self._solve_times = SolveTimes.at(solve_times)
         self._sampler._low_vel_mode, self._sampler._desired_speed = low_speed, desired_speed
 
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
@@ -139,7 +139,7 @@ class ReactivePlanner:
         # interface does not carry: a standing ego is given as creeping at STANDING
         self._sampler.set_desired_velocity(self.config.target_speed, current_speed=max(state.velocity, STANDING))
         result = self._sampler.plan()
-        self._solve_times.append(time.perf_counter() - started)
+        self._solve_times.add(time.perf_counter() - started)
         if result is None:
             self._failures += 1
             self._last, self._last_states = self._braking(t, ego), None

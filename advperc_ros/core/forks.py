@@ -216,12 +216,16 @@ class Forks:
         return key not in self._states
 
     def keep(self, snapshots: list[tuple[bytes, FrameState]], trunk: Trunk) -> None:
-        """A finished rollout's snapshots, each keyed by the detections before it, the deepest first into the
-        cache (so the first out); then the least recently used go until the cache fits in its memory."""
+        """A finished rollout's snapshots (`snapshots`: in frame order), each keyed by the detections before it,
+        the deepest first into the cache (so the first out); then the least recently used go until the cache fits
+        in its memory. What several snapshots share (a plan held over frames, the solve times) counts once, with
+        the shallowest of them: the last of them to leave the cache, as a path's shallower snapshots are always
+        the more recently used."""
         if not snapshots:
             return
-        sizes = [footprint(state) for _, state in snapshots]
-        held = self._trunks[id(trunk)] = _Held(trunk, len(snapshots), footprint(trunk))
+        seen: set[int] = set()
+        held = self._trunks[id(trunk)] = _Held(trunk, len(snapshots), footprint(trunk, seen))
+        sizes = [footprint(state, seen) for _, state in snapshots]
         self.used += held.size + sum(sizes)
         for (key, state), size in zip(reversed(snapshots), reversed(sizes)):
             self._states[key] = Fork(state, trunk)

@@ -12,10 +12,10 @@ from toy_scenarios import FOLLOW_SPEC
 
 from advperc_ros.backends.embedded import Stack
 from advperc_ros.configs import core_configs
-from advperc_ros.core.forks import DEEP_COPY, NATIVE, WHOLE, Forks, PlannerSnapshots, footprint
+from advperc_ros.core.forks import DEEP_COPY, NATIVE, WHOLE, Forks, FrameState, PlannerSnapshots, Trunk, footprint
 from advperc_ros.core.perception_errors import ERROR_KINDS, PerceptionErrors
 from advperc_ros.core.perception_errors.registry import kind_named
-from advperc_ros.core.planners.base import PlanningContext
+from advperc_ros.core.planners.base import PlanningContext, SolveTimes, planner_stats
 from advperc_ros.core.planners.idm import IDMPlanner
 from advperc_ros.core.planners.obp import OBPPlanner
 from advperc_ros.core.planners.obp.planner import MEMO_ENV, MEMO_SOLVES, SolveMemo, solve_key
@@ -91,6 +91,8 @@ def assert_forks_equal_full(name: str, config: RolloutConfig, tracker_factory=Tr
         forked = rollout(SCENARIO, errors, forked_tracker, forked_planner, config, forks=forks)
         full = rollout(SCENARIO, errors, full_tracker, full_planner, config)
         assert identical(forked, full), (name, forks.last_fork)
+        if (stats := planner_stats(forked_planner)) is not None:  # the frames it skipped hold their solve times
+            assert len(stats.solve_times) == len(planner_stats(full_planner).solve_times)  # type: ignore[union-attr]
         started_late += forks.last_fork is not None
     assert started_late >= len(tensors) // 2  # most of them forked: the comparison is of forks
     assert forks.frames_skipped > 0
@@ -224,6 +226,52 @@ def test_the_cache_keeps_to_its_memory_and_gives_up_leaves_first():
 def test_footprint_counts_arrays_once():
     a = np.zeros(1000)
     assert footprint((a, a, a[10:])) < 2 * a.nbytes
+
+
+def test_what_a_rollouts_snapshots_share_counts_once_with_the_shallowest():
+    """A plan held over frames is in every snapshot of them: the cache counts it once, with the shallowest (the
+    last of them to go), so giving up the deeper ones frees only what is theirs, and giving up all frees all."""
+    held = np.zeros(100_000)  # 800 kB, in every snapshot
+    own = [np.zeros(1000) for _ in range(10)]  # 8 kB, each snapshot's own
+    snapshots = [(bytes([k]), FrameState(k, EgoState(0.0, 0.0, 0.0, 0.0), own[k], (held, k), None, 0, 0))
+                 for k in range(10)]
+    def trunk() -> Trunk:  # each rollout leaves its own
+        return Trunk(np.zeros((10, 4)), np.zeros((10, 1)), np.zeros(10, dtype=bool), (), None)
+
+    forks = Forks(1 << 30, PlannerSnapshots.of(planner("idm")))
+    forks.keep(snapshots, trunk())
+    assert held.nbytes + 10 * own[0].nbytes < forks.used < 1.2 * held.nbytes + 10 * own[0].nbytes + footprint(trunk())
+    assert forks._sizes[bytes([0])] > held.nbytes > forks._sizes[bytes([9])]
+    forks.memory = forks._sizes[bytes([0])] + 2 * footprint(trunk()) + 4096  # the shallowest and a small one
+    forks.keep([(b"other", FrameState(0, EgoState(0.0, 0.0, 0.0, 0.0), None, None, None, 0, 0))], trunk())
+    assert bytes([0]) in forks._states and bytes([9]) not in forks._states
+    forks.memory = 0
+    forks.keep([(b"last", FrameState(0, EgoState(0.0, 0.0, 0.0, 0.0), None, None, None, 0, 0))], trunk())
+    assert forks.used == 0 and not forks._states
+
+
+def test_a_mark_of_the_solve_times_stays_as_it_was():
+    """Planners snapshot their solve times as a mark (the shared list and its length) in constant time: times
+    added after the mark, or to a log made from it, leave it as it was."""
+    times = SolveTimes()
+    times.add(1.0)
+    times.add(2.0)
+    mark = times.mark()
+    times.add(3.0)
+    again = SolveTimes.at(mark)
+    again.add(9.0)
+    assert SolveTimes.at(mark).as_tuple() == (1.0, 2.0)
+    assert times.as_tuple() == (1.0, 2.0, 3.0) and again.as_tuple() == (1.0, 2.0, 9.0) and len(again) == 3
+
+
+def test_an_obp_snapshot_does_not_grow_with_its_frame():
+    """Snapshots are taken every frame a rollout drives: one that copied every solve time so far would make a
+    rollout's snapshots quadratic in its frames (and sizing them walk every time)."""
+    obp = planner("obp")
+    forks = Forks(1 << 30, PlannerSnapshots.of(obp))
+    rollout(SCENARIO, PerceptionErrors.none(T, N), Tracker(), obp, forks=forks)
+    sizes = [forks._sizes[key] for key, _ in sorted(forks._states.items(), key=lambda item: item[1].state.frame)]
+    assert len(sizes) == T and max(sizes[1:]) - min(sizes[1:]) < 4 * T  # the times copied each frame: 8 bytes a frame
 
 
 class Delegating:

@@ -64,6 +64,37 @@ class PlannerStats:
     solve_times: tuple[float, ...]  # s, wall time of every planning call that planned (not held a plan)
 
 
+class SolveTimes:
+    """The wall time of each planning call of a rollout, for `PlannerStats.solve_times`. A snapshot of a planner
+    is taken every frame a forked rollout drives (core.forks), so copying every time so far into each would make
+    a rollout's snapshots quadratic in its frames; the times are only ever appended, so a `mark` (the list and
+    its length) is the times as they were, in constant time and memory, and `at` makes a new log from one."""
+
+    __slots__ = ("_times",)
+
+    def __init__(self, times: list[float] | None = None) -> None:
+        self._times = [] if times is None else times
+
+    def add(self, seconds: float) -> None:
+        self._times.append(seconds)
+
+    def mark(self) -> tuple[list[float], int]:
+        """The times so far, as a later `at` reads them: the list is shared, and appended to only."""
+        return self._times, len(self._times)
+
+    @classmethod
+    def at(cls, mark: tuple[list[float], int]) -> "SolveTimes":
+        """A log holding the times of `mark`, appended to on its own (`mark` stays as it was)."""
+        times, count = mark
+        return cls(times[:count])
+
+    def __len__(self) -> int:
+        return len(self._times)
+
+    def as_tuple(self) -> tuple[float, ...]:
+        return tuple(self._times)
+
+
 @runtime_checkable
 class ReportsStats(Protocol):
     """The optional part of the protocol."""
@@ -80,7 +111,8 @@ class Snapshots(Protocol):
     a full one, or rolled out whole (`forks.PlannerSnapshots.of`)."""
 
     def snapshot(self) -> object:
-        """All the state a later `plan` reads, as it is now, sharing nothing that `plan` mutates in place."""
+        """All the state a later `plan` reads, as it is now, sharing nothing that `plan` mutates in place (but
+        what is only appended to, kept with its length: `SolveTimes.mark`)."""
 
     def restore(self, state: object) -> None:
         """Become the planner that took `state`; `state` stays intact, as it may be restored again."""

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from advperc_ros.core.planners.base import PlannerStats, PlanningContext, Trajectory
+from advperc_ros.core.planners.base import PlannerStats, PlanningContext, SolveTimes, Trajectory
 from advperc_ros.core.planners.obp.config import OBPConfig, Setup
 from advperc_ros.core.planners.obp.fallback import FALLBACKS, fallback
 from advperc_ros.core.planners.obp.prediction import Obstacle, predict
@@ -109,21 +109,21 @@ class OBPPlanner:
         self._last_controls: tuple[float, np.ndarray] | None = None  # (plan time, U (2, N)) of the last solve
         self.failures = 0  # failed NLP solves since the last reset (one rollout)
         self.fallbacks = dict.fromkeys(FALLBACKS, 0)  # which fallback answered them
-        self._solve_times: list[float] = []  # s per planning call, for benchmarks (stats())
+        self._solve_times = SolveTimes()  # of every planning call, for benchmarks (stats())
         self.last_class = ""  # the manoeuvre class stage 1 chose last
 
     def stats(self) -> PlannerStats:
-        return PlannerStats(failures=self.failures, solve_times=tuple(self._solve_times))
+        return PlannerStats(failures=self.failures, solve_times=self._solve_times.as_tuple())
 
     def snapshot(self) -> tuple:
         """What `plan` reads and `stats` reports; the plan and the controls are never changed in place, and
         the solvers keep nothing from one solve to the next."""
-        return (self._last, self._last_controls, self.failures, dict(self.fallbacks), tuple(self._solve_times),
+        return (self._last, self._last_controls, self.failures, dict(self.fallbacks), self._solve_times.mark(),
                 self.last_class)
 
     def restore(self, state: tuple) -> None:
         self._last, self._last_controls, self.failures, fallbacks, solve_times, self.last_class = state
-        self.fallbacks, self._solve_times = dict(fallbacks), list(solve_times)
+        self.fallbacks, self._solve_times = dict(fallbacks), SolveTimes.at(solve_times)
 
     def plan(self, t: float, ego: EgoState, tracks: dict[str, np.ndarray]) -> Trajectory:
         cfg, setup = self.config, self.setup
@@ -151,7 +151,7 @@ class OBPPlanner:
             self.fallbacks[kind] += 1
             self._last_controls = None
         self._last = plan
-        self._solve_times.append(time.perf_counter() - started)
+        self._solve_times.add(time.perf_counter() - started)
         return plan
 
     def _solve(self, t: float, ego: EgoState, s0: float, d0: float, v0: float, obstacles: list[Obstacle],

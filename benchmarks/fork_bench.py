@@ -158,6 +158,8 @@ def main() -> None:
                                   args.memo_alone)
             ratios.append(ratio)
             identical.append(same)
+    if not ratios:
+        sys.exit("fork_bench: no attack ran (the rows above say why)")
     print(f"forked/full wall ratio {statistics.median(ratios):.2f}, identical: {'yes' if all(identical) else 'no'}")
 
 
